@@ -1,0 +1,1 @@
+"""Sampling routines: RNG streams, light sampling strategies (sample/pdf pairs)."""

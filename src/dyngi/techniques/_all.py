@@ -1,0 +1,2 @@
+"""Imports every technique module so that each registers itself."""
+from . import path  # noqa: F401
