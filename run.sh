@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# dyngi launcher: sets up .venv (packages + the libLLVM runtime Dr.Jit needs) on first use, then
+#   bash run.sh demo [--out DIR] [...]   the main job (frames, video, metrics table, report)
+#   bash run.sh test [pytest args]       the test suite
+#   bash run.sh dyngi ARGS...            any dyngi command
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")"
+PY="${PYTHON:-}"
+if [ -z "$PY" ]; then
+  for c in python3.11 python3 python; do
+    if command -v "$c" >/dev/null 2>&1; then PY="$c"; break; fi
+  done
+fi
+[ -n "$PY" ] || { echo "run.sh: error: no python3 found (Python >= 3.11 needed)" >&2; exit 2; }
+"$PY" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' \
+  || { echo "run.sh: error: $PY is older than Python 3.11" >&2; exit 2; }
+
+stamp=".venv/.dyngi-installed"
+want="$(cat pyproject.toml | "$PY" -c 'import hashlib,sys; print(hashlib.sha256(sys.stdin.buffer.read()).hexdigest())')"
+if [ ! -x .venv/bin/python ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+  echo "run.sh: setting up .venv (first run: about a minute) ..." >&2
+  if ! "$PY" -m venv .venv 2>/dev/null; then
+    "$PY" -m pip install -q --user virtualenv && "$PY" -m virtualenv -q .venv
+  fi
+  .venv/bin/python -m pip install -q --upgrade pip >/dev/null 2>&1 || true
+  .venv/bin/python -m pip install -q -e ".[test]" 2>&1 | grep -v -i "warning" >&2 || true
+  .venv/bin/python -c "import dyngi.backend" || { echo "run.sh: error: installation failed" >&2; exit 2; }
+  echo "$want" > "$stamp"
+fi
+
+cmd="${1:-demo}"
+shift || true
+case "$cmd" in
+  demo)  exec .venv/bin/dyngi demo "$@" ;;
+  test)  exec .venv/bin/python -m pytest -q "$@" ;;
+  dyngi) exec .venv/bin/dyngi "$@" ;;
+  *) echo "run.sh: error: unknown command '$cmd'; valid commands: demo, test, dyngi" >&2; exit 2 ;;
+esac

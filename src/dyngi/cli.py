@@ -1,0 +1,203 @@
+"""Command-line interface: a thin layer over the Python API.
+
+    dyngi scenes                       list built-in scenes
+    dyngi techniques                   list techniques and their parameters
+    dyngi render SCENE --technique T   render frames, video and stats
+    dyngi reference SCENE              fill the ground-truth cache
+    dyngi compare SCENE --techniques a,b,c   metrics, plots, report.html
+    dyngi demo                         the main job on a built-in scene
+
+Errors caused by input print one line (``dyngi: error: ...``) and exit 2.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+
+def _parse_sets(items) -> dict:
+    from .errors import DyngiError
+
+    out = {}
+    for it in items or []:
+        if "=" not in it:
+            raise DyngiError(f"--set expects key=value, got '{it}'")
+        k, v = it.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def _positive(name):
+    def conv(text):
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be an integer, got '{text}'") from None
+        if v < 1:
+            raise argparse.ArgumentTypeError(f"{name} must be >= 1, got {v}")
+        return v
+    return conv
+
+
+def cmd_scenes(args) -> int:
+    from .scene.library import BUILTINS, builtin_names
+
+    names = builtin_names()
+    width = max(len(n) for n in names)
+    for n in names:
+        e = BUILTINS[n]
+        print(f"{n:<{width}}  {e.description}")
+        if e.stands_for:
+            print(f"{'':<{width}}    stands for: {e.stands_for}")
+    return 0
+
+
+def cmd_techniques(args) -> int:
+    from .techniques.base import REGISTRY, technique_names
+
+    for n in technique_names():
+        cls = REGISTRY[n]
+        print(f"{n}: {cls.description}")
+        for k, p in cls.PARAMS.items():
+            extra = f" (one of {', '.join(map(str, p.choices))})" if p.choices else ""
+            print(f"    {k} = {p.default!r}  {p.doc}{extra}")
+    return 0
+
+
+def _setup(args):
+    from . import backend
+
+    backend.set_device(args.device)
+
+
+def cmd_render(args) -> int:
+    from .experiments.render import render_to_dir
+    from .experiments.runner import parse_res
+
+    _setup(args)
+    params = _parse_sets(args.set)
+    if args.spp is not None:
+        params.setdefault("spp", args.spp)
+    res = parse_res(args.res)
+    summary = render_to_dir(args.scene, args.technique, args.out, frames=args.frames, res=res,
+                            seed=args.seed, params=params, t0=args.t0, quiet=args.quiet)
+    print(f"wrote {summary['frames']} frame(s) of '{summary['scene']}' with '{args.technique}' to {args.out} "
+          f"({summary['mean_ms']:.1f} ms/frame, {summary['mean_rays'] / 1e6:.2f} Mrays/frame)")
+    return 0
+
+
+def cmd_reference(args) -> int:
+    from .experiments.reference import fill_cache
+    from .experiments.runner import parse_res
+    from .scene import load_scene
+
+    _setup(args)
+    scene = load_scene(args.scene)
+    res = parse_res(args.res)
+    kw = {} if args.spp is None else {"spp": args.spp}
+    paths = fill_cache(scene, args.frames, res, indirect=args.indirect, **kw)
+    print(f"reference cache holds {len(paths)} frame(s) of '{scene.name}' at {res[0]}x{res[1]}")
+    return 0
+
+
+def cmd_compare(args) -> int:
+    from .experiments.compare import run_compare
+    from .experiments.runner import parse_res
+
+    _setup(args)
+    techs = [t.strip() for t in args.techniques.split(",") if t.strip()]
+    out = run_compare(args.scene, techs, args.out, frames=args.frames, res=parse_res(args.res),
+                      budget=args.budget, seed=args.seed, ref_spp=args.ref_spp, quiet=args.quiet,
+                      params=_parse_sets(args.set))
+    print(f"wrote comparison to {out} (open {os.path.join(out, 'report.html')})")
+    return 0
+
+
+def cmd_demo(args) -> int:
+    from .experiments.compare import run_compare
+    from .experiments.runner import parse_res
+    from .techniques.base import technique_names
+
+    _setup(args)
+    names = technique_names()
+    techs = [t for t in ("ddgi", "path") if t in names]
+    out = run_compare("cornell-moving-light", techs, args.out, frames=args.frames, res=parse_res(args.res),
+                      budget="equal-frames", seed=0, ref_spp=args.ref_spp, quiet=args.quiet, params={})
+    print(f"demo written to {out}: frames, video, metrics.csv, summary.md, report.html")
+    with open(os.path.join(out, "summary.md")) as f:
+        print(f.read())
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="dyngi", description="Real-time dynamic GI research on Mitsuba 3 + Dr.Jit")
+    sub = p.add_subparsers(dest="cmd", metavar="COMMAND")
+    sub.required = True
+
+    s = sub.add_parser("scenes", help="list built-in scenes")
+    s.set_defaults(fn=cmd_scenes)
+    s = sub.add_parser("techniques", help="list techniques and their parameters")
+    s.set_defaults(fn=cmd_techniques)
+
+    def common(sp, frames_default=1, res_default="320x240"):
+        sp.add_argument("--frames", type=_positive("--frames"), default=frames_default)
+        sp.add_argument("--res", default=res_default, help="WxH")
+        sp.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+        sp.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    s = sub.add_parser("render", help="render a scene with a technique")
+    s.add_argument("scene", help="built-in scene name or path to a scene file")
+    s.add_argument("--technique", default="path")
+    s.add_argument("--spp", type=_positive("--spp"), default=None)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--t0", type=float, default=0.0, help="start time (s)")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE", help="technique parameter")
+    s.add_argument("--out", required=True)
+    common(s)
+    s.set_defaults(fn=cmd_render)
+
+    s = sub.add_parser("reference", help="fill the ground-truth cache (Mitsuba's path integrator)")
+    s.add_argument("scene")
+    s.add_argument("--spp", type=_positive("--spp"), default=None)
+    s.add_argument("--indirect", action="store_true", help="also the indirect-only reference")
+    common(s, res_default="160x120")
+    s.set_defaults(fn=cmd_reference)
+
+    s = sub.add_parser("compare", help="compare techniques against the reference")
+    s.add_argument("scene")
+    s.add_argument("--techniques", required=True, help="comma-separated names")
+    s.add_argument("--budget", default="equal-frames", choices=("equal-frames", "equal-rays", "equal-time"))
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=None)
+    s.add_argument("--set", action="append", metavar="TECH.KEY=VALUE", help="technique parameter")
+    s.add_argument("--out", required=True)
+    common(s, frames_default=30, res_default="160x120")
+    s.set_defaults(fn=cmd_compare)
+
+    s = sub.add_parser("demo", help="the main job: compare techniques on an animated Cornell box")
+    s.add_argument("--out", default="out/demo")
+    s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=None)
+    common(s, frames_default=24, res_default="200x150")
+    s.set_defaults(fn=cmd_demo)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        from .errors import DyngiError
+    except Exception:  # pragma: no cover
+        raise
+    try:
+        return args.fn(args)
+    except DyngiError as e:
+        print(f"dyngi: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("dyngi: interrupted; nothing half-written was kept", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

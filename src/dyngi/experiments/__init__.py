@@ -1,0 +1,1 @@
+"""Experiments: sequence runner, output writing, reference cache, comparisons."""

@@ -1,0 +1,192 @@
+"""The reference path tracer: furnace, agreement with Mitsuba's `path`, determinism, no recompiles."""
+import numpy as np
+import pytest
+
+from conftest import shared_scene
+from stats import z_test_images
+
+
+def _ours(scene, res, spp, k, max_depth=8, mis="power", t=0.0):
+    from dyngi.techniques.base import to_image
+    from dyngi.techniques.path import render_paths
+
+    scene.at(t)
+    L, _ = render_paths(scene, scene.camera(t), res, spp, seed=1000 + k, frame_index=0, max_depth=max_depth,
+                        rr_depth=5, power_heuristic=(mis == "power"))
+    return to_image(L, res)
+
+
+def _mitsuba(scene, res, spp, k, max_depth=8, t=0.0):
+    from dyngi.backend import mi
+
+    scene.at(t)
+    sensor = scene.camera(t).to_sensor(res, spp)
+    integ = mi.load_dict({"type": "path", "max_depth": max_depth, "rr_depth": 5})
+    return np.asarray(mi.render(scene.mi_scene, sensor=sensor, integrator=integ, spp=spp, seed=5000 + k),
+                      np.float32)
+
+
+def _glossy_scene():
+    from dyngi.scene.builder import SceneBuilder
+    from dyngi.scene.builtin import CORNELL_CAMERA, _cornell_shell
+    from dyngi.scene.geometry import uv_sphere
+
+    b = SceneBuilder("test-glossy")
+    _cornell_shell(b)
+    b.mesh("ball", uv_sphere((0.2, 0.45, 0.0), 0.45, 16, 32),
+           {"type": "roughplastic", "alpha": 0.08, "diffuse_reflectance": {"type": "rgb", "value": [0.2, 0.3, 0.6]}})
+    b.mesh("mirrorish", uv_sphere((-0.5, 0.3, -0.4), 0.3, 12, 24),
+           {"type": "roughconductor", "alpha": 0.15, "material": "Au"})
+    return b.build(CORNELL_CAMERA, "glossy test scene")
+
+
+def _many_light_scene():
+    from dyngi.scene.builder import SceneBuilder
+    from dyngi.scene.camera import Camera
+    from dyngi.scene.geometry import box, diffuse, quad
+
+    b = SceneBuilder("test-many-lights")
+    b.mesh("floor", quad((0, 0, 0), (0, 0, 3), (3, 0, 0)), diffuse((0.7, 0.7, 0.7)))
+    b.mesh("wall", box((-0.2, 0, -0.5), (0.2, 1.2, 0.5)), diffuse((0.5, 0.6, 0.5)))
+    rng = np.random.default_rng(3)
+    for i in range(24):
+        x, z = rng.uniform(-2.5, 2.5, 2)
+        col = rng.uniform(0.5, 4.0, 3)
+        b.mesh(f"l{i}", quad((x, rng.uniform(0.8, 1.6), z), (0.08, 0, 0), (0, 0, 0.08)),
+               diffuse((0, 0, 0)), tuple(col * 6))
+    return b.build(Camera((0, 2.5, 4.5), (0, 0.3, 0), (0, 1, 0), 50.0), "many small lights")
+
+
+def _compare(scene, res=(24, 18), spp=16, k=16, max_depth=8, mis="power"):
+    a = np.stack([_ours(scene, res, spp, i, max_depth, mis) for i in range(k)])
+    b = np.stack([_mitsuba(scene, res, spp, i, max_depth) for i in range(k)])
+    assert np.all(np.isfinite(a)) and np.all(a >= 0)
+    ok, info = z_test_images(a, b)
+    assert ok, f"dyngi path and Mitsuba path disagree: {info}"
+    return a, b
+
+
+def test_furnace_radiance_one(backend):
+    """Closed sphere, albedo 0.5, emission 0.5: L = 0.5 * sum_k 0.5^k = 1 everywhere (unbounded depth)."""
+    from dyngi.scene import load_scene
+
+    sc = load_scene("furnace")
+    img = _ours(sc, (16, 12), 256, 0, max_depth=-1)
+    assert abs(img.mean() - 1.0) < 0.01, img.mean()
+    # per-pixel: 256 spp, RR paths; each pixel within 6 sigma of 1 (sigma estimated from the image spread)
+    sd = img.std()
+    assert sd < 0.1
+    assert np.all(np.abs(img - 1.0) < 6 * sd + 1e-3)
+
+
+def test_furnace_depth_truncation(backend):
+    """With max_depth D the furnace gives 0.5 * sum_{k<D} 0.5^k = 1 - 0.5^D: depth semantics match Mitsuba's."""
+    from dyngi.scene import load_scene
+
+    sc = load_scene("furnace")
+    for d in (2, 3):
+        img = _ours(sc, (8, 6), 64, 0, max_depth=d)
+        assert abs(img.mean() - (1 - 0.5 ** d)) < 0.01, (d, img.mean())
+
+
+def test_agrees_with_mitsuba_cornell(backend):
+    from dyngi.scene import load_scene
+
+    _compare(load_scene("cornell-static"))
+
+
+def test_agrees_with_mitsuba_balance_heuristic(backend):
+    from dyngi.scene import load_scene
+
+    _compare(load_scene("cornell-moving-light"), mis="balance")
+
+
+def test_agrees_with_mitsuba_glossy(backend):
+    _compare(_glossy_scene())
+
+
+def test_agrees_with_mitsuba_many_lights(backend):
+    _compare(_many_light_scene())
+
+
+def test_agrees_with_mitsuba_real_scene(backend):
+    from dyngi.scene import load_scene
+
+    sc = load_scene(shared_scene("cornell-box/scene_mi3.xml"))
+    _compare(sc, res=(20, 20))
+
+
+def test_deterministic_and_seed_dependent(backend):
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+
+    sc = load_scene("cornell-moving-light")
+    imgs = []
+    for seed in (7, 7, 8):
+        tech = create_technique("path", sc, {"spp": 2})
+        sc.at(0.1)
+        imgs.append(tech.step(Frame(0, 0.1, sc.camera(0.1), (24, 18), seed=seed)).image)
+    assert np.array_equal(imgs[0], imgs[1])
+    assert not np.array_equal(imgs[0], imgs[2])
+
+
+def test_progressive_accumulation_converges(backend):
+    """On a static scene the running mean's error against Mitsuba falls like 1/frames."""
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+
+    sc = load_scene("cornell-static")
+    res = (24, 18)
+    ref = np.mean([_mitsuba(sc, res, 256, k) for k in range(4)], axis=0)
+    tech = create_technique("path", sc, {"spp": 4, "max_depth": 8})
+    errs = []
+    for i in range(16):
+        r = tech.step(Frame(i, 0.0, sc.camera(0.0), res, seed=3, static=(i > 0)))
+        errs.append(np.mean((r.image - ref) ** 2))
+    assert r.stats["accumulated_frames"] == 16
+    assert errs[-1] < errs[0] / 5, (errs[0], errs[-1])
+
+
+def test_non_static_frames_restart(backend):
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+
+    sc = load_scene("cornell-moving-light")
+    tech = create_technique("path", sc, {"spp": 1})
+    for i in range(3):
+        t = i / 30
+        sc.at(t)
+        r = tech.step(Frame(i, t, sc.camera(t), (16, 12), seed=0, static=False))
+    assert r.stats["accumulated_frames"] == 1
+
+
+def test_steady_state_frame_compiles_no_kernels(backend):
+    """A moving light and a new seed each frame must not recompile any kernel."""
+    from dyngi.backend import dr
+    from dyngi.experiments.runner import run_sequence
+    from dyngi.scene import load_scene
+    from dyngi.techniques import create_technique
+
+    sc = load_scene("cornell-moving-light")
+    tech = create_technique("path", sc, {"spp": 1})
+    run_sequence(sc, tech, 3, (16, 12), seed=1, keep_images=False)  # warm-up
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()  # clears
+    run_sequence(sc, tech, 3, (16, 12), seed=1, t0=0.5, keep_images=False)
+    hist = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert hist, "no kernels ran?"
+    misses = [k for k in hist if not k.get("cache_hit", False)]
+    assert not misses, f"{len(misses)} kernels compiled in steady state"
+
+
+def test_rays_counted(backend):
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+
+    sc = load_scene("cornell-static")
+    tech = create_technique("path", sc, {"spp": 2, "max_depth": 3})
+    r = tech.step(Frame(0, 0.0, sc.camera(0.0), (16, 12), seed=0))
+    n = 16 * 12 * 2
+    # each path: >= 1 camera ray; at most 3 segments + 2 shadow rays
+    assert n <= r.stats["rays"]["trace"] <= 5 * n
