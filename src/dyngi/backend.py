@@ -49,7 +49,7 @@ def find_libllvm() -> str | None:
     if not good:
         return None
     good.sort(key=_llvm_version, reverse=True)
-    return good[0]
+    return os.path.realpath(good[0])
 
 
 def _setup_llvm() -> None:

@@ -72,7 +72,10 @@ def _camera_from_bbox(mi_scene) -> Camera:
 
 
 def _name(path: str) -> str:
-    return os.path.splitext(os.path.basename(path))[0]
+    """Scene name from its file; 'scene*.xml' files are named after their folder."""
+    stem = os.path.splitext(os.path.basename(path))[0]
+    parent = os.path.basename(os.path.dirname(os.path.abspath(path)))
+    return parent if stem.startswith("scene") and parent else stem
 
 
 def _load_xml(path: str) -> Scene:
