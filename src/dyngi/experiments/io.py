@@ -83,6 +83,8 @@ def check_writable(out_dir: str) -> None:
     parent = out_dir
     while not os.path.exists(parent):
         parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise DyngiError(f"output '{out_dir}' cannot be created: '{parent}' is a file, not a folder")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise DyngiError(f"output folder '{out_dir}' is not writable (no write permission on '{parent}')")
 

@@ -74,7 +74,8 @@ class Frame:
     camera: Any              # dyngi.scene.Camera
     res: tuple[int, int]     # (width, height)
     seed: int = 0
-    ray_budget: int | None = None
+    ray_budget: int | None = None       # rays this frame may trace (equal-ray comparisons)
+    time_budget_ms: float | None = None  # wall time this frame may take (equal-time comparisons)
     static: bool = False     # True when nothing moved since the previous frame
 
 

@@ -20,6 +20,10 @@ max_depth : int = 12    maximum path length (-1: unbounded)
 rr_depth : int = 5      depth at which Russian roulette starts
 mis : str = 'power'     MIS heuristic: 'power' (beta = 2) or 'balance'
 progressive : bool = True   accumulate across frames while nothing moves
+
+Budgets: with ``Frame.ray_budget`` the frame's spp is the budget divided by
+the rays per sample measured on the previous frame; with
+``Frame.time_budget_ms`` it is the budget divided by the measured ms per sample.
 """
 from __future__ import annotations
 
@@ -120,14 +124,14 @@ def render_paths(scene, camera, res, spp: int, seed: int, frame_index: int, max_
     n = w * h * spp
     sampler = make_sampler(n, seed, frame_index)
     idx = dr.arange(mi.UInt32, n)
-    pix = idx // spp if spp > 1 else idx
+    pix = idx // dr.opaque(mi.UInt32, spp) if spp > 1 else idx
     ray = camera.sample_rays(res, pix, sampler.next_2d())
     skip = mi.Bool(True) if indirect_only else None
     L, n_rays, _ = trace_paths(scene.mi_scene if hasattr(scene, "mi_scene") else scene, sampler, ray,
                                mi.Bool(True), max_depth, rr_depth, lights, power_heuristic, skip)
     dr.eval(L, n_rays)  # one kernel for the whole path loop; outputs evaluated together
     if spp > 1:
-        L = dr.block_reduce(dr.ReduceOp.Add, L, spp) * (1.0 / spp)
+        L = dr.block_reduce(dr.ReduceOp.Add, L, spp) * dr.opaque(mi.Float, 1.0 / spp)
     return L, dr.sum(n_rays)
 
 
@@ -150,25 +154,43 @@ class PathTechnique(Technique):
         self.lights = EmitterSampling()
         self.accum = None      # mi.Color3f running mean
         self.n_accum = 0
+        self.n_samples = 0
+        self._rays_per_sample = None   # measured on the previous frame
+        self._ms_per_sample = None
+
+    def frame_spp(self, frame: Frame) -> int:
+        """spp for this frame: the parameter, or what fits the frame's ray/time budget."""
+        spp = self.params["spp"]
+        npix = frame.res[0] * frame.res[1]
+        if frame.ray_budget is not None and self._rays_per_sample:
+            spp = frame.ray_budget / (npix * self._rays_per_sample)
+        elif frame.time_budget_ms is not None and self._ms_per_sample:
+            spp = frame.time_budget_ms / self._ms_per_sample
+        return int(max(1, min(4096, round(spp))))
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
+        spp = self.frame_spp(frame)
         with t.stage("trace"):
-            L, rays = render_paths(self.scene, frame.camera, frame.res, p["spp"], frame.seed, frame.index,
+            L, rays = render_paths(self.scene, frame.camera, frame.res, spp, frame.seed, frame.index,
                                    p["max_depth"], p["rr_depth"], self.lights, p["mis"] == "power")
             if p["progressive"] and frame.static and self.accum is not None \
                     and dr.width(self.accum) == dr.width(L):
-                k = self.n_accum
-                # running mean with an opaque weight: one kernel for every frame count
-                a = dr.opaque(mi.Float, 1.0 / (k + 1))
+                # running mean weighted by samples, with an opaque weight: one kernel for any count
+                a = dr.opaque(mi.Float, spp / (self.n_samples + spp))
                 self.accum = dr.fma(L - self.accum, a, self.accum)
-                self.n_accum = k + 1
+                self.n_accum += 1
+                self.n_samples += spp
             else:
-                self.accum, self.n_accum = L, 1
+                self.accum, self.n_accum, self.n_samples = L, 1, spp
             dr.eval(self.accum, rays)
         t.add_rays("trace", int(rays[0]))
+        npix = frame.res[0] * frame.res[1]
+        self._rays_per_sample = t.rays["trace"] / (npix * spp)
+        self._ms_per_sample = t.ms["trace"] / spp
         img = to_image(self.accum, frame.res)
         stats = t.as_dict()
         stats["accumulated_frames"] = self.n_accum
+        stats["spp"] = spp
         return FrameResult(image=img, stats=stats)

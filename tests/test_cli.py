@@ -1,0 +1,101 @@
+"""The command line: clear one-line errors, render outputs, determinism, nothing half-written."""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+DYNGI = [sys.executable, "-m", "dyngi.cli"]
+
+
+def run(*args, cwd=None):
+    return subprocess.run(DYNGI + list(args), capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+def test_scenes_and_techniques_listed():
+    r = run("scenes")
+    assert r.returncode == 0 and "cornell-moving-light" in r.stdout
+    r = run("techniques")
+    assert r.returncode == 0 and "path:" in r.stdout and "max_depth" in r.stdout
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["render", "no-such-scene", "--out", "{tmp}/o"], "unknown scene 'no-such-scene'"),
+    (["render", "{tmp}/missing.xml", "--out", "{tmp}/o"], "does not exist"),
+    (["render", "cornell-static", "--technique", "nope", "--out", "{tmp}/o"], "valid techniques: "),
+    (["render", "cornell-static", "--set", "bogus=1", "--out", "{tmp}/o"], "valid parameters: "),
+    (["render", "cornell-static", "--set", "spp=-3", "--out", "{tmp}/o"], "below its minimum"),
+    (["render", "cornell-static", "--set", "mis=nope", "--out", "{tmp}/o"], "valid values: power, balance"),
+    (["render", "cornell-static", "--res", "12by3", "--out", "{tmp}/o"], "use WxH"),
+    (["render", "cornell-static", "--out", "{tmp}/afile/o"], "not a folder"),
+    (["render", "cornell-static", "--res", "8x6", "--out", "/proc/dyngi-test/o"], "output folder"),
+])
+def test_bad_input_one_line_error(tmp_path, args, needle):
+    (tmp_path / "afile").write_text("x")
+    r = run(*[a.format(tmp=tmp_path) for a in args])
+    assert r.returncode == 2, r.stderr
+    lines = [l for l in r.stderr.strip().splitlines() if l.strip()]
+    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert needle in lines[0], lines[0]
+    assert not (tmp_path / "o").exists()
+
+
+def test_unwritable_output(tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    os.chmod(ro, 0o500)
+    if os.access(ro, os.W_OK):
+        pytest.skip("running as a user that ignores permissions")
+    r = run("render", "cornell-static", "--res", "8x6", "--out", str(ro / "o"))
+    assert r.returncode == 2 and "not writable" in r.stderr
+
+
+def test_render_outputs_and_determinism(tmp_path):
+    from dyngi.experiments.io import read_exr
+
+    outs = []
+    for name, seed in (("a", 3), ("b", 3), ("c", 4)):
+        out = tmp_path / name
+        r = run("render", "cornell-moving-light", "--frames", "3", "--res", "32x24", "--spp", "2",
+                "--seed", str(seed), "--out", str(out), "--quiet")
+        assert r.returncode == 0, r.stderr
+        outs.append(out)
+    files = sorted(os.listdir(outs[0]))
+    for i in range(3):
+        assert f"frame_{i:04d}.exr" in files and f"frame_{i:04d}.png" in files
+    assert "video.mp4" in files and os.path.getsize(outs[0] / "video.mp4") > 1000
+    stats = json.loads((outs[0] / "stats.json").read_text())
+    assert len(stats["frames"]) == 3
+    assert stats["frames"][1]["rays"]["trace"] >= 32 * 24 * 2
+    assert "trace" in stats["frames"][1]["ms"]
+    a, b, c = (read_exr(str(o / "frame_0002.exr")) for o in outs)
+    assert a.shape == (24, 32, 3) and np.all(np.isfinite(a)) and a.mean() > 0
+    assert np.array_equal(a, b), "same seed must give bit-identical EXRs"
+    assert not np.array_equal(a, c)
+
+
+def test_failure_midway_leaves_nothing(tmp_path, monkeypatch):
+    """A technique failing on frame 2 leaves no partial output and keeps what was there."""
+    from dyngi.errors import DyngiError
+    from dyngi.experiments import render as rmod
+    from dyngi.techniques.path import PathTechnique
+
+    out = tmp_path / "keep"
+    out.mkdir()
+    (out / "old.txt").write_text("precious")
+    calls = {"n": 0}
+    orig = PathTechnique.step
+
+    def failing(self, frame):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise DyngiError("boom")
+        return orig(self, frame)
+
+    monkeypatch.setattr(PathTechnique, "step", failing)
+    with pytest.raises(DyngiError):
+        rmod.render_to_dir("cornell-static", "path", str(out), frames=3, res=(8, 6), quiet=True)
+    assert sorted(os.listdir(out)) == ["old.txt"]
+    assert not [p for p in os.listdir(tmp_path) if p.startswith(".dyngi-tmp")]
