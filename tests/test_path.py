@@ -190,3 +190,24 @@ def test_rays_counted(backend):
     n = 16 * 12 * 2
     # each path: >= 1 camera ray; at most 3 segments + 2 shadow rays
     assert n <= r.stats["rays"]["trace"] <= 5 * n
+
+
+def test_indirect_only_agrees_with_mitsuba_difference(backend):
+    """indirect_only == Mitsuba(max_depth=D) - Mitsuba(max_depth=2) with the same seed (indirect reference)."""
+    from dyngi.scene import load_scene
+    from dyngi.techniques.base import to_image
+    from dyngi.techniques.path import render_paths
+
+    sc = load_scene("cornell-static")
+    res, spp, k = (24, 18), 16, 16
+    ours = []
+    for i in range(k):
+        L, _ = render_paths(sc, sc.camera(0.0), res, spp, seed=77 + i, frame_index=0, max_depth=8, rr_depth=5,
+                            indirect_only=True)
+        ours.append(to_image(L, res))
+    ours = np.stack(ours)
+    theirs = np.stack([_mitsuba(sc, res, spp, i, 8) - _mitsuba(sc, res, spp, i, 2) for i in range(k)])
+    full = np.stack([_ours(sc, res, spp, i, 8) for i in range(4)])
+    assert ours.mean() < 0.8 * full.mean(), "indirect-only image should be darker than the full one"
+    ok, info = z_test_images(ours, theirs)
+    assert ok, info

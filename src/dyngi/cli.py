@@ -88,7 +88,7 @@ def cmd_render(args) -> int:
 
 
 def cmd_reference(args) -> int:
-    from .experiments.reference import fill_cache
+    from .experiments.reference import fill_reference_cache
     from .experiments.runner import parse_res
     from .scene import load_scene
 
@@ -96,8 +96,17 @@ def cmd_reference(args) -> int:
     scene = load_scene(args.scene)
     res = parse_res(args.res)
     kw = {} if args.spp is None else {"spp": args.spp}
-    paths = fill_cache(scene, args.frames, res, indirect=args.indirect, **kw)
-    print(f"reference cache holds {len(paths)} frame(s) of '{scene.name}' at {res[0]}x{res[1]}")
+    bar = None
+    if not args.quiet:
+        from tqdm import tqdm
+        bar = tqdm(total=args.frames, desc=f"reference {scene.name}", unit="frame", file=sys.stderr)
+    recs = fill_reference_cache(scene, args.frames, res, indirect=args.indirect,
+                                progress=(lambda r: bar.update(1)) if bar else None, **kw)
+    if bar is not None:
+        bar.close()
+    hits = sum(r["cached"] for r in recs)
+    print(f"reference cache holds {len(recs)} frame(s) of '{scene.name}' at {res[0]}x{res[1]} "
+          f"({hits} already cached)")
     return 0
 
 

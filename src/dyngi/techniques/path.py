@@ -47,11 +47,13 @@ def mis_weight(pdf_a, pdf_b, power: bool):
 
 @dr.syntax
 def trace_paths(scene, sampler, ray, active, max_depth: int, rr_depth: int,
-                lights=None, power_heuristic: bool = True, skip_direct_emission=None):
+                lights=None, power_heuristic: bool = True, indirect_only: bool = False):
     """Trace one path per lane; return (radiance, rays traced per lane, first-hit validity).
 
-    ``skip_direct_emission`` (a Bool mask or None) drops emission seen at the
-    first vertex, used for indirect-only images.
+    ``indirect_only`` drops the emission seen at the first vertex and the direct
+    light at it (emission reached by the first bounce and NEE at the first
+    vertex), leaving light that bounced at least twice: the "indirect" image the
+    papers compare (same definition as the indirect reference: depth-D minus depth-2).
     """
     lights = lights if lights is not None else EmitterSampling()
     max_depth = mi.UInt32(0xFFFFFFFF) if max_depth < 0 else mi.UInt32(max_depth)
@@ -80,8 +82,8 @@ def trace_paths(scene, sampler, ray, active, max_depth: int, rr_depth: int,
             em_pdf = lights.pdf(scene, prev_si, ds, active & ~prev_delta)
         w_bsdf = mis_weight(prev_pdf, em_pdf, power_heuristic)
         Le = ds.emitter.eval(si, active & (prev_pdf > 0))
-        if skip_direct_emission is not None:
-            Le[(depth == 0) & skip_direct_emission] = 0.0
+        if indirect_only:
+            Le[depth <= 1] = 0.0
         L = dr.fma(beta, Le * w_bsdf, L)
 
         active_next = active & si.is_valid() & (depth + 1 < max_depth)
@@ -95,6 +97,8 @@ def trace_paths(scene, sampler, ray, active, max_depth: int, rr_depth: int,
         wo = si.to_local(ds_em.d)
         bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
         w_em = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, bsdf_pdf, power_heuristic))
+        if indirect_only:
+            w_em[depth == 0] = 0.0
         L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_em, L)
 
         # -- BSDF sampling --
@@ -126,9 +130,8 @@ def render_paths(scene, camera, res, spp: int, seed: int, frame_index: int, max_
     idx = dr.arange(mi.UInt32, n)
     pix = idx // dr.opaque(mi.UInt32, spp) if spp > 1 else idx
     ray = camera.sample_rays(res, pix, sampler.next_2d())
-    skip = mi.Bool(True) if indirect_only else None
     L, n_rays, _ = trace_paths(scene.mi_scene if hasattr(scene, "mi_scene") else scene, sampler, ray,
-                               mi.Bool(True), max_depth, rr_depth, lights, power_heuristic, skip)
+                               mi.Bool(True), max_depth, rr_depth, lights, power_heuristic, indirect_only)
     dr.eval(L, n_rays)  # one kernel for the whole path loop; outputs evaluated together
     if spp > 1:
         L = dr.block_reduce(dr.ReduceOp.Add, L, spp) * dr.opaque(mi.Float, 1.0 / spp)
