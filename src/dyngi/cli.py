@@ -186,8 +186,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("demo", help="the main job: compare techniques on an animated Cornell box")
     s.add_argument("--out", default="out/demo")
-    s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=None)
-    common(s, frames_default=24, res_default="200x150")
+    s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=256,
+                   help="ground-truth spp (256: relMSE of the reference ~7e-4, far below the errors shown)")
+    common(s, frames_default=16, res_default="160x120")
     s.set_defaults(fn=cmd_demo)
     return p
 
