@@ -95,6 +95,11 @@ def _load_xml(path: str) -> Scene:
 
 
 def _load_mesh_file(path: str, ext: str) -> Scene:
+    if ext == ".obj":
+        with open(path, "rb") as f:
+            lines = f.read().splitlines()
+        if not any(l.startswith(b"v ") for l in lines) or not any(l.startswith(b"f ") for l in lines):
+            raise DyngiError(f"scene file '{path}' contains no vertices/faces")
     mis = mi.load_dict({
         "type": "scene",
         "mesh": {"type": ext[1:], "filename": path, "bsdf": diffuse((0.6, 0.6, 0.6))},
@@ -116,7 +121,7 @@ def _load_gltf(path: str) -> Scene:
         if not hasattr(g, "faces") or len(g.faces) == 0:
             continue
         V = trimesh.transformations.transform_points(np.asarray(g.vertices, np.float64), T)
-        check_finite(V, f"{os.path.basename(path)}:{node}")
+        check_finite(V, f"{path}:{node}")
         mat = getattr(getattr(g, "visual", None), "material", None)
         base = np.array(getattr(mat, "baseColorFactor", None) if mat is not None and
                         getattr(mat, "baseColorFactor", None) is not None else [204, 204, 204, 255], np.float64)
