@@ -1,0 +1,215 @@
+"""Blending probe-ray results into the texels (replaceable piece #3: accumulation).
+
+DDGI (Majercik et al., JCGT 2019, Sec. 3.2) updates texel ``t`` of a probe
+from that probe's ``N`` rays ``(w_r, L_r, d_r)`` of this frame:
+
+* irradiance: ``E_t/pi = sum_r max(0, n_t . w_r) L_r / sum_r max(0, n_t . w_r)``;
+* distance moments: ``sum_r max(0, n_t . w_r)^p (d_r, d_r^2) / sum_r max(0, n_t . w_r)^p``
+  with the sharp power ``p`` (50), distances clamped to ``max_distance``;
+* hysteresis: ``new = lerp(blend, old, h)``, ``h = 0.97`` by default.
+
+Faster reaction (Majercik et al., JCGT 2021, Sec. 6, and the RTXGI reference
+conventions): irradiance is blended in a perceptual space ``E^(1/gamma)``
+(gamma 5); when any channel of a texel moves by more than
+``change_threshold`` (0.25) in that space the hysteresis of that texel drops
+by 0.75, and a brightening step whose luminance exceeds
+``brightness_threshold`` (0.1) is scaled by 0.25 to suppress fireflies.
+Probes without history (first update) take the new value directly.
+
+When every probe traced the same direction set (DDGI's shared rotated
+spherical-Fibonacci set), the weights form one matrix ``W[N x T^2]`` shared
+by all probes and the blend is a dense matrix product
+``radiance[P x N] @ W`` (NumPy/BLAS) -- see DESIGN.md for the measurements.
+Border texels get the direction of the interior texel they copy, so the
+matrix fills them consistently with no separate border pass.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..backend import dr, mi
+from ..sampling.octahedral import texel_directions
+from .encoding import get_encoding
+from .trace import ProbeRayResults, vector_to_numpy
+from .volume import ProbeVolume
+
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
+CHANGE_HYSTERESIS_DROP = 0.75
+BRIGHTNESS_DAMPING = 0.25
+MIN_BLEND_WEIGHT = 1e-12
+
+
+def blend_matrix(ray_dirs: np.ndarray, texels: int, power: float) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised blend weights (N, T*T) float32 and a (T*T,) mask of texels that received weight.
+
+    ``W[r, t] = max(0, n_t . w_r)^power / sum_r' max(0, n_t . w_r')^power``.
+    """
+    tdirs = texel_directions(texels).reshape(-1, 3)
+    c = np.maximum(np.asarray(ray_dirs, np.float64) @ tdirs.T, 0.0)
+    w = c if power == 1.0 else c ** power
+    s = w.sum(axis=0)
+    ok = s > 0.0
+    w[:, ok] /= s[ok]
+    w[w < MIN_BLEND_WEIGHT] = 0.0   # no float32 denormals: they slow BLAS down by orders of magnitude
+    return w.astype(np.float32), ok
+
+
+class HysteresisBlend:
+    """DDGI's per-texel exponential blend; see the module docstring.
+
+    Parameters
+    ----------
+    hysteresis : float = 0.97
+    distance_power : float = 50
+    irradiance_gamma : float = 5    perceptual blending space (1: linear)
+    change_threshold : float = 0.25 per-channel change (in that space) that lowers the hysteresis
+    brightness_threshold : float = 0.1  luminance of a brightening step that gets damped (inf: off)
+    encoding : str = 'fp32'         storage encoding applied after each blend (see :mod:`.encoding`)
+    """
+
+    def __init__(self, hysteresis: float = 0.97, distance_power: float = 50.0, irradiance_gamma: float = 5.0,
+                 change_threshold: float = 0.25, brightness_threshold: float = 0.1, encoding: str = "fp32"):
+        self.hysteresis = float(hysteresis)
+        self.distance_power = float(distance_power)
+        self.irradiance_gamma = float(irradiance_gamma)
+        self.change_threshold = float(change_threshold)
+        self.brightness_threshold = float(brightness_threshold)
+        self.encoding = get_encoding(encoding)
+        self._cache_key = None
+        self._cache = None
+
+    # -- weights ----------------------------------------------------------------
+    def _matrices(self, dirs: np.ndarray, volume: ProbeVolume):
+        key = (dirs.shape, dirs.tobytes()[:64], hash(dirs.tobytes()), volume.irradiance_texels,
+               volume.distance_texels, self.distance_power)
+        if key != self._cache_key:
+            self._cache = (blend_matrix(dirs, volume.irradiance_texels, 1.0),
+                           blend_matrix(dirs, volume.distance_texels, self.distance_power))
+            self._cache_key = key
+        return self._cache
+
+    # -- one frame ----------------------------------------------------------------
+    def new_estimates(self, volume: ProbeVolume, results: ProbeRayResults):
+        """This frame's per-texel estimates (irradiance (P,Ti,Ti,3), moments (P,Td,Td,2), masks)."""
+        plan = results.plan
+        if plan.shared_directions is None:
+            raise ValueError("HysteresisBlend needs a shared direction set (use a per-sample accumulator)")
+        (Wi, ok_i), (Wd, ok_d) = self._matrices(plan.shared_directions, volume)
+        P, N = len(plan.probe_ids), plan.rays_per_probe
+        Ti, Td = volume.irradiance_texels, volume.distance_texels
+        rad = vector_to_numpy(results.radiance).reshape(3 * P, N)
+        irr = (rad @ Wi).reshape(3, P, Ti, Ti).transpose(1, 2, 3, 0)
+        d = np.asarray(results.distance, np.float32).reshape(P, N)
+        d = np.minimum(np.abs(d), np.float32(volume.max_distance))
+        mom = np.concatenate([d, d * d], axis=0) @ Wd
+        mom = mom.reshape(2, P, Td, Td).transpose(1, 2, 3, 0)
+        return irr, mom, ok_i.reshape(Ti, Ti), ok_d.reshape(Td, Td)
+
+    def update(self, volume: ProbeVolume, results: ProbeRayResults) -> None:
+        """Blend this frame's rays into the probes they came from.
+
+        The per-texel hysteresis runs as one Dr.Jit kernel per atlas on the
+        device mirror (in place, with the storage quantisation fused in); the
+        host arrays are refreshed from it afterwards.
+        """
+        st = volume.state
+        pid = np.asarray(results.plan.probe_ids, np.int64)
+        if len(pid) == 0:
+            return
+        irr, mom, ok_i, ok_d = self.new_estimates(volume, results)
+        dev = volume.device
+        pid_dr = mi.UInt32(pid.astype(np.uint32))
+        fresh_dr = mi.Bool(st.updates[pid] == 0)
+        h = dr.opaque(mi.Float, self.hysteresis)
+        Ti, Td = volume.irradiance_texels, volume.distance_texels
+
+        # -- irradiance: perceptual space, change detection, brightness damping --
+        k, probe_local, gidx, texel = _texel_indices(pid_dr, len(pid), Ti * Ti)
+        new = dr.gather(mi.Color3f, mi.Float(np.ascontiguousarray(irr).ravel()), k)
+        old = dr.gather(mi.Color3f, dev.irradiance, gidx)
+        fresh = dr.gather(mi.Bool, fresh_dr, probe_local)
+        ok = dr.gather(mi.Bool, mi.Bool(ok_i.ravel()), texel)
+        inv_g = dr.opaque(mi.Float, 1.0 / self.irradiance_gamma)
+        g = dr.opaque(mi.Float, self.irradiance_gamma)
+        new_g = dr.power(dr.maximum(new, 0.0), inv_g)
+        old_g = dr.power(dr.maximum(old, 0.0), inv_g)
+        delta = new_g - old_g
+        h0 = dr.select(fresh, 0.0, h)
+        big = dr.max(dr.abs(delta)) > dr.opaque(mi.Float, self.change_threshold)
+        hh = dr.select(big, dr.maximum(h0 - CHANGE_HYSTERESIS_DROP, 0.0), h0)
+        lum = mi.luminance(delta)
+        bright = (lum > dr.opaque(mi.Float, min(self.brightness_threshold, 3e38))) & ~fresh
+        delta = dr.select(bright, delta * BRIGHTNESS_DAMPING, delta)
+        res_g = dr.maximum(old_g + (1.0 - hh) * delta, 0.0)
+        res = dr.select(res_g > 0.0, dr.power(res_g, g), 0.0)
+        res = self.encoding.quantize_irradiance(res)
+        res = dr.select(ok, res, old)
+        dr.scatter(dev.irradiance, res, gidx)
+
+        # -- distance moments: plain hysteresis --
+        k, probe_local, gidx, texel = _texel_indices(pid_dr, len(pid), Td * Td)
+        newd = dr.gather(mi.Vector2f, mi.Float(np.ascontiguousarray(mom).ravel()), k)
+        oldd = dr.gather(mi.Vector2f, dev.distance, gidx)
+        fresh = dr.gather(mi.Bool, fresh_dr, probe_local)
+        ok = dr.gather(mi.Bool, mi.Bool(ok_d.ravel()), texel)
+        hd = dr.select(fresh, 0.0, h)
+        resd = dr.fma(1.0 - hd, newd - oldd, oldd)
+        resd = self.encoding.quantize_distance(resd, dr.opaque(mi.Float, volume.grid.cell_diagonal))
+        resd = dr.select(ok, resd, oldd)
+        dr.scatter(dev.distance, resd, gidx)
+        dr.eval(dev.irradiance, dev.distance)
+
+        # -- refresh the host copy --
+        st.irradiance[...] = np.asarray(dev.irradiance, np.float32).reshape(st.irradiance.shape)
+        st.distance[...] = np.asarray(dev.distance, np.float32).reshape(st.distance.shape)
+        st.updates[pid] += 1
+
+
+def _texel_indices(pid_dr, n_probes: int, texels2: int):
+    """Flat texel index k of the traced probes, its probe slot, global texel index and in-probe texel."""
+    k = dr.arange(mi.UInt32, n_probes * texels2)
+    probe_local = k // texels2
+    texel = k - probe_local * texels2
+    probe = dr.gather(mi.UInt32, pid_dr, probe_local)
+    return k, probe_local, probe * texels2 + texel, texel
+
+
+class TrueAverage:
+    """Per-texel plain mean of lobe-sampled rays (the fp32 reference of ADGI Sec. 5): no history.
+
+    Expects a :class:`~dyngi.probes.rays.LobeDirections` plan for irradiance
+    (cosine lobe) and one for distance (cosine-power lobe); interior texels are
+    the means, borders are copied.
+    """
+
+    def __init__(self, encoding: str = "fp32"):
+        self.encoding = get_encoding(encoding)
+
+    @staticmethod
+    def _texel_means(values: np.ndarray, P: int, n_texels: int, k: int) -> np.ndarray:
+        return values.reshape(P, n_texels, k, -1).mean(axis=2)
+
+    @staticmethod
+    def _fill(interior: np.ndarray, texels: int) -> np.ndarray:
+        from ..sampling.octahedral import border_source_index
+        P, _, C = interior.shape
+        full = np.zeros((P, texels, texels, C), np.float32)
+        full[:, 1:-1, 1:-1] = interior.reshape(P, texels - 2, texels - 2, C)
+        src = border_source_index(texels).ravel()
+        return full.reshape(P, texels * texels, C)[:, src].reshape(P, texels, texels, C)
+
+    def update(self, volume: ProbeVolume, irr_results: ProbeRayResults, dist_results: ProbeRayResults,
+               k_irr: int, k_dist: int) -> None:
+        st = volume.state
+        pid = np.asarray(irr_results.plan.probe_ids, np.int64)
+        P = len(pid)
+        Ti, Td = volume.irradiance_texels, volume.distance_texels
+        rad = vector_to_numpy(irr_results.radiance).T          # (P*n, 3)
+        irr = self._fill(self._texel_means(rad, P, (Ti - 2) ** 2, k_irr), Ti)
+        d = np.asarray(dist_results.distance, np.float32)
+        d = np.minimum(np.abs(d), np.float32(volume.max_distance))
+        mom = self._fill(self._texel_means(np.stack([d, d * d], -1), P, (Td - 2) ** 2, k_dist), Td)
+        st.irradiance[pid], st.extra = self.encoding.store_irradiance(irr, pid, st.extra)
+        st.distance[pid], st.extra = self.encoding.store_distance(mom, pid, st.extra, volume.grid.cell_diagonal)
+        st.updates[pid] += 1
+        volume.sync(("irradiance", "distance"))

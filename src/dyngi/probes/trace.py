@@ -1,0 +1,169 @@
+"""Tracing and shading probe rays (replaceable piece #2: what a probe ray returns).
+
+Each probe ray is traced with ``scene.ray_intersect`` in one batch for the
+whole volume. At a hit the radiance leaving the surface towards the probe is
+estimated as in DDGI (Majercik et al., JCGT 2019, Sec. 3.1):
+
+``L = Le + albedo / pi * (E_direct + E_probes(x, n))``
+
+with ``E_direct`` from next-event estimation (one shadow ray) and
+``E_probes`` read from the *previous* frame's probes (multi-bounce through
+the cache). Surfaces are treated as diffuse with ``bsdf.eval_diffuse_reflectance``.
+Back-face hits return radiance 0 and a negative distance ``-0.2 t`` (the
+DDGI/RTXGI convention used for classification and relocation); misses return
+distance ``+inf`` (clamped when blending).
+
+Routing of emitters (parameter ``direct``) -- light must enter the cache or
+NEE, never both:
+
+* ``'nee'``: every emitter by NEE; the probes store light reflected at least once;
+* ``'sky'`` (default): environment emitters (infinite, non-delta) are read by
+  probe rays on a miss, all others by NEE (DDGI's sky + analytic lights);
+* ``'emissive'``: only delta lights (point, spot, directional) by NEE;
+  emissive surfaces and the environment enter through the probes (DDGI's
+  original split; the probes then hold the total irradiance, e.g. ``pi L`` in
+  a furnace of radiance ``L``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..backend import dr, mi
+from ..errors import unknown_choice
+from ..sampling.lights import EmitterSampling
+from ..sampling.rng import make_sampler
+from .rays import RayPlan
+
+DIRECT_MODES = ("nee", "sky", "emissive")
+BACKFACE_DISTANCE_SCALE = 0.2
+
+
+def vector_to_numpy(v) -> np.ndarray:
+    """(C, n) float32 array from a Dr.Jit 3- or 2-vector, component by component.
+
+    ``np.asarray`` of a nested array runs a Dr.Jit ravel kernel whose width is
+    baked in (a recompile whenever the number of traced probes changes); the
+    components of an evaluated array convert without any kernel.
+    """
+    return np.stack([np.asarray(v[i], np.float32) for i in range(len(v))])
+
+
+def emitter_via_probes(emitter, mode: str, active=True):
+    """Mask: is light of ``emitter`` (an EmitterPtr) carried by the probes rather than NEE under ``mode``?"""
+    if mode == "nee":
+        return mi.Bool(False)
+    flags = emitter.flags()
+    delta = mi.has_flag(flags, mi.EmitterFlags.DeltaPosition) | mi.has_flag(flags, mi.EmitterFlags.DeltaDirection)
+    if mode == "sky":
+        return mi.has_flag(flags, mi.EmitterFlags.Infinite) & ~delta & (emitter != None)  # noqa: E711
+    return ~delta & (emitter != None)  # noqa: E711
+
+
+def check_direct_mode(mode: str) -> str:
+    if mode not in DIRECT_MODES:
+        raise unknown_choice("direct-light mode", mode, DIRECT_MODES)
+    return mode
+
+
+class DiffuseHitShader:
+    """Shades surface points as diffuse: emission + albedo/pi * (NEE + probe irradiance).
+
+    ``shade(scene, ray, si, sampler, query, active) -> Color3f``; ``query`` is a
+    :class:`~dyngi.probes.query.ProbeQuery` (or ``None`` for no multi-bounce).
+    """
+
+    def __init__(self, direct: str = "sky", lights=None):
+        self.direct = check_direct_mode(direct)
+        self.lights = lights if lights is not None else EmitterSampling()
+
+    def shade(self, scene, ray, si, sampler, query, active):
+        hit = active & si.is_valid()
+        front = hit & (dr.dot(si.n, ray.d) < 0.0)
+        # -- emission seen by the ray (hit emitter or environment on a miss) --
+        em = si.emitter(scene, active)
+        Le = em.eval(si, active & (front | ~hit))
+        L = dr.select(emitter_via_probes(em, self.direct, active), Le, 0.0)
+        L = mi.Color3f(L)
+        # -- diffuse albedo --
+        bsdf = si.bsdf(ray)
+        albedo = bsdf.eval_diffuse_reflectance(si, front)
+        # -- direct light by NEE (one shadow ray) --
+        ds, w = self.lights.sample(scene, si, sampler.next_2d(), front)
+        cos = dr.maximum(dr.dot(si.sh_frame.n, ds.d), 0.0)
+        w = dr.select(emitter_via_probes(ds.emitter, self.direct, front), 0.0, w)
+        E = w * cos
+        # -- multi-bounce from the previous frame's probes --
+        if query is not None:
+            E += query.irradiance(si.p, si.sh_frame.n, -ray.d, active=front)
+        L += dr.select(front, albedo * dr.inv_pi * E, 0.0)
+        return L, hit, front
+
+
+@dataclass
+class ProbeRayResults:
+    radiance: "mi.Color3f"      # per ray
+    distance: "mi.Float"        # per ray: hit distance, negative (-0.2 t) for back faces, +inf on a miss
+    plan: RayPlan
+
+    def to_numpy(self):
+        """(radiance (P, N, 3) float32, distance (P, N) float32) for plans with a constant count per probe."""
+        n = self.plan.rays_per_probe
+        P = len(self.plan.probe_ids)
+        rad = vector_to_numpy(self.radiance).reshape(3, P, n).transpose(1, 2, 0)
+        dist = np.asarray(self.distance, np.float32).reshape(P, n)
+        return rad, dist
+
+
+def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, query, seed: int, frame: int,
+                     stream: int = 11, timer=None) -> ProbeRayResults:
+    """Trace all rays of ``plan`` from the probes of ``volume`` (one batch) and shade their hits.
+
+    Two kernels: the preliminary intersection (stage ``trace probes`` of ``timer``)
+    and surface interaction + shading (stage ``shade probes``).
+    """
+    mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
+    n = dr.width(plan.direction)
+    with _stage(timer, "trace probes"):
+        origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
+        ray = mi.Ray3f(origin, plan.direction)
+        pi = mscene.ray_intersect_preliminary(ray, coherent=False)
+        dr.eval(ray, pi)
+    if timer is not None:
+        timer.add_rays("trace probes", n)
+    with _stage(timer, "shade probes"):
+        si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
+        sampler = make_sampler(n, seed, frame, stream)
+        L, hit, front = shader.shade(mscene, ray, si, sampler, query, mi.Bool(True))
+        dist = dr.select(hit, dr.select(front, si.t, -BACKFACE_DISTANCE_SCALE * si.t), dr.inf)
+        L = dr.select(dr.isfinite(L), L, 0.0)   # guard: a NaN/Inf sample must never enter the cache
+        dr.eval(L, dist)
+    if timer is not None:
+        timer.add_rays("shade probes", n)     # shadow rays of NEE
+    return ProbeRayResults(L, dist, plan)
+
+
+def trace_probe_distances(scene, volume, plan: RayPlan) -> "mi.Float":
+    """Signed hit distances only (classification rays): back faces ``-0.2 t``, misses ``+inf``."""
+    mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
+    origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
+    ray = mi.Ray3f(origin, plan.direction)
+    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=False)
+    hit = si.is_valid()
+    front = dr.dot(si.n, ray.d) < 0.0
+    dist = dr.select(hit, dr.select(front, si.t, -BACKFACE_DISTANCE_SCALE * si.t), dr.inf)
+    dr.eval(dist)
+    return dist
+
+
+class _NullStage:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *a):
+        return False
+
+
+def _stage(timer, name):
+    return timer.stage(name) if timer is not None else _NullStage()

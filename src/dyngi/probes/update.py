@@ -1,0 +1,113 @@
+"""One probe-volume update per frame, assembled from replaceable pieces.
+
+``ProbeUpdater(volume, directions, shader, blender, states, query)``:
+
+1. choose rays (``directions.plan``) for the active probes, optionally masked
+   (e.g. Q-DDGI's camera-frustum culling);
+2. trace them in one batch and shade the hits (``shader``), reading the
+   previous frame's probes through ``query`` for multi-bounce;
+3. blend into the texels (``blender``);
+4. relocate / classify from the same rays (``states``); every
+   ``reclassify_interval`` frames the inactive probes trace ``classify_rays``
+   fixed directions so that they can wake up when the scene changes.
+
+Any piece can be swapped: ADGI replaces 1 and 3 (Metropolis chains, atomic
+moving average), IS-DDGI replaces 1, DDGI Resampling consumes the volume
+through another ``query`` call site.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .rays import FixedSFDirections
+from .states import ProbeStates
+from .trace import trace_probe_distances, trace_probe_rays, vector_to_numpy
+from .volume import ProbeVolume
+
+
+class ProbeUpdater:
+    def __init__(self, volume: ProbeVolume, directions, shader, blender, states: ProbeStates | None = None,
+                 query=None, reclassify_interval: int = 8, classify_rays: int = 32):
+        self.volume = volume
+        self.directions = directions
+        self.shader = shader
+        self.blender = blender
+        self.states = states
+        self.query = query
+        self.reclassify_interval = int(reclassify_interval)
+        self.classify_dirs = FixedSFDirections(classify_rays, stream=3)
+        self.last_results = None
+
+    def update(self, scene, frame: int, seed: int, probe_mask: np.ndarray | None = None, timer=None,
+               force_reclassify: bool = False) -> dict:
+        """Run one update; returns counts (probes traced, rays, state changes)."""
+        vol = self.volume
+        live = vol.state.states != 0
+        if probe_mask is not None:
+            live &= probe_mask
+        ids = np.flatnonzero(live).astype(np.uint32)
+        info = {"probes_traced": int(len(ids)), "moved": 0, "deactivated": 0, "activated": 0}
+        if len(ids):
+            plan = self.directions.plan(frame, seed, ids)
+            res = trace_probe_rays(scene, vol, plan, self.shader, self.query, seed, frame, timer=timer)
+            self.last_results = res
+            with _stage(timer, "blend"):
+                self.blender.update(vol, res)
+            if self.states is not None:
+                with _stage(timer, "states"):
+                    dist = np.asarray(res.distance, np.float32).reshape(len(ids), -1)
+                    dirs = plan.shared_directions
+                    if dirs is None:
+                        dirs = vector_to_numpy(plan.direction).T.reshape(len(ids), -1, 3)
+                    c = self.states.update(vol, ids, dirs, dist)
+                    for k in c:
+                        info[k] += c[k]
+        # -- re-test inactive probes with fixed rays --
+        if self.states is not None and self.states.classify and \
+                (force_reclassify or (self.reclassify_interval > 0 and frame % self.reclassify_interval == 0)):
+            dead = np.flatnonzero(vol.state.states == 0).astype(np.uint32)
+            if probe_mask is not None:
+                dead = dead[probe_mask[dead]]
+            if len(dead):
+                with _stage(timer, "states"):
+                    plan = self.classify_dirs.plan(frame, seed, dead)
+                    dist = np.asarray(trace_probe_distances(scene, vol, plan), np.float32).reshape(len(dead), -1)
+                    c = self.states.update(vol, dead, plan.shared_directions, dist)
+                    for k in c:
+                        info[k] += c[k]
+                if timer is not None:
+                    timer.add_rays("states", len(dead) * self.classify_dirs.n)
+        info["rays"] = int(len(ids)) * int(getattr(self.directions, "n", 0) or 0)
+        return info
+
+
+class _NullStage:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *a):
+        return False
+
+
+def _stage(timer, name):
+    return timer.stage(name) if timer is not None else _NullStage()
+
+
+def probes_in_frustum(volume: ProbeVolume, camera, res, margin: float = 1.4) -> np.ndarray:
+    """(P,) bool: probes inside the camera frustum extended to ``|clip xy| <= margin`` (ADGI Fig. 6b).
+
+    Probes behind the camera but within one cell diagonal of it also count, so
+    that probes around the viewer (which light what it sees) keep updating.
+    """
+    left, up, d = camera.frame()
+    o = np.asarray(camera.origin, np.float64)
+    w, h = res
+    tanx = np.tan(np.radians(camera.fov) * 0.5)
+    tany = tanx * h / w
+    rel = volume.positions() - o
+    z = rel @ d
+    x = (rel @ left) / np.maximum(z, 1e-9) / tanx
+    y = (rel @ up) / np.maximum(z, 1e-9) / tany
+    inside = (z > 0) & (np.abs(x) <= margin) & (np.abs(y) <= margin)
+    near = np.linalg.norm(rel, axis=1) <= volume.grid.cell_diagonal
+    return inside | near

@@ -1,0 +1,134 @@
+"""Probe-volume state: the arrays every DDGI-family technique reads and writes.
+
+A volume is a :class:`~dyngi.probes.grid.ProbeGrid` plus, per probe ``p``:
+
+* ``irradiance[p]`` -- ``T_irr x T_irr x 3`` octahedral texels (1-texel border,
+  see :mod:`dyngi.sampling.octahedral`). **Convention**: a texel with direction
+  ``n`` stores ``E(n) / pi``, the cosine-weighted mean of the incident radiance
+  over the hemisphere around ``n`` (radiance units). A closed furnace of
+  radiance ``L`` therefore stores ``L``; :class:`~dyngi.probes.query.ProbeQuery`
+  returns the irradiance ``E = pi * stored``.
+* ``distance[p]`` -- ``T_d x T_d x 2`` texels: mean and mean squared distance
+  to the nearest surface in a sharp cosine-power lobe around the texel
+  direction (DDGI Sec. 3.2; the moments of the Chebyshev visibility test).
+* ``offsets[p]`` -- relocation offset (world units, |component| bounded by a
+  fraction of the spacing); ``states[p]`` -- 1 active, 0 inactive.
+
+The host copy (NumPy, what blending and tests use) and the device copy
+(flat Dr.Jit arrays, what kernels gather from) are kept in one
+:class:`ProbeVolume`; :meth:`ProbeVolume.sync` uploads after host updates.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..backend import dr, mi
+from ..errors import DyngiError
+from .grid import PROBE_ACTIVE, ProbeGrid
+
+
+@dataclass
+class ProbeVolumeState:
+    """Temporal state of a probe volume (host arrays; shapes documented in the module docstring)."""
+
+    irradiance: np.ndarray      # (P, Ti, Ti, 3) float32, stores E/pi
+    distance: np.ndarray        # (P, Td, Td, 2) float32, (mean, mean of squares)
+    offsets: np.ndarray         # (P, 3) float32 relocation offsets
+    states: np.ndarray          # (P,) uint8, 1 active / 0 inactive
+    updates: np.ndarray         # (P,) int32, number of blends received (0: no history yet)
+    extra: dict = field(default_factory=dict)  # encoding-specific arrays (e.g. ADGI sample counts)
+
+    @staticmethod
+    def zeros(n_probes: int, irradiance_texels: int, distance_texels: int) -> "ProbeVolumeState":
+        P, Ti, Td = int(n_probes), int(irradiance_texels), int(distance_texels)
+        return ProbeVolumeState(
+            irradiance=np.zeros((P, Ti, Ti, 3), np.float32),
+            distance=np.zeros((P, Td, Td, 2), np.float32),
+            offsets=np.zeros((P, 3), np.float32),
+            states=np.full(P, PROBE_ACTIVE, np.uint8),
+            updates=np.zeros(P, np.int32),
+            extra={"n_probes": P},
+        )
+
+    def is_finite(self) -> bool:
+        return bool(np.all(np.isfinite(self.irradiance)) and np.all(np.isfinite(self.distance))
+                    and np.all(np.isfinite(self.offsets)))
+
+
+@dataclass
+class DeviceAtlas:
+    """Flat Dr.Jit mirrors of a :class:`ProbeVolumeState` for gathers inside kernels."""
+
+    irradiance: "mi.Float"      # P*Ti*Ti*3
+    distance: "mi.Float"        # P*Td*Td*2
+    positions: "mi.Float"       # P*3 (lattice + offsets)
+    states: "mi.UInt32"         # P
+
+
+class ProbeVolume:
+    """A probe grid with its texel layout, host state and device mirror.
+
+    Parameters
+    ----------
+    grid : ProbeGrid
+    irradiance_texels : int = 8   texels per side incl. the 1-texel border (DDGI default 8)
+    distance_texels : int = 16    texels per side incl. border (DDGI default 16)
+    max_distance : float | None   distances are clamped to this (default 1.5 x the largest spacing)
+    """
+
+    def __init__(self, grid: ProbeGrid, irradiance_texels: int = 8, distance_texels: int = 16,
+                 max_distance: float | None = None):
+        for name, t in (("irradiance_texels", irradiance_texels), ("distance_texels", distance_texels)):
+            if int(t) < 3:
+                raise DyngiError(f"parameter '{name}' must be >= 3 (1-texel border on each side), got {t}")
+        self.grid = grid
+        self.irradiance_texels = int(irradiance_texels)
+        self.distance_texels = int(distance_texels)
+        self.max_distance = float(max_distance) if max_distance is not None else 1.5 * grid.max_spacing
+        self.state = ProbeVolumeState.zeros(grid.n_probes, self.irradiance_texels, self.distance_texels)
+        self.device: DeviceAtlas | None = None
+        self.sync()
+
+    @property
+    def n_probes(self) -> int:
+        return self.grid.n_probes
+
+    def positions(self) -> np.ndarray:
+        """(P, 3) float64 current probe positions (lattice + relocation offsets)."""
+        return self.grid.positions(self.state.offsets.astype(np.float64))
+
+    def active_indices(self) -> np.ndarray:
+        return np.flatnonzero(self.state.states == PROBE_ACTIVE).astype(np.uint32)
+
+    def reset(self) -> None:
+        """Forget all history (irradiance, distance, update counts); keeps offsets and states."""
+        self.state.irradiance[:] = 0
+        self.state.distance[:] = 0
+        self.state.updates[:] = 0
+        self.state.extra.clear()
+        self.state.extra["n_probes"] = self.n_probes
+        self.sync()
+
+    def sync(self, what: tuple = ("irradiance", "distance", "positions", "states")) -> None:
+        """Upload host arrays to the device mirror (only the named parts once it exists)."""
+        s = self.state
+        if self.device is None:
+            what = ("irradiance", "distance", "positions", "states")
+            self.device = DeviceAtlas(None, None, None, None)
+        d = self.device
+        if "irradiance" in what:
+            d.irradiance = mi.Float(np.ascontiguousarray(s.irradiance, np.float32).ravel())
+        if "distance" in what:
+            d.distance = mi.Float(np.ascontiguousarray(s.distance, np.float32).ravel())
+        if "positions" in what:
+            d.positions = mi.Float(self.positions().astype(np.float32).ravel())
+        if "states" in what:
+            d.states = mi.UInt32(s.states.astype(np.uint32))
+        dr.eval(d.irradiance, d.distance, d.positions, d.states)
+
+    def copy_state(self) -> ProbeVolumeState:
+        s = self.state
+        return ProbeVolumeState(s.irradiance.copy(), s.distance.copy(), s.offsets.copy(), s.states.copy(),
+                                s.updates.copy(), {k: np.copy(v) for k, v in s.extra.items()})
