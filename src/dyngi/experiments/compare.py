@@ -49,7 +49,9 @@ def split_params(techniques: list[str], params: dict) -> dict[str, dict]:
         else:
             takers = [t for t in techniques if k in get_technique(t).PARAMS]
             if not takers:
-                raise DyngiError(f"no compared technique has a parameter '{k}'")
+                valid = sorted({p for t in techniques for p in get_technique(t).PARAMS})
+                raise DyngiError(f"no compared technique has a parameter '{k}'; valid parameters: "
+                                 + (", ".join(valid) or "(none)"))
             for t in takers:
                 out[t][k] = v
     return out
@@ -168,10 +170,12 @@ def _run_with_budget(scene, tech, frames, res, seed, budget, budgets, bar):
     from .runner import SequenceResult
 
     merged = SequenceResult(tech.name)
+    wrapped = _Budgeted(tech, None, None)
     for i in range(frames):
-        rb = budgets.stats[i].get("total_rays") if budget == "equal-rays" else None
-        tb = budgets.wall_ms[i] if budget == "equal-time" else None
-        seq = run_sequence(scene, _Budgeted(tech, rb, tb), 1, res, seed=seed, t0=scene.frame_time(i))
+        wrapped.rb = budgets.stats[i].get("total_rays") if budget == "equal-rays" else None
+        wrapped.# frame 0's wall time includes kernel compilation: budget it like frame 1
+        tb = budgets.wall_ms[i if i > 0 or frames == 1 else 1] if budget == "equal-time" else None
+        seq = run_sequence(scene, wrapped, 1, res, seed=seed, t0=scene.frame_time(i))
         merged.times += seq.times
         merged.images += seq.images
         merged.indirect += seq.indirect
@@ -188,11 +192,14 @@ class _Budgeted:
     def __init__(self, tech, ray_budget, time_budget_ms):
         self.tech, self.rb, self.tb = tech, ray_budget, time_budget_ms
         self.name = tech.name
+        self.prev_sig = None
 
     def step(self, frame):
         frame.ray_budget, frame.time_budget_ms = self.rb, self.tb
         frame.index = int(round(frame.time * self.tech.scene.fps))
-        frame.static = False
+        sig = self.tech.scene.signature(frame.time)   # static as in run_sequence: nothing moved since the last frame
+        frame.static = sig == self.prev_sig
+        self.prev_sig = sig
         return self.tech.step(frame)
 
 

@@ -98,6 +98,9 @@ def atomic_output_dir(out_dir: str):
     try:
         os.makedirs(parent, exist_ok=True)
         tmp = tempfile.mkdtemp(prefix=".dyngi-tmp-", dir=parent)
+        umask = os.umask(0o022)   # mkdtemp makes 0700; the result should look like any new folder
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)
     except OSError as e:
         raise DyngiError(f"cannot create output folder '{out_dir}': {e.strerror}") from None
     try:

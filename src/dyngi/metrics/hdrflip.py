@@ -24,6 +24,7 @@ handles the degenerate cases itself:
 from __future__ import annotations
 
 import numbers
+import os
 
 import numpy as np
 
@@ -33,8 +34,23 @@ from .checks import as_pair, luminance
 DARK_REFERENCE = 1e-3
 """Reference max luminance below which images are rescaled (see module docstring)."""
 
-def _evaluate(ref32, test32, params):
+def _import_flip():
+    """``flip_evaluator`` with its OpenMP threads sleeping, not spinning, while they wait.
+
+    The package ships its own libgomp, which reads ``OMP_WAIT_POLICY`` once,
+    when it loads. Its default (spin, then sleep) stalls each call for
+    ~0.2 s when the cores are busy (Dr.Jit's thread pool, other jobs):
+    measured 820 ms -> 20 ms per 32 x 24 call on the 2-core box under load
+    (benchmarks/harness.py). A value the user set is kept.
+    """
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     import flip_evaluator
+
+    return flip_evaluator
+
+
+def _evaluate(ref32, test32, params):
+    flip_evaluator = _import_flip()
 
     errmap, mean, _ = flip_evaluator.evaluate(ref32, test32, "HDR", applyMagma=False,
                                               computeMeanError=True, parameters=params)
@@ -43,7 +59,7 @@ def _evaluate(ref32, test32, params):
 
 def _auto_exposure(img32, params):
     """The exposure range HDR-FLIP picks automatically for ``img32`` used as reference."""
-    import flip_evaluator
+    flip_evaluator = _import_flip()
 
     _, _, used = flip_evaluator.evaluate(img32, img32, "HDR", applyMagma=False,
                                          computeMeanError=False, parameters=dict(params))

@@ -24,6 +24,9 @@ progressive : bool = True   accumulate across frames while nothing moves
 Budgets: with ``Frame.ray_budget`` the frame's spp is the budget divided by
 the rays per sample measured on the previous frame; with
 ``Frame.time_budget_ms`` it is the budget divided by the measured ms per sample.
+On the first budgeted frame nothing is measured yet: a 1-spp pilot (own RNG
+stream) measures rays and ms per sample, then the rest of the budget is traced
+and both are averaged by sample count, so frame 0 honours the budget too.
 """
 from __future__ import annotations
 
@@ -31,8 +34,11 @@ import time
 
 from ..backend import dr, mi
 from ..sampling.lights import EmitterSampling
-from ..sampling.rng import make_sampler
+from ..sampling.rng import make_sampler, mix_seed
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
+
+_PILOT_STREAM = 0x9170
+"""RNG stream of the 1-spp pilot on the first budgeted frame (see ``PathTechnique.step``)."""
 
 
 def mis_weight(pdf_a, pdf_b, power: bool):
@@ -174,26 +180,45 @@ class PathTechnique(Technique):
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
+        npix = frame.res[0] * frame.res[1]
         spp = self.frame_spp(frame)
+        pilot = None
+        if (frame.ray_budget is not None or frame.time_budget_ms is not None) and self._rays_per_sample is None:
+            # -- first budgeted frame: nothing measured yet; a 1-spp pilot measures rays and ms per
+            #    sample, and its sample counts towards the frame's budget --
+            with t.stage("pilot"):
+                pilot = render_paths(self.scene, frame.camera, frame.res, 1, mix_seed(frame.seed, 1, _PILOT_STREAM),
+                                     frame.index, p["max_depth"], p["rr_depth"], self.lights, p["mis"] == "power")
+                dr.eval(*pilot)
+            t.add_rays("pilot", int(pilot[1][0]))
+            self._rays_per_sample = t.rays["pilot"] / npix
+            self._ms_per_sample = t.ms["pilot"]
+            spp = self.frame_spp(frame) - 1
         with t.stage("trace"):
-            L, rays = render_paths(self.scene, frame.camera, frame.res, spp, frame.seed, frame.index,
-                                   p["max_depth"], p["rr_depth"], self.lights, p["mis"] == "power")
+            if spp > 0:
+                L, rays = render_paths(self.scene, frame.camera, frame.res, spp, frame.seed, frame.index,
+                                       p["max_depth"], p["rr_depth"], self.lights, p["mis"] == "power")
+                if pilot is not None:   # sample-weighted mean of pilot and trace
+                    L = dr.fma(pilot[0] - L, dr.opaque(mi.Float, 1.0 / (spp + 1)), L)
+            else:
+                L, rays = pilot[0], mi.UInt32(0)
+            n_new = spp + (pilot is not None)
             if p["progressive"] and frame.static and self.accum is not None \
                     and dr.width(self.accum) == dr.width(L):
                 # running mean weighted by samples, with an opaque weight: one kernel for any count
-                a = dr.opaque(mi.Float, spp / (self.n_samples + spp))
+                a = dr.opaque(mi.Float, n_new / (self.n_samples + n_new))
                 self.accum = dr.fma(L - self.accum, a, self.accum)
                 self.n_accum += 1
-                self.n_samples += spp
+                self.n_samples += n_new
             else:
-                self.accum, self.n_accum, self.n_samples = L, 1, spp
+                self.accum, self.n_accum, self.n_samples = L, 1, n_new
             dr.eval(self.accum, rays)
         t.add_rays("trace", int(rays[0]))
-        npix = frame.res[0] * frame.res[1]
-        self._rays_per_sample = t.rays["trace"] / (npix * spp)
-        self._ms_per_sample = t.ms["trace"] / spp
+        if spp > 0:
+            self._rays_per_sample = t.rays["trace"] / (npix * spp)
+            self._ms_per_sample = t.ms["trace"] / spp
         img = to_image(self.accum, frame.res)
         stats = t.as_dict()
         stats["accumulated_frames"] = self.n_accum
-        stats["spp"] = spp
+        stats["spp"] = n_new
         return FrameResult(image=img, stats=stats)
