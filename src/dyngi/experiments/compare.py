@@ -173,8 +173,9 @@ def _run_with_budget(scene, tech, frames, res, seed, budget, budgets, bar):
     wrapped = _Budgeted(tech, None, None)
     for i in range(frames):
         wrapped.rb = budgets.stats[i].get("total_rays") if budget == "equal-rays" else None
-        wrapped.# frame 0's wall time includes kernel compilation: budget it like frame 1
-        tb = budgets.wall_ms[i if i > 0 or frames == 1 else 1] if budget == "equal-time" else None
+        # frame 0's wall time includes kernel compilation: budget it like frame 1
+        tb_i = i if (i > 0 or frames == 1) else 1
+        wrapped.tb = budgets.wall_ms[tb_i] if budget == "equal-time" else None
         seq = run_sequence(scene, wrapped, 1, res, seed=seed, t0=scene.frame_time(i))
         merged.times += seq.times
         merged.images += seq.images
