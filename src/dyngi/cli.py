@@ -118,7 +118,8 @@ def cmd_compare(args) -> int:
     techs = [t.strip() for t in args.techniques.split(",") if t.strip()]
     out = run_compare(args.scene, techs, args.out, frames=args.frames, res=parse_res(args.res),
                       budget=args.budget, seed=args.seed, ref_spp=args.ref_spp, quiet=args.quiet,
-                      params=_parse_sets(args.set))
+                      params=_parse_sets(args.set),
+                      metrics=[m.strip() for m in args.metrics.split(",") if m.strip()])
     print(f"wrote comparison to {out} (open {os.path.join(out, 'report.html')})")
     return 0
 
@@ -179,6 +180,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--budget", default="equal-frames", choices=("equal-frames", "equal-rays", "equal-time"))
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=None)
+    s.add_argument("--metrics", default="mse,relmse,mape,flip,ssim",
+                   help="comma-separated metrics (FLIP is the slow one)")
     s.add_argument("--set", action="append", metavar="TECH.KEY=VALUE", help="technique parameter")
     s.add_argument("--out", required=True)
     common(s, frames_default=30, res_default="160x120")

@@ -34,6 +34,7 @@ from .io import atomic_output_dir, check_writable, tonemap_srgb, write_json, wri
 from .runner import BUDGETS, run_sequence
 
 METRIC_NAMES = ("mse", "relmse", "mape", "flip", "ssim")
+LABELS = {"mse": "MSE", "relmse": "relMSE", "mape": "MAPE", "flip": "FLIP", "ssim": "SSIM"}
 
 
 def split_params(techniques: list[str], params: dict) -> dict[str, dict]:
@@ -59,9 +60,21 @@ def split_params(techniques: list[str], params: dict) -> dict[str, dict]:
 
 def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: int = 30, res=(160, 120),
                 budget: str = "equal-frames", seed: int = 0, ref_spp: int | None = None, quiet: bool = False,
-                params: dict | None = None, grid_frames: list[int] | None = None) -> str:
-    from ..metrics import compute_all, flip, temporal_errors
+                params: dict | None = None, grid_frames: list[int] | None = None,
+                metrics: list[str] | None = None) -> str:
+    """Run the comparison and write the outputs described in the module docstring; return ``out_dir``.
+
+    ``metrics``: names from :data:`dyngi.metrics.METRICS` (default all five). HDR-FLIP costs
+    ~10 us per pixel on 2 CPU cores (docs/benchmarks.md); leave it out for long sequences
+    (the FLIP maps of the image grid are computed regardless).
+    """
+    from ..metrics import METRICS, compute_all, flip, temporal_errors
     from .reference import reference_image
+
+    names = list(metrics) if metrics else list(METRIC_NAMES)
+    for m in names:
+        if m not in METRICS:
+            raise DyngiError(f"unknown metric '{m}'; valid metrics: {', '.join(sorted(METRICS))}")
 
     # -- validate everything before any work --
     if not techniques:
@@ -116,7 +129,7 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
     for name, seq in results.items():
         per_frame = []
         for i, img in enumerate(seq.images):
-            m = compute_all(np.nan_to_num(np.maximum(img, 0.0)), refs[i], list(METRIC_NAMES))
+            m = compute_all(np.nan_to_num(np.maximum(img, 0.0)), refs[i], names)
             st = seq.stats[i]
             row = {"technique": name, "frame": i, "time": seq.times[i], **m,
                    "wall_ms": seq.wall_ms[i], "rays": st.get("total_rays", 0)}
@@ -130,7 +143,7 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
             for k, v in st.get("ms", {}).items():
                 stage_ms[k] = stage_ms.get(k, 0.0) + v / max(len(seq.stats[1:] or seq.stats), 1)
         summary[name] = {
-            "mean": {k: float(np.mean([f[k] for f in per_frame])) for k in METRIC_NAMES},
+            "mean": {k: float(np.mean([f[k] for f in per_frame])) for k in names},
             "E": float(tm["E"]), "E_prime": float(tm["E_prime"]),
             "ms_per_frame": float(np.mean(seq.wall_ms[1:] or seq.wall_ms)),
             "stage_ms": stage_ms,
@@ -140,7 +153,7 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
     # -- outputs --
     with atomic_output_dir(out_dir) as tmp:
         _write_csv(os.path.join(tmp, "metrics.csv"), rows)
-        md = _summary_md(scene, techniques, summary, frames, res, budget, seed)
+        md = _summary_md(scene, techniques, summary, frames, res, budget, seed, names)
         with open(os.path.join(tmp, "summary.md"), "w") as f:
             f.write(md)
         write_json(os.path.join(tmp, "summary.json"), {"scene": scene.name, "frames": frames, "res": list(res),
@@ -154,7 +167,7 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
         os.makedirs(os.path.join(tmp, "reference"), exist_ok=True)
         for i, r in enumerate(refs):
             write_png(os.path.join(tmp, "reference", f"frame_{i:04d}.png"), r)
-        plots = _plots(tmp, rows, techniques, summary)
+        plots = _plots(tmp, rows, techniques, summary, names)
         gframes = grid_frames if grid_frames is not None else sorted({frames // 2, frames - 1})
         grids = [_grid(tmp, i, results, refs, flip) for i in gframes if 0 <= i < frames]
         if frames > 1:
@@ -217,20 +230,21 @@ def _write_csv(path, rows):
             w.writerow(r)
 
 
-def _summary_md(scene, techniques, summary, frames, res, budget, seed) -> str:
+def _summary_md(scene, techniques, summary, frames, res, budget, seed, names) -> str:
     info = backend.device_info()
     lines = [f"# {scene.name}: {', '.join(techniques)}", "",
              f"{frames} frames at {res[0]}x{res[1]}, budget {budget}, seed {seed}, "
              f"{info['variant']} (Mitsuba {info['mitsuba']}). Errors against Mitsuba's `path` integrator "
              "(cached ground truth); lower is better except SSIM. |E| and |E'|: SMC-IR Sec. 5.2 temporal "
              "error and its frame-to-frame change (flicker) after Reinhard tone mapping.", "",
-             "| technique | MSE | relMSE | MAPE | FLIP | SSIM | abs(E) | abs(E') | ms/frame | Mrays/frame |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
-    best = {k: min(summary[t]["mean"][k] for t in techniques) for k in METRIC_NAMES if k != "ssim"}
+             "| technique | " + " | ".join(LABELS.get(k, k) for k in names) +
+             " | abs(E) | abs(E') | ms/frame | Mrays/frame |",
+             "|---|" + "---|" * (len(names) + 4)]
+    best = {k: min(summary[t]["mean"][k] for t in techniques) for k in names if k != "ssim"}
     for t in techniques:
         s = summary[t]
         cells = []
-        for k in METRIC_NAMES:
+        for k in names:
             v = f"{s['mean'][k]:.4g}"
             cells.append(f"**{v}**" if k != "ssim" and len(techniques) > 1 and s["mean"][k] == best[k] else v)
         lines.append(f"| {t} | " + " | ".join(cells) +
@@ -243,7 +257,7 @@ def _summary_md(scene, techniques, summary, frames, res, budget, seed) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _plots(tmp, rows, techniques, summary):
+def _plots(tmp, rows, techniques, summary, names):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -251,16 +265,18 @@ def _plots(tmp, rows, techniques, summary):
 
     os.makedirs(os.path.join(tmp, "plots"), exist_ok=True)
     paths = []
+    m0 = "relmse" if "relmse" in names else names[0]
+    m1 = "flip" if "flip" in names else (names[1] if len(names) > 1 else names[0])
     fig, axes = plt.subplots(1, 3, figsize=(15, 4))
     for t in techniques:
         r = [x for x in rows if x["technique"] == t]
         fr = [x["frame"] for x in r]
-        axes[0].semilogy(fr, [max(x["relmse"], 1e-8) for x in r], label=t)
-        axes[1].plot(fr, [x["flip"] for x in r], label=t)
-        axes[2].semilogy(np.cumsum([x["wall_ms"] for x in r]) / 1e3, [max(x["relmse"], 1e-8) for x in r], label=t)
-    axes[0].set(xlabel="frame", ylabel="relMSE", title="error vs frame")
-    axes[1].set(xlabel="frame", ylabel="FLIP", title="FLIP vs frame")
-    axes[2].set(xlabel="cumulative wall time (s)", ylabel="relMSE", title="error vs wall time")
+        axes[0].semilogy(fr, [max(x[m0], 1e-8) for x in r], label=t)
+        axes[1].plot(fr, [x[m1] for x in r], label=t)
+        axes[2].semilogy(np.cumsum([x["wall_ms"] for x in r]) / 1e3, [max(x[m0], 1e-8) for x in r], label=t)
+    axes[0].set(xlabel="frame", ylabel=LABELS.get(m0, m0), title="error vs frame")
+    axes[1].set(xlabel="frame", ylabel=LABELS.get(m1, m1), title=f"{LABELS.get(m1, m1)} vs frame")
+    axes[2].set(xlabel="cumulative wall time (s)", ylabel=LABELS.get(m0, m0), title="error vs wall time")
     for a in axes:
         a.legend()
         a.grid(alpha=0.3)
