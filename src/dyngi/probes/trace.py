@@ -34,6 +34,7 @@ from ..backend import dr, mi
 from ..errors import unknown_choice
 from ..sampling.lights import EmitterSampling
 from ..sampling.rng import make_sampler
+from ..timing import maybe_stage
 from .rays import RayPlan
 
 DIRECT_MODES = ("nee", "sky", "emissive")
@@ -125,14 +126,14 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
     """
     mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
     n = dr.width(plan.direction)
-    with _stage(timer, "trace probes"):
+    with maybe_stage(timer, "trace probes"):
         origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
         ray = mi.Ray3f(origin, plan.direction)
         pi = mscene.ray_intersect_preliminary(ray, coherent=False)
         dr.eval(ray, pi)
     if timer is not None:
         timer.add_rays("trace probes", n)
-    with _stage(timer, "shade probes"):
+    with maybe_stage(timer, "shade probes"):
         si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
         sampler = make_sampler(n, seed, frame, stream)
         L, hit, front = shader.shade(mscene, ray, si, sampler, query, mi.Bool(True))
@@ -155,15 +156,3 @@ def trace_probe_distances(scene, volume, plan: RayPlan) -> "mi.Float":
     dist = dr.select(hit, dr.select(front, si.t, -BACKFACE_DISTANCE_SCALE * si.t), dr.inf)
     dr.eval(dist)
     return dist
-
-
-class _NullStage:
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *a):
-        return False
-
-
-def _stage(timer, name):
-    return timer.stage(name) if timer is not None else _NullStage()

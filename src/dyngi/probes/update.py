@@ -23,6 +23,7 @@ from .rays import FixedSFDirections
 from .states import ProbeStates
 from .trace import trace_probe_distances, trace_probe_rays, vector_to_numpy
 from .volume import ProbeVolume
+from ..timing import maybe_stage
 
 
 class ProbeUpdater:
@@ -51,10 +52,10 @@ class ProbeUpdater:
             plan = self.directions.plan(frame, seed, ids)
             res = trace_probe_rays(scene, vol, plan, self.shader, self.query, seed, frame, timer=timer)
             self.last_results = res
-            with _stage(timer, "blend"):
+            with maybe_stage(timer, "blend"):
                 self.blender.update(vol, res)
             if self.states is not None:
-                with _stage(timer, "states"):
+                with maybe_stage(timer, "states"):
                     dist = np.asarray(res.distance, np.float32).reshape(len(ids), -1)
                     dirs = plan.shared_directions
                     if dirs is None:
@@ -69,7 +70,7 @@ class ProbeUpdater:
             if probe_mask is not None:
                 dead = dead[probe_mask[dead]]
             if len(dead):
-                with _stage(timer, "states"):
+                with maybe_stage(timer, "states"):
                     plan = self.classify_dirs.plan(frame, seed, dead)
                     dist = np.asarray(trace_probe_distances(scene, vol, plan), np.float32).reshape(len(dead), -1)
                     c = self.states.update(vol, dead, plan.shared_directions, dist)
@@ -81,16 +82,6 @@ class ProbeUpdater:
         return info
 
 
-class _NullStage:
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *a):
-        return False
-
-
-def _stage(timer, name):
-    return timer.stage(name) if timer is not None else _NullStage()
 
 
 def probes_in_frustum(volume: ProbeVolume, camera, res, margin: float = 1.4) -> np.ndarray:

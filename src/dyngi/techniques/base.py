@@ -7,8 +7,6 @@ strings (``--set key=value`` on the command line) and are parsed by type.
 """
 from __future__ import annotations
 
-import time
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -16,6 +14,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError, unknown_choice
+from ..timing import StageTimer, maybe_stage  # noqa: F401  (re-exported)
 
 
 @dataclass(frozen=True)
@@ -84,28 +83,6 @@ class FrameResult:
     image: np.ndarray                       # H x W x 3 linear float32
     indirect: np.ndarray | None = None      # H x W x 3, indirect light only (where separated)
     stats: dict = field(default_factory=lambda: {"ms": {}, "rays": {}})
-
-
-class StageTimer:
-    """Per-stage wall time (ms) and ray counts; each stage ends with ``dr.eval`` of its outputs."""
-
-    def __init__(self):
-        self.ms: dict[str, float] = {}
-        self.rays: dict[str, int] = {}
-
-    @contextmanager
-    def stage(self, name: str):
-        t0 = time.perf_counter()
-        yield
-        dr.sync_thread()
-        self.ms[name] = self.ms.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
-
-    def add_rays(self, name: str, n: int) -> None:
-        self.rays[name] = self.rays.get(name, 0) + int(n)
-
-    def as_dict(self) -> dict:
-        return {"ms": dict(self.ms), "rays": dict(self.rays),
-                "total_ms": float(sum(self.ms.values())), "total_rays": int(sum(self.rays.values()))}
 
 
 class Technique:
