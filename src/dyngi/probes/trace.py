@@ -32,7 +32,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import unknown_choice
-from ..sampling.lights import EmitterSampling
+from ..sampling.lights import EmitterSubsetSampling
 from ..sampling.rng import make_sampler
 from ..timing import maybe_stage
 from .rays import RayPlan
@@ -62,6 +62,28 @@ def emitter_via_probes(emitter, mode: str, active=True):
     return ~delta & (emitter != None)  # noqa: E711
 
 
+def emitter_via_probes_host(emitter, mode: str) -> bool:
+    """Host-side twin of :func:`emitter_via_probes` for one Python emitter object."""
+    if mode == "nee":
+        return False
+    f = emitter.flags()
+    delta = mi.has_flag(f, mi.EmitterFlags.DeltaPosition) or mi.has_flag(f, mi.EmitterFlags.DeltaDirection)
+    if mode == "sky":
+        return bool(mi.has_flag(f, mi.EmitterFlags.Infinite)) and not delta
+    return not delta
+
+
+_NEE_CACHE: dict = {}
+
+
+def nee_lights(mi_scene, mode: str) -> EmitterSubsetSampling:
+    """NEE over exactly the emitters that the probes do not carry under ``mode`` (cached per scene)."""
+    key = (id(mi_scene), mode)
+    if key not in _NEE_CACHE:
+        _NEE_CACHE[key] = EmitterSubsetSampling(mi_scene, lambda e: not emitter_via_probes_host(e, mode))
+    return _NEE_CACHE[key]
+
+
 def check_direct_mode(mode: str) -> str:
     if mode not in DIRECT_MODES:
         raise unknown_choice("direct-light mode", mode, DIRECT_MODES)
@@ -77,7 +99,7 @@ class DiffuseHitShader:
 
     def __init__(self, direct: str = "sky", lights=None):
         self.direct = check_direct_mode(direct)
-        self.lights = lights if lights is not None else EmitterSampling()
+        self.lights = lights   # None: NEE over the emitters the probes do not carry (nee_lights)
 
     def shade(self, scene, ray, si, sampler, query, active):
         hit = active & si.is_valid()
@@ -91,9 +113,11 @@ class DiffuseHitShader:
         bsdf = si.bsdf(ray)
         albedo = bsdf.eval_diffuse_reflectance(si, front)
         # -- direct light by NEE (one shadow ray) --
-        ds, w = self.lights.sample(scene, si, sampler.next_2d(), front)
+        lights = self.lights if self.lights is not None else nee_lights(scene, self.direct)
+        ds, w = lights.sample(scene, si, sampler.next_2d(), front)
         cos = dr.maximum(dr.dot(si.sh_frame.n, ds.d), 0.0)
-        w = dr.select(emitter_via_probes(ds.emitter, self.direct, front), 0.0, w)
+        if self.lights is not None:   # a general strategy may pick emitters the probes carry
+            w = dr.select(emitter_via_probes(ds.emitter, self.direct, front), 0.0, w)
         E = w * cos
         # -- multi-bounce from the previous frame's probes --
         if query is not None:

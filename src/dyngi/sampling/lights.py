@@ -12,7 +12,9 @@ ReSTIR, the light BVH, the VLC and the CDQ replace :class:`EmitterSampling`.
 """
 from __future__ import annotations
 
-from ..backend import mi
+import numpy as np
+
+from ..backend import dr, mi
 
 
 class EmitterSampling:
@@ -25,3 +27,56 @@ class EmitterSampling:
 
     def pdf(self, scene, ref_si, ds, active):
         return scene.pdf_emitter_direction(ref_si, ds, active)
+
+
+class EmitterSubsetSampling:
+    """Next-event estimation restricted to a subset of the scene's emitters.
+
+    Used when another estimator already carries some emitters' light (DDGI's
+    probes carry the sky in ``direct='sky'`` mode, or all emissive surfaces
+    in ``'emissive'`` mode): NEE then samples only the others, chosen in
+    proportion to their ``sampling_weight``, instead of sampling all of them
+    and discarding part of the samples (same expectation, less noise). A scene
+    lit only by a sun and a sky thus gets noise-free direct sunlight.
+
+    ``keep(emitter) -> bool`` selects the emitters (host side, once per scene).
+    """
+
+    name = "emitter-subset"
+
+    def __init__(self, mi_scene, keep):
+        emitters = list(mi_scene.emitters())
+        idx = [i for i, e in enumerate(emitters) if keep(e)]
+        self.count = len(idx)
+        if self.count:
+            w = [float(emitters[i].sampling_weight()) for i in idx]
+            if sum(w) <= 0:
+                w = [1.0] * len(idx)
+            self.table = mi.DiscreteDistribution(w)
+            self.ptrs = dr.gather(mi.EmitterPtr, mi_scene.emitters_dr(), mi.UInt32(idx))
+            # selection pmf by emitter registry id (what an EmitterPtr holds), for pdf()
+            ids = np.asarray(dr.reinterpret_array(mi.UInt32, mi_scene.emitters_dr()), np.int64)
+            table = np.zeros(int(ids.max()) + 1, np.float32)
+            table[ids[idx]] = np.asarray(w, np.float64) / sum(w)
+            self.pmf_by_id = mi.Float(table)
+
+    def sample(self, scene, si, u2, active):
+        if not self.count:
+            return dr.zeros(mi.DirectionSample3f), mi.Color3f(0.0)
+        active = mi.Bool(active)
+        k, ux, pmf = self.table.sample_reuse_pmf(u2.x, active)
+        em = dr.gather(mi.EmitterPtr, self.ptrs, k, active)
+        ds, spec = em.sample_direction(si, mi.Point2f(ux, u2.y), active)
+        active &= ds.pdf != 0.0
+        occluded = scene.ray_test(si.spawn_ray_to(ds.p), active)
+        ds.pdf *= pmf
+        spec = dr.select(active & ~occluded, spec / pmf, 0.0)
+        return ds, mi.Color3f(spec)
+
+    def pdf(self, scene, ref_si, ds, active):
+        if not self.count:
+            return mi.Float(0.0)
+        # the emitter's selection probability, looked up by its registry id (0 outside the subset)
+        rid = dr.reinterpret_array(mi.UInt32, ds.emitter)
+        pmf = dr.gather(mi.Float, self.pmf_by_id, rid, active & (rid < dr.width(self.pmf_by_id)))
+        return ds.emitter.pdf_direction(ref_si, ds, active & (pmf > 0.0)) * pmf

@@ -47,7 +47,7 @@ from ..backend import dr, mi
 from ..errors import DyngiError
 from ..probes import (DiffuseHitShader, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
                       ProbeUpdater, ProbeVolume, TrueAverage, UniformSFDirections, probes_in_frustum)
-from ..probes.trace import DIRECT_MODES, emitter_via_probes, trace_probe_rays
+from ..probes.trace import DIRECT_MODES, emitter_via_probes, nee_lights, trace_probe_rays
 from ..sampling.rng import make_sampler
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
@@ -69,14 +69,20 @@ def parse_probe_counts(text: str, scene) -> tuple:
 
 
 def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direct: str, jitter: bool,
-                  lights=None):
+                  lights=None, direct_samples: int = 1):
     """Primary-vertex shading (the consumer): emission + NEE direct + albedo/pi * probe irradiance.
+
+    Direct light: ``direct_samples`` NEE samples per pixel over the emitters the
+    probes do not carry (:func:`dyngi.probes.trace.nee_lights`), unless a
+    ``lights`` strategy is given. DDGI itself shades direct light with shadow
+    maps (noise-free); here it is Monte Carlo, so a many-light scene needs more
+    samples (or a better light sampler) to look clean.
 
     Returns (image Color3f, indirect Color3f, rays traced as an int).
     """
-    from ..sampling.lights import EmitterSampling
-    lights = lights if lights is not None else EmitterSampling()
     mscene = scene.mi_scene
+    custom = lights is not None
+    lights = lights if custom else nee_lights(mscene, direct)
     w, h = res
     n = w * h
     sampler = make_sampler(n, seed, frame, 101)
@@ -92,10 +98,13 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     # -- direct light by NEE for the emitters NEE owns --
     bsdf = si.bsdf(ray)
     ctx = mi.BSDFContext()
-    ds, wl = lights.sample(mscene, si, sampler.next_2d(), front)
-    wl = dr.select(emitter_via_probes(ds.emitter, direct, front), 0.0, wl)
-    f = bsdf.eval(ctx, si, si.to_local(ds.d), front)
-    L += dr.select(front, f * wl, 0.0)
+    k = max(int(direct_samples), 1)
+    for _ in range(k):
+        ds, wl = lights.sample(mscene, si, sampler.next_2d(), front)
+        if custom:
+            wl = dr.select(emitter_via_probes(ds.emitter, direct, front), 0.0, wl)
+        f = bsdf.eval(ctx, si, si.to_local(ds.d), front)
+        L += dr.select(front, f * wl * (1.0 / k), 0.0)
     # -- indirect light from the probes --
     albedo = bsdf.eval_diffuse_reflectance(si, front)
     E = volume_query.irradiance(si.p, si.sh_frame.n, -ray.d, active=front)
@@ -103,7 +112,7 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     L += ind
     L = dr.select(dr.isfinite(L), L, 0.0)
     dr.eval(L, ind)
-    return L, ind, 2 * n
+    return L, ind, (1 + k) * n
 
 
 class _ProbeTechniqueBase(Technique):
@@ -124,7 +133,8 @@ class _ProbeTechniqueBase(Technique):
         p = self.params
         with t.stage("primary"):
             L, ind, rays = shade_primary(self.scene, frame.camera, frame.res, self.query, frame.seed,
-                                         frame.index, p["direct"], p["jitter"])
+                                         frame.index, p["direct"], p["jitter"],
+                                         direct_samples=p["direct_samples"])
         t.add_rays("primary", rays)
         return to_image(L, frame.res), to_image(ind, frame.res)
 
@@ -142,6 +152,7 @@ COMMON_PARAMS = {
     "direct": Param("sky", "emitters handled by NEE: 'nee' all, 'sky' all but the environment, "
                     "'emissive' delta lights only", choices=DIRECT_MODES),
     "jitter": Param(False, "jitter primary rays inside the pixel (default: pixel centres)"),
+    "direct_samples": Param(1, "NEE samples per pixel for direct light at the primary hit", min=1, max=64),
 }
 
 
@@ -154,6 +165,9 @@ class DDGITechnique(_ProbeTechniqueBase):
     PARAMS = {
         **COMMON_PARAMS,
         "rays_per_probe": Param(256, "rays per active probe per frame", min=1, max=1 << 14),
+        "warmup": Param(8, "extra probe updates on the first frame, blended without hysteresis, so that "
+                        "multi-bounce light exists in the first image (0: start from empty probes)",
+                        min=0, max=256),
         "hysteresis": Param(0.97, "weight of the old texel value in the blend", min=0.0, max=1.0),
         "irradiance_texels": Param(8, "irradiance texels per side incl. the 1-texel border", min=3, max=64),
         "distance_texels": Param(16, "distance texels per side incl. the 1-texel border", min=3, max=64),
@@ -180,6 +194,10 @@ class DDGITechnique(_ProbeTechniqueBase):
         self.updater = ProbeUpdater(self.volume, self.directions, self.shader, self.blender, self.states,
                                     self.query, reclassify_interval=p["reclassify_interval"])
         self._last_signature = None
+        self._warmed = False
+
+    def _warm_up(self, frame, mask, t):
+        _warm_up_volume(self, frame, mask, t)
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
@@ -188,12 +206,40 @@ class DDGITechnique(_ProbeTechniqueBase):
         sig = self.scene.signature(frame.time) if hasattr(self.scene, "signature") else None
         moved = sig != self._last_signature and self._last_signature is not None
         self._last_signature = sig
+        if not self._warmed:
+            self._warm_up(frame, mask, t)
         info = self.updater.update(self.scene, frame.index, frame.seed, mask, t, force_reclassify=moved)
         img, ind = self._primary(frame, t)
         stats = t.as_dict()
         stats.update({k: v for k, v in info.items() if k != "rays"})
         stats["active_probes"] = int(np.count_nonzero(self.volume.state.states))
         return FrameResult(image=img, indirect=ind, stats=stats)
+
+
+WARMUP_FRAME_BASE = 1 << 24   # frame indices of warm-up updates: distinct RNG streams from real frames
+
+
+def _warm_up_volume(tech, frame: Frame, mask, t: StageTimer) -> None:
+    """``warmup`` probe updates before the first image, without hysteresis or brightness damping.
+
+    Each update reads the previous one's probes, so after k updates the cache
+    holds k bounces of indirect light (what an engine does when it loads a level).
+    """
+    tech._warmed = True
+    n = tech.params["warmup"]
+    if n <= 0:
+        return
+    b = tech.blender
+    saved = (b.hysteresis, b.brightness_threshold)
+    b.hysteresis, b.brightness_threshold = 0.0, float("inf")
+    try:
+        with t.stage("warmup"):
+            for k in range(n):
+                tech.updater.update(tech.scene, WARMUP_FRAME_BASE + k, frame.seed, mask, None,
+                                    force_reclassify=(k == 0))
+        t.add_rays("warmup", n * int(np.count_nonzero(tech.volume.state.states)) * tech.params["rays_per_probe"])
+    finally:
+        b.hysteresis, b.brightness_threshold = saved
 
 
 def _with_defaults(params: dict, defaults: dict) -> dict:
