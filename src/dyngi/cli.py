@@ -41,13 +41,20 @@ def _positive(name):
 
 
 def cmd_scenes(args) -> int:
-    from .scene.library import BUILTINS, builtin_names
+    from .scene.library import BUILTINS, builtin_names, make_builtin
 
     names = builtin_names()
     width = max(len(n) for n in names)
     for n in names:
         e = BUILTINS[n]
+        sc = make_builtin(n)
+        loop = any(getattr(getattr(a, tr, None), "loop", False) for a in sc.animators
+                   for tr in ("translate", "angle", "track", "direction"))
+        timing = (f"{sc.duration:g} s at {sc.fps:g} fps ({int(round(sc.duration * sc.fps))} frames"
+                  + (", loops" if loop else "") + ")") if sc.is_animated else "static"
         print(f"{n:<{width}}  {e.description}")
+        print(f"{'':<{width}}    {timing}; {len(sc.meta.emitters)} emitter(s); probe grid "
+              + "x".join(map(str, sc.meta.probe_counts)))
         if e.stands_for:
             print(f"{'':<{width}}    stands for: {e.stands_for}")
     return 0
@@ -61,6 +68,10 @@ def cmd_techniques(args) -> int:
         print(f"{n}: {cls.description}")
         for k, p in cls.PARAMS.items():
             extra = f" (one of {', '.join(map(str, p.choices))})" if p.choices else ""
+            if p.min is not None or p.max is not None:
+                lo = "" if p.min is None else f"{p.min:g} <= "
+                hi = "" if p.max is None else f" <= {p.max:g}"
+                extra += f" [{lo}{k}{hi}]"
             print(f"    {k} = {p.default!r}  {p.doc}{extra}")
     return 0
 
@@ -72,12 +83,18 @@ def _setup(args):
 
 
 def cmd_render(args) -> int:
+    from .errors import DyngiError
     from .experiments.render import render_to_dir
     from .experiments.runner import parse_res
 
     _setup(args)
     params = _parse_sets(args.set)
     if args.spp is not None:
+        from .techniques.base import get_technique
+
+        if "spp" not in get_technique(args.technique).PARAMS:
+            raise DyngiError(f"--spp does not apply to technique '{args.technique}' (it has no 'spp' "
+                             "parameter; see 'dyngi techniques')")
         params.setdefault("spp", args.spp)
     res = parse_res(args.res)
     summary = render_to_dir(args.scene, args.technique, args.out, frames=args.frames, res=res,
@@ -140,9 +157,26 @@ def cmd_demo(args) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (no usage dump), like every other dyngi error."""
+
+    def error(self, message):
+        self.exit(2, f"dyngi: error: {message} (see '{self.prog} --help')\n")
+
+
+def _time(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--t0 must be a number of seconds, got '{text}'") from None
+    if not (v == v and abs(v) < 1e9) or v < 0:
+        raise argparse.ArgumentTypeError(f"--t0 must be a finite time >= 0 s, got '{text}'")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="dyngi", description="Real-time dynamic GI research on Mitsuba 3 + Dr.Jit")
-    sub = p.add_subparsers(dest="cmd", metavar="COMMAND")
+    p = _Parser(prog="dyngi", description="Real-time dynamic GI research on Mitsuba 3 + Dr.Jit")
+    sub = p.add_subparsers(dest="cmd", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
     s = sub.add_parser("scenes", help="list built-in scenes")
@@ -151,19 +185,24 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(fn=cmd_techniques)
 
     def common(sp, frames_default=1, res_default="320x240"):
-        sp.add_argument("--frames", type=_positive("--frames"), default=frames_default)
-        sp.add_argument("--res", default=res_default, help="WxH")
-        sp.add_argument("--device", default="cpu", choices=("cpu", "cuda"))
+        sp.add_argument("--frames", type=_positive("--frames"), default=frames_default,
+                        help=f"number of frames, at the scene's fps (default {frames_default})")
+        sp.add_argument("--res", default=res_default, help=f"image size WxH (default {res_default})")
+        sp.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
+                        help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
         sp.add_argument("--quiet", action="store_true", help="no progress bar")
 
     s = sub.add_parser("render", help="render a scene with a technique")
     s.add_argument("scene", help="built-in scene name or path to a scene file")
-    s.add_argument("--technique", default="path")
-    s.add_argument("--spp", type=_positive("--spp"), default=None)
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--t0", type=float, default=0.0, help="start time (s)")
-    s.add_argument("--set", action="append", metavar="KEY=VALUE", help="technique parameter")
-    s.add_argument("--out", required=True)
+    s.add_argument("--technique", default="path", help="technique name (default path; see 'dyngi techniques')")
+    s.add_argument("--spp", type=_positive("--spp"), default=None,
+                   help="samples per pixel, for techniques with an 'spp' parameter (path)")
+    s.add_argument("--seed", type=int, default=0, help="random seed (default 0); same seed, same EXRs")
+    s.add_argument("--t0", type=_time, default=0.0,
+                   help="start time in seconds (default 0; looping animations wrap, see 'dyngi scenes')")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="technique parameter, repeatable (see 'dyngi techniques')")
+    s.add_argument("--out", required=True, help="output folder (created; files in it are replaced)")
     common(s)
     s.set_defaults(fn=cmd_render)
 
@@ -207,6 +246,12 @@ def main(argv=None) -> int:
     except DyngiError as e:
         print(f"dyngi: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:   # output piped into e.g. `head`
+        try:
+            sys.stdout = open(os.devnull, "w")
+        except OSError:
+            pass
+        return 0
     except KeyboardInterrupt:
         print("dyngi: interrupted; nothing half-written was kept", file=sys.stderr)
         return 130

@@ -184,11 +184,13 @@ def _run_with_budget(scene, tech, frames, res, seed, budget, budgets, bar):
 
     merged = SequenceResult(tech.name)
     wrapped = _Budgeted(tech, None, None)
+    # equal time: the first technique's steady median frame time (frame 0 includes kernel compilation,
+    # and single frames on a shared CPU are noisy)
+    steady = budgets.wall_ms[1:] or budgets.wall_ms
+    time_budget = float(np.median(steady))
     for i in range(frames):
         wrapped.rb = budgets.stats[i].get("total_rays") if budget == "equal-rays" else None
-        # frame 0's wall time includes kernel compilation: budget it like frame 1
-        tb_i = i if (i > 0 or frames == 1) else 1
-        wrapped.tb = budgets.wall_ms[tb_i] if budget == "equal-time" else None
+        wrapped.tb = time_budget if budget == "equal-time" else None
         seq = run_sequence(scene, wrapped, 1, res, seed=seed, t0=scene.frame_time(i))
         merged.times += seq.times
         merged.images += seq.images
@@ -250,11 +252,38 @@ def _summary_md(scene, techniques, summary, frames, res, budget, seed, names) ->
         lines.append(f"| {t} | " + " | ".join(cells) +
                      f" | {s['E']:.4g} | {s['E_prime']:.4g} | {s['ms_per_frame']:.1f} | "
                      f"{s['rays_per_frame'] / 1e6:.3g} |")
+    if budget != "equal-frames":
+        first = techniques[0]
+        what = ("rays per frame" if budget == "equal-rays" else "median steady frame time "
+                f"({summary[first]['ms_per_frame']:.1f} ms)")
+        honour = [t for t in techniques[1:] if budget in get_technique(t).BUDGETS]
+        ignore = [t for t in techniques[1:] if budget not in get_technique(t).BUDGETS]
+        lines += ["", f"Budget: every technique gets the {what} of `{first}`"
+                  + (f"; adapted by {', '.join(honour)}" if honour else "")
+                  + (f"; {', '.join(ignore)} cannot adapt and ran its own settings" if ignore else "") + "."]
+    lines += ["", _verdict(techniques, summary, names)]
     lines += ["", "## Milliseconds per frame by stage (steady state)", ""]
     for t in techniques:
         st = ", ".join(f"{k} {v:.1f}" for k, v in summary[t]["stage_ms"].items())
         lines.append(f"* **{t}**: {st}")
     return "\n".join(lines) + "\n"
+
+
+def _verdict(techniques, summary, names) -> str:
+    """One sentence on who wins on error and at what cost."""
+    m = "relmse" if "relmse" in names else names[0]
+    if m == "ssim" or len(techniques) < 2:
+        return ""
+    lab = LABELS.get(m, m)
+    best = min(techniques, key=lambda t: summary[t]["mean"][m])
+    fast = min(techniques, key=lambda t: summary[t]["ms_per_frame"])
+    b, f = summary[best], summary[fast]
+    if best == fast:
+        return f"**Verdict:** `{best}` has the lowest {lab} and is also the fastest."
+    ratio_e = f["mean"][m] / max(b["mean"][m], 1e-30)
+    ratio_t = b["ms_per_frame"] / max(f["ms_per_frame"], 1e-9)
+    return (f"**Verdict:** `{best}` has the lowest {lab}, {ratio_e:.2g}x lower than the fastest technique "
+            f"`{fast}`, at {ratio_t:.2g}x its frame time. Compare at equal cost with `--budget equal-time`.")
 
 
 def _plots(tmp, rows, techniques, summary, names):
@@ -273,10 +302,14 @@ def _plots(tmp, rows, techniques, summary, names):
         fr = [x["frame"] for x in r]
         axes[0].semilogy(fr, [max(x[m0], 1e-8) for x in r], label=t)
         axes[1].plot(fr, [x[m1] for x in r], label=t)
-        axes[2].semilogy(np.cumsum([x["wall_ms"] for x in r]) / 1e3, [max(x[m0], 1e-8) for x in r], label=t)
+        wall = np.array([x["wall_ms"] for x in r], np.float64)
+        if len(wall) > 1:   # frame 0 includes kernel compilation: count it as a steady frame
+            wall[0] = np.median(wall[1:])
+        axes[2].semilogy(np.cumsum(wall) / 1e3, [max(x[m0], 1e-8) for x in r], label=t)
     axes[0].set(xlabel="frame", ylabel=LABELS.get(m0, m0), title="error vs frame")
     axes[1].set(xlabel="frame", ylabel=LABELS.get(m1, m1), title=f"{LABELS.get(m1, m1)} vs frame")
-    axes[2].set(xlabel="cumulative wall time (s)", ylabel=LABELS.get(m0, m0), title="error vs wall time")
+    axes[2].set(xlabel="cumulative wall time (s; compile time excluded)", ylabel=LABELS.get(m0, m0),
+                title="error vs wall time")
     for a in axes:
         a.legend()
         a.grid(alpha=0.3)
@@ -286,7 +319,7 @@ def _plots(tmp, rows, techniques, summary, names):
     plt.close(fig)
     paths.append(p)
 
-    fig, ax = plt.subplots(figsize=(7, 0.6 + 0.5 * len(techniques)))
+    fig, ax = plt.subplots(figsize=(8.5, 1.2 + 0.5 * len(techniques)))
     stages = []
     for t in techniques:
         for k in summary[t]["stage_ms"]:
@@ -298,7 +331,7 @@ def _plots(tmp, rows, techniques, summary, names):
         ax.barh(techniques, vals, left=left, label=k)
         left += vals
     ax.set(xlabel="ms per frame", title="time per stage")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     p = os.path.join(tmp, "plots", "stages.png")
     fig.savefig(p, dpi=90)
@@ -381,7 +414,7 @@ def _md_table_to_html(md: str) -> str:
             elif line.startswith("* "):
                 out.append(f"<p>{html.escape(line[2:]).replace('**', '')}</p>")
             elif line.strip():
-                out.append(f"<p>{html.escape(line)}</p>")
+                out.append(f"<p>{html.escape(line).replace('**', '').replace('`', '')}</p>")
     if in_table:
         out.append("</table>")
     return "\n".join(out)

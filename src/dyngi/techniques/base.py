@@ -91,6 +91,8 @@ class Technique:
     name: ClassVar[str] = ""
     description: ClassVar[str] = ""
     PARAMS: ClassVar[dict[str, Param]] = {}
+    #: comparison budgets this technique adapts to ('equal-rays', 'equal-time'); others run their defaults
+    BUDGETS: ClassVar[tuple] = ()
 
     def __init__(self, scene, params: dict | None = None):
         self.scene = scene

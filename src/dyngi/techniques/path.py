@@ -150,6 +150,7 @@ class PathTechnique(Technique):
 
     name = "path"
     description = "reference path tracer in Dr.Jit: BSDF + NEE with MIS, Russian roulette, progressive"
+    BUDGETS = ("equal-rays", "equal-time")
     PARAMS = {
         "spp": Param(1, "samples per pixel per frame", min=1, max=1 << 16),
         "max_depth": Param(12, "maximum path depth (-1: unbounded)", min=-1),
