@@ -5,6 +5,7 @@
     dyngi render SCENE --technique T   render frames, video and stats
     dyngi reference SCENE              fill the ground-truth cache
     dyngi compare SCENE --techniques a,b,c   metrics, plots, report.html
+    dyngi probe-view SCENE             the probe volume of ddgi as spheres
     dyngi demo                         the main job on a built-in scene
 
 Errors caused by input print one line (``dyngi: error: ...``) and exit 2.
@@ -141,6 +142,33 @@ def cmd_compare(args) -> int:
     return 0
 
 
+def cmd_probe_view(args) -> int:
+    from .errors import DyngiError
+    from .experiments.io import atomic_output_dir, write_exr, write_png
+    from .experiments.runner import parse_res, run_sequence
+    from .scene import load_scene
+    from .techniques.base import create_technique
+
+    _setup(args)
+    res = parse_res(args.res)
+    scene = load_scene(args.scene)
+    tech = create_technique(args.technique, scene, _parse_sets(args.set))
+    if not hasattr(tech, "debug_view"):
+        raise DyngiError(f"technique '{args.technique}' has no probe volume to show; use ddgi, qddgi "
+                         "or probes-reference")
+    seq = run_sequence(scene, tech, args.frames, res, seed=args.seed, t0=args.t0)
+    t = seq.times[-1]
+    view = tech.debug_view(scene.camera(t), res)
+    with atomic_output_dir(args.out) as tmp:
+        write_png(os.path.join(tmp, "probes.png"), view)
+        write_exr(os.path.join(tmp, "probes.exr"), view)
+        write_png(os.path.join(tmp, "frame.png"), seq.images[-1])
+    n_act = int((tech.volume.state.states != 0).sum())
+    print(f"wrote {args.out}/probes.png ({n_act} of {tech.volume.n_probes} probes active; inactive ones "
+          "are dark red) and frame.png")
+    return 0
+
+
 def cmd_demo(args) -> int:
     from .experiments.compare import run_compare
     from .experiments.runner import parse_res
@@ -225,6 +253,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True)
     common(s, frames_default=30, res_default="160x120")
     s.set_defaults(fn=cmd_compare)
+
+    s = sub.add_parser("probe-view", help="render a technique's probes as spheres shaded by their irradiance")
+    s.add_argument("scene")
+    s.add_argument("--technique", default="ddgi", help="ddgi (default), qddgi or probes-reference")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--t0", type=_time, default=0.0, help="start time in seconds")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE", help="technique parameter")
+    s.add_argument("--out", required=True, help="output folder (probes.png, probes.exr, frame.png)")
+    common(s, frames_default=1, res_default="320x240")
+    s.set_defaults(fn=cmd_probe_view)
 
     s = sub.add_parser("demo", help="the main job: compare techniques on an animated Cornell box")
     s.add_argument("--out", default="out/demo")
