@@ -41,6 +41,21 @@ def _positive(name):
     return conv
 
 
+def _frame_list(text, frames):
+    from .errors import DyngiError
+
+    if text is None:
+        return None
+    try:
+        out = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise DyngiError(f"--grid-frames must be comma-separated frame indices, got '{text}'") from None
+    bad = [i for i in out if not 0 <= i < frames]
+    if bad:
+        raise DyngiError(f"--grid-frames: frame {bad[0]} is outside 0..{frames - 1}")
+    return out
+
+
 def cmd_scenes(args) -> int:
     from .scene.library import BUILTINS, builtin_names, make_builtin
 
@@ -137,7 +152,8 @@ def cmd_compare(args) -> int:
     out = run_compare(args.scene, techs, args.out, frames=args.frames, res=parse_res(args.res),
                       budget=args.budget, seed=args.seed, ref_spp=args.ref_spp, quiet=args.quiet,
                       params=_parse_sets(args.set),
-                      metrics=[m.strip() for m in args.metrics.split(",") if m.strip()])
+                      metrics=[m.strip() for m in args.metrics.split(",") if m.strip()],
+                      grid_frames=_frame_list(args.grid_frames, args.frames))
     print(f"wrote comparison to {out} (open {os.path.join(out, 'report.html')})")
     return 0
 
@@ -247,6 +263,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--budget", default="equal-frames", choices=("equal-frames", "equal-rays", "equal-time"))
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=None)
+    s.add_argument("--grid-frames", default=None, metavar="I,J,...",
+                   help="frames shown in the image grids (default: the middle and the last)")
     s.add_argument("--metrics", default="mse,relmse,mape,flip,ssim",
                    help="comma-separated metrics (FLIP is the slow one)")
     s.add_argument("--set", action="append", metavar="TECH.KEY=VALUE", help="technique parameter")

@@ -8,7 +8,7 @@ Writes into ``out_dir`` (atomically: a temporary folder moved into place at the 
 * ``plots/``          error vs frame, error vs cumulative wall time, stage-time bars (matplotlib);
 * ``grid_NNNN.png``   for chosen frames: each technique, the reference and the FLIP error map;
 * ``side_by_side.mp4`` reference and techniques next to each other, labelled;
-* ``<technique>/frame_NNNN.png`` every frame, and ``report.html``, self-contained.
+* ``<technique>/frame_NNNN.png`` and ``.exr`` every frame, and ``report.html``, self-contained.
 
 Budgets (``--budget``): ``equal-frames`` runs every technique with its own settings;
 ``equal-rays`` gives every frame of every technique the ray count that the first
@@ -30,7 +30,7 @@ from .. import backend
 from ..errors import DyngiError
 from ..scene import load_scene
 from ..techniques.base import create_technique, get_technique
-from .io import atomic_output_dir, check_writable, tonemap_srgb, write_json, write_mp4, write_png
+from .io import atomic_output_dir, check_writable, tonemap_srgb, write_exr, write_json, write_mp4, write_png
 from .runner import BUDGETS, run_sequence
 
 METRIC_NAMES = ("mse", "relmse", "mape", "flip", "ssim")
@@ -164,6 +164,7 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
             os.makedirs(os.path.join(tmp, name), exist_ok=True)
             for i, img in enumerate(seq.images):
                 write_png(os.path.join(tmp, name, f"frame_{i:04d}.png"), img)
+                write_exr(os.path.join(tmp, name, f"frame_{i:04d}.exr"), img)
         os.makedirs(os.path.join(tmp, "reference"), exist_ok=True)
         for i, r in enumerate(refs):
             write_png(os.path.join(tmp, "reference", f"frame_{i:04d}.png"), r)
