@@ -13,7 +13,8 @@ conventions): irradiance is blended in a perceptual space ``E^(1/gamma)``
 (gamma 5); when any channel of a texel moves by more than
 ``change_threshold`` (0.25) in that space the hysteresis of that texel drops
 by 0.75, and a brightening step whose luminance exceeds
-``brightness_threshold`` (0.1) is scaled by 0.25 to suppress fireflies.
+``brightness_threshold`` is scaled by 0.25 to suppress fireflies (RTXGI uses 0.1;
+the ``ddgi`` technique turns it off by default, see its parameter).
 Probes without history (first update) take the new value directly.
 
 When every probe traced the same direction set (DDGI's shared rotated

@@ -174,7 +174,10 @@ class DDGITechnique(_ProbeTechniqueBase):
         "distance_power": Param(50.0, "cosine power of the distance blend", min=1.0),
         "irradiance_gamma": Param(5.0, "perceptual blending exponent (1: linear blend)", min=1.0),
         "change_threshold": Param(0.25, "per-texel change that lowers the hysteresis (perceptual space)", min=0.0),
-        "brightness_threshold": Param(0.1, "luminance of a brightening step that is damped", min=0.0),
+        "brightness_threshold": Param(1e30, "luminance of a brightening step that is damped by 0.25 "
+                                      "(RTXGI's firefly guard, 0.1 there; default 1e30 = off: the DDGI paper "
+                                      "has no such damping and it slows the reaction to new light ~4x)",
+                                      min=0.0),
         "encoding": Param("fp32", "texel storage encoding", choices=("fp32", "qddgi", "adgi")),
         "update_offscreen": Param(True, "update probes outside the (extended) camera frustum"),
         "relocate": Param(True, "move probes out of geometry"),
