@@ -256,3 +256,12 @@ def test_emitter_subset_sampling_skips_excluded_emitters(backend):
     V = np.asarray(mi.traverse(target.get_shape())["vertex_positions"]).reshape(-1, 3)
     assert np.all(p.min(0) >= V.min(0) - 1e-4) and np.all(p.max(0) <= V.max(0) + 1e-4)
     assert np.allclose(np.asarray(pdf), np.asarray(ds.pdf), rtol=1e-4)
+
+
+@pytest.mark.parametrize("name", ["sky-pit", "maze"])
+def test_agrees_with_mitsuba_sun_sky_and_point_lights(backend, name):
+    """Directional sun + constant sky (sky-pit) and point + area lights (maze) agree with Mitsuba."""
+    from dyngi.scene import load_scene
+
+    sc = load_scene(name)
+    _compare(sc, res=(20, 15))

@@ -161,7 +161,8 @@ class DDGITechnique(_ProbeTechniqueBase):
     """DDGI (Majercik et al. 2019): hysteresis-blended irradiance probes, NEE direct + probe indirect."""
 
     name = "ddgi"
-    description = "DDGI irradiance probes (Majercik et al. 2019): NEE direct + probe indirect at the primary hit"
+    description = ("DDGI irradiance probes (Majercik et al. 2019): NEE direct + probe indirect at the primary "
+                   "hit; indirect light is diffuse only (glossy surfaces get no indirect reflections)")
     PARAMS = {
         **COMMON_PARAMS,
         "rays_per_probe": Param(256, "rays per active probe per frame", min=1, max=1 << 14),
