@@ -6,13 +6,14 @@ from conftest import shared_scene
 from stats import z_test_images
 
 
-def _ours(scene, res, spp, k, max_depth=8, mis="power", t=0.0):
+def _ours(scene, res, spp, k, max_depth=8, mis="power", t=0.0, seed0=1000, **kw):
+    """dyngi's path tracer, independent render number ``k`` (seed ``seed0 + k``); ``kw`` to render_paths."""
     from dyngi.techniques.base import to_image
     from dyngi.techniques.path import render_paths
 
     scene.at(t)
-    L, _ = render_paths(scene, scene.camera(t), res, spp, seed=1000 + k, frame_index=0, max_depth=max_depth,
-                        rr_depth=5, power_heuristic=(mis == "power"))
+    L, _ = render_paths(scene, scene.camera(t), res, spp, seed=seed0 + k, frame_index=0, max_depth=max_depth,
+                        rr_depth=5, power_heuristic=(mis == "power"), **kw)
     return to_image(L, res)
 
 
@@ -195,17 +196,10 @@ def test_rays_counted(backend):
 def test_indirect_only_agrees_with_mitsuba_difference(backend):
     """indirect_only == Mitsuba(max_depth=D) - Mitsuba(max_depth=2) with the same seed (indirect reference)."""
     from dyngi.scene import load_scene
-    from dyngi.techniques.base import to_image
-    from dyngi.techniques.path import render_paths
 
     sc = load_scene("cornell-static")
     res, spp, k = (24, 18), 16, 16
-    ours = []
-    for i in range(k):
-        L, _ = render_paths(sc, sc.camera(0.0), res, spp, seed=77 + i, frame_index=0, max_depth=8, rr_depth=5,
-                            indirect_only=True)
-        ours.append(to_image(L, res))
-    ours = np.stack(ours)
+    ours = np.stack([_ours(sc, res, spp, i, 8, seed0=77, indirect_only=True) for i in range(k)])
     theirs = np.stack([_mitsuba(sc, res, spp, i, 8) - _mitsuba(sc, res, spp, i, 2) for i in range(k)])
     full = np.stack([_ours(sc, res, spp, i, 8) for i in range(4)])
     assert ours.mean() < 0.8 * full.mean(), "indirect-only image should be darker than the full one"
@@ -216,19 +210,13 @@ def test_indirect_only_agrees_with_mitsuba_difference(backend):
 def test_emitter_subset_sampling_is_unbiased_with_mis(backend):
     """The subset light sampler over all emitters (sample + pdf for MIS) still agrees with Mitsuba."""
     from dyngi.sampling.lights import EmitterSubsetSampling
-    from dyngi.techniques.base import to_image
-    from dyngi.techniques.path import render_paths
 
     sc = _many_light_scene()
     lights = EmitterSubsetSampling(sc.mi_scene, lambda e: True)
     res, spp, k = (24, 18), 16, 16
-    a = []
-    for i in range(k):
-        L, _ = render_paths(sc, sc.camera(0.0), res, spp, seed=300 + i, frame_index=0, max_depth=8, rr_depth=5,
-                            lights=lights)
-        a.append(to_image(L, res))
+    a = np.stack([_ours(sc, res, spp, i, 8, seed0=300, lights=lights) for i in range(k)])
     b = np.stack([_mitsuba(sc, res, spp, i, 8) for i in range(k)])
-    ok, info = z_test_images(np.stack(a), b)
+    ok, info = z_test_images(a, b)
     assert ok, info
 
 
