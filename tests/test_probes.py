@@ -299,3 +299,25 @@ def test_steady_state_update_compiles_no_new_kernels():
             seen |= hashes
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+
+def test_state_summaries_drjit_match_numpy():
+    """The Dr.Jit block reductions of relocation/classification give the NumPy summaries exactly."""
+    from dyngi.probes.states import _summaries_drjit, _summaries_numpy
+
+    sc = load_scene("cornell-static")
+    vol, _, _ = make_updater(sc, counts=(4, 4, 4), rays=64)
+    rng = np.random.default_rng(5)
+    pid = np.arange(vol.n_probes)
+    dirs = rng.normal(size=(64, 3)).astype(np.float32)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    dist = rng.uniform(-0.3, 1.5, size=(len(pid), 64)).astype(np.float32)
+    dist[rng.random(dist.shape) < 0.2] = np.inf          # misses
+    dist[:3] = np.inf                                     # probes with no hit at all
+    a = _summaries_numpy(vol, pid, dirs, dist, True)
+    b = _summaries_drjit(vol, pid, dirs, mi.Float(dist.ravel()))
+    for k in ("back_ratio", "t_back", "t_front", "near_any"):
+        assert np.allclose(a[k], b[k]), k
+    has_b, has_f = np.isfinite(a["t_back"]), np.isfinite(a["t_front"])
+    assert np.array_equal(a["i_back"][has_b], b["i_back"][has_b])
+    assert np.array_equal(a["i_front"][has_f], b["i_front"][has_f])

@@ -91,7 +91,8 @@ class HysteresisBlend:
 
     # -- one frame ----------------------------------------------------------------
     def new_estimates(self, volume: ProbeVolume, results: ProbeRayResults):
-        """This frame's per-texel estimates (irradiance (P,Ti,Ti,3), moments (P,Td,Td,2), masks)."""
+        """This frame's per-texel estimates, channel-planar: irradiance (3, P*Ti*Ti), moments (2, P*Td*Td),
+        and the (Ti, Ti) / (Td, Td) masks of texels that received weight."""
         plan = results.plan
         if plan.shared_directions is None:
             raise ValueError("HysteresisBlend needs a shared direction set (use a per-sample accumulator)")
@@ -99,11 +100,10 @@ class HysteresisBlend:
         P, N = len(plan.probe_ids), plan.rays_per_probe
         Ti, Td = volume.irradiance_texels, volume.distance_texels
         rad = vector_to_numpy(results.radiance).reshape(3 * P, N)
-        irr = (rad @ Wi).reshape(3, P, Ti, Ti).transpose(1, 2, 3, 0)
+        irr = (rad @ Wi).reshape(3, P * Ti * Ti)
         d = np.asarray(results.distance, np.float32).reshape(P, N)
         d = np.minimum(np.abs(d), np.float32(volume.max_distance))
-        mom = np.concatenate([d, d * d], axis=0) @ Wd
-        mom = mom.reshape(2, P, Td, Td).transpose(1, 2, 3, 0)
+        mom = (np.concatenate([d, d * d], axis=0) @ Wd).reshape(2, P * Td * Td)
         return irr, mom, ok_i.reshape(Ti, Ti), ok_d.reshape(Td, Td)
 
     def update(self, volume: ProbeVolume, results: ProbeRayResults) -> None:
@@ -126,7 +126,7 @@ class HysteresisBlend:
 
         # -- irradiance: perceptual space, change detection, brightness damping --
         k, probe_local, gidx, texel = _texel_indices(pid_dr, len(pid), Ti * Ti)
-        new = dr.gather(mi.Color3f, mi.Float(np.ascontiguousarray(irr).ravel()), k)
+        new = _gather_planar(mi.Color3f, irr, k)
         old = dr.gather(mi.Color3f, dev.irradiance, gidx)
         fresh = dr.gather(mi.Bool, fresh_dr, probe_local)
         ok = dr.gather(mi.Bool, mi.Bool(ok_i.ravel()), texel)
@@ -149,7 +149,7 @@ class HysteresisBlend:
 
         # -- distance moments: plain hysteresis --
         k, probe_local, gidx, texel = _texel_indices(pid_dr, len(pid), Td * Td)
-        newd = dr.gather(mi.Vector2f, mi.Float(np.ascontiguousarray(mom).ravel()), k)
+        newd = _gather_planar(mi.Vector2f, mom, k)
         oldd = dr.gather(mi.Vector2f, dev.distance, gidx)
         fresh = dr.gather(mi.Bool, fresh_dr, probe_local)
         ok = dr.gather(mi.Bool, mi.Bool(ok_d.ravel()), texel)
@@ -164,6 +164,14 @@ class HysteresisBlend:
         st.irradiance[...] = np.asarray(dev.irradiance, np.float32).reshape(st.irradiance.shape)
         st.distance[...] = np.asarray(dev.distance, np.float32).reshape(st.distance.shape)
         st.updates[pid] += 1
+
+
+def _gather_planar(cls, planar: np.ndarray, k):
+    """``cls`` values at flat texel indices ``k`` from a channel-planar (C, n) host array (no transpose)."""
+    flat = mi.Float(planar.ravel())
+    n = planar.shape[1]
+    # the channel offset depends on the number of traced probes: opaque, or every count recompiles
+    return cls(*[dr.gather(mi.Float, flat, k + dr.opaque(mi.UInt32, c * n)) for c in range(planar.shape[0])])
 
 
 def _texel_indices(pid_dr, n_probes: int, texels2: int):

@@ -45,36 +45,34 @@ class ProbeStates:
         self.min_frontface = float(min_frontface)
         self.max_offset = float(max_offset)
 
-    def update(self, volume: ProbeVolume, probe_ids: np.ndarray, dirs: np.ndarray, dist: np.ndarray) -> dict:
+    def update(self, volume: ProbeVolume, probe_ids: np.ndarray, dirs: np.ndarray, dist) -> dict:
         """Apply relocation then classification for ``probe_ids`` from their rays.
 
-        ``dirs`` (N, 3) shared directions or (P, N, 3); ``dist`` (P, N) signed distances.
+        ``dirs`` (N, 3) shared directions or (P, N, 3); ``dist`` (P, N) signed distances,
+        as a NumPy array or as the flat Dr.Jit Float of the traced rays (probe-major), in
+        which case the per-ray work runs as Dr.Jit block reductions and only (P,) summaries
+        come back to the host.
         Returns counts ``{'moved', 'deactivated', 'activated'}``.
         """
         st = volume.state
         pid = np.asarray(probe_ids, np.int64)
         if len(pid) == 0 or not (self.relocate or self.classify):
             return {"moved": 0, "deactivated": 0, "activated": 0}
-        dist = np.asarray(dist, np.float32)
         shared = np.ndim(dirs) == 2
         dirs = np.asarray(dirs, np.float32)
-        back = dist < 0.0
-        front = (dist > 0.0) & np.isfinite(dist)
-        n = dist.shape[1]
-        back_ratio = back.sum(1) / n
-        t_back = np.where(back, dist * np.float32(-1.0 / BACKFACE_DISTANCE_SCALE), np.float32(np.inf))
-        t_front = np.where(front, dist, np.float32(np.inf))
+        if isinstance(dist, np.ndarray) or not shared:
+            sm = _summaries_numpy(volume, pid, dirs, np.asarray(dist, np.float32).reshape(len(pid), -1), shared)
+        else:
+            sm = _summaries_drjit(volume, pid, dirs, dist)
+        back_ratio, tb, tf, near_any = sm["back_ratio"], sm["t_back"], sm["t_front"], sm["near_any"]
         rows = np.arange(len(pid))
         moved = np.zeros(len(pid), bool)
         spacing = volume.grid.spacing_np
 
         if self.relocate:
             min_front = self.min_frontface * volume.grid.min_spacing
-            i_back = np.argmin(t_back, 1)
-            i_front = np.argmin(t_front, 1)
-            tb, tf = t_back[rows, i_back], t_front[rows, i_front]
-            db = dirs[i_back] if shared else dirs[rows, i_back]
-            df = dirs[i_front] if shared else dirs[rows, i_front]
+            db = dirs[sm["i_back"]] if shared else dirs[rows, sm["i_back"]]
+            df = dirs[sm["i_front"]] if shared else dirs[rows, sm["i_front"]]
             off = st.offsets[pid].astype(np.float64)
             inside = (back_ratio > self.backface_threshold) & np.isfinite(tb)
             close = ~inside & np.isfinite(tf) & (tf < min_front)
@@ -90,22 +88,7 @@ class ProbeStates:
 
         old_state = st.states[pid].copy()
         if self.classify:
-            # hit offsets from the probe must lie within one cell on every axis; a probe on the
-            # boundary of the grid also serves everything beyond it (queries clamp onto it).
-            # Per ray: distance at which it leaves that box, min over axes (P x N, no P x N x 3 arrays)
-            coords = volume.grid.probe_coords(pid)
-            last = np.asarray(volume.grid.counts) - 1
-            lo = np.where(coords == 0, np.inf, spacing).astype(np.float32)      # extent on the - side
-            hi = np.where(coords == last, np.inf, spacing).astype(np.float32)   # extent on the + side
-            t_exit = np.full(dist.shape, np.inf, np.float32)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                for i in range(3):
-                    di = dirs[:, i][None, :] if shared else dirs[..., i]
-                    inv = np.float32(1.0) / np.abs(di)
-                    lim = np.where(di > 0, hi[:, i:i + 1] * inv, lo[:, i:i + 1] * inv)
-                    np.minimum(t_exit, np.nan_to_num(lim, nan=np.inf), out=t_exit)
-            near = front & (dist <= t_exit)
-            active = (back_ratio <= self.backface_threshold) & near.any(1)
+            active = (back_ratio <= self.backface_threshold) & near_any
             # a probe that just moved keeps its state until rays from its new place decide
             new_state = np.where(moved, old_state, np.where(active, PROBE_ACTIVE, PROBE_INACTIVE)).astype(np.uint8)
             st.states[pid] = new_state
@@ -117,3 +100,78 @@ class ProbeStates:
         if counts["moved"] or counts["deactivated"] or counts["activated"]:
             volume.sync(("positions", "states"))
         return counts
+
+
+def _cell_extents(volume: ProbeVolume, pid: np.ndarray):
+    """Per probe, the distance to its neighbourhood's faces on the - and + side of each axis.
+
+    One cell (the spacing) inside the grid; unbounded outwards for probes on the
+    grid boundary, which serve everything beyond it (queries clamp onto them).
+    """
+    spacing = volume.grid.spacing_np
+    coords = volume.grid.probe_coords(pid)
+    last = np.asarray(volume.grid.counts) - 1
+    lo = np.where(coords == 0, np.inf, spacing).astype(np.float32)
+    hi = np.where(coords == last, np.inf, spacing).astype(np.float32)
+    return lo, hi
+
+
+def _summaries_numpy(volume, pid, dirs, dist, shared):
+    """Per-probe summaries of the rays (host): back-face ratio, closest back/front hit and its ray,
+    whether any front-face hit lies within the cell neighbourhood."""
+    back = dist < 0.0
+    front = (dist > 0.0) & np.isfinite(dist)
+    n = dist.shape[1]
+    t_back = np.where(back, dist * np.float32(-1.0 / BACKFACE_DISTANCE_SCALE), np.float32(np.inf))
+    t_front = np.where(front, dist, np.float32(np.inf))
+    rows = np.arange(len(pid))
+    i_back, i_front = np.argmin(t_back, 1), np.argmin(t_front, 1)
+    lo, hi = _cell_extents(volume, pid)
+    # per ray: distance at which it leaves the neighbourhood box, min over axes
+    t_exit = np.full(dist.shape, np.inf, np.float32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for i in range(3):
+            di = dirs[:, i][None, :] if shared else dirs[..., i]
+            inv = np.float32(1.0) / np.abs(di)
+            lim = np.where(di > 0, hi[:, i:i + 1] * inv, lo[:, i:i + 1] * inv)
+            np.minimum(t_exit, np.nan_to_num(lim, nan=np.inf), out=t_exit)
+    return {"back_ratio": back.sum(1) / n, "t_back": t_back[rows, i_back], "t_front": t_front[rows, i_front],
+            "i_back": i_back, "i_front": i_front, "near_any": (front & (dist <= t_exit)).any(1)}
+
+
+def _summaries_drjit(volume, pid, dirs, dist):
+    """The same summaries as :func:`_summaries_numpy` from the device distances of a shared
+    direction set: per-ray work and block reductions in Dr.Jit, (P,) arrays to the host."""
+    from ..backend import dr, mi
+
+    P, N = len(pid), len(dirs)
+    d = mi.Float(dist)
+    ray = dr.arange(mi.UInt32, P * N)
+    slot = ray // N
+    r = ray - slot * N
+    back = d < 0.0
+    front = (d > 0.0) & dr.isfinite(d)
+    inf = dr.inf
+    t_back = dr.select(back, d * (-1.0 / BACKFACE_DISTANCE_SCALE), inf)
+    t_front = dr.select(front, d, inf)
+    w = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(dirs).ravel()), r)
+    lo, hi = _cell_extents(volume, pid)
+    lo_d = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(lo).ravel()), slot)
+    hi_d = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(hi).ravel()), slot)
+    ext = dr.select(w > 0.0, hi_d, lo_d)
+    t_axis = dr.select(dr.abs(w) > 0.0, ext / dr.abs(w), inf)
+    t_exit = dr.minimum(dr.minimum(t_axis.x, t_axis.y), t_axis.z)
+    near = front & (d <= t_exit)
+    n_back = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(back), N)
+    tb = dr.block_reduce(dr.ReduceOp.Min, t_back, N)
+    tf = dr.block_reduce(dr.ReduceOp.Min, t_front, N)
+    n_near = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(near), N)
+    dr.eval(n_back, tb, tf, n_near)
+    # the first ray reaching each minimum (argmin); N when the probe has no such hit
+    big = mi.UInt32(N)
+    ib = dr.block_reduce(dr.ReduceOp.Min, dr.select(back & (t_back == dr.gather(mi.Float, tb, slot)), r, big), N)
+    i_f = dr.block_reduce(dr.ReduceOp.Min, dr.select(front & (t_front == dr.gather(mi.Float, tf, slot)), r, big), N)
+    dr.eval(ib, i_f)
+    return {"back_ratio": np.asarray(n_back, np.float64) / N, "t_back": np.asarray(tb, np.float32),
+            "t_front": np.asarray(tf, np.float32), "i_back": np.minimum(np.asarray(ib, np.int64), N - 1),
+            "i_front": np.minimum(np.asarray(i_f, np.int64), N - 1), "near_any": np.asarray(n_near) > 0}

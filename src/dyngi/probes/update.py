@@ -56,10 +56,12 @@ class ProbeUpdater:
                 self.blender.update(vol, res)
             if self.states is not None:
                 with maybe_stage(timer, "states"):
-                    dist = np.asarray(res.distance, np.float32).reshape(len(ids), -1)
                     dirs = plan.shared_directions
                     if dirs is None:
                         dirs = vector_to_numpy(plan.direction).T.reshape(len(ids), -1, 3)
+                        dist = np.asarray(res.distance, np.float32).reshape(len(ids), -1)
+                    else:
+                        dist = res.distance    # device array: per-ray work stays in Dr.Jit
                     c = self.states.update(vol, ids, dirs, dist)
                     for k in c:
                         info[k] += c[k]
@@ -72,7 +74,7 @@ class ProbeUpdater:
             if len(dead):
                 with maybe_stage(timer, "states"):
                     plan = self.classify_dirs.plan(frame, seed, dead)
-                    dist = np.asarray(trace_probe_distances(scene, vol, plan), np.float32).reshape(len(dead), -1)
+                    dist = trace_probe_distances(scene, vol, plan)
                     c = self.states.update(vol, dead, plan.shared_directions, dist)
                     for k in c:
                         info[k] += c[k]
