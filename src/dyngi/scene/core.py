@@ -46,6 +46,20 @@ def default_probe_grid(lo, hi, target: int = 2048, margin: float = 0.05):
     return (tuple(blo), tuple(bhi)), tuple(int(c) for c in counts)
 
 
+def _emitter_kind(e) -> str:
+    """'area', 'environment', 'point' (delta position), 'directional' (delta direction) or 'other'."""
+    f = e.flags()
+    if mi.has_flag(f, mi.EmitterFlags.DeltaDirection):
+        return "directional"
+    if mi.has_flag(f, mi.EmitterFlags.DeltaPosition):
+        return "point"
+    if mi.has_flag(f, mi.EmitterFlags.Infinite):
+        return "environment"
+    if mi.has_flag(f, mi.EmitterFlags.Surface):
+        return "area"
+    return "other"
+
+
 @dataclass
 class Scene:
     """An animated scene; see module docstring."""
@@ -80,7 +94,7 @@ class Scene:
         for i, e in enumerate(self.mi_scene.emitters()):
             sh = e.get_shape() if hasattr(e, "get_shape") else None
             eid = e.id() or (sh.id() if sh is not None else "") or f"emitter{i}"
-            emitters.append({"id": eid, "type": type(e).__name__, "index": i})
+            emitters.append({"id": eid, "type": _emitter_kind(e), "index": i})
         self.meta = SceneMeta((tuple(lo), tuple(hi)), tuple(self.probe_box), tuple(self.probe_counts),
                               emitters, sorted({a.shape for a in self.animators if a.shape}))
 
