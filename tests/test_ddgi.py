@@ -146,8 +146,6 @@ def test_steady_state_frame_compiles_no_new_kernels():
 
 @pytest.mark.parametrize("name", ["tunnel-gate", "cornell-moving-box"])
 def test_no_nan_fast(name):
-    if name not in builtin_names():
-        pytest.skip(f"scene {name} not available")
     sc = load_scene(name)
     tech = create_technique("ddgi", sc, {"probe_counts": "5", "rays_per_probe": 32})
     for f in range(30):
