@@ -99,3 +99,23 @@ def test_failure_midway_leaves_nothing(tmp_path, monkeypatch):
         rmod.render_to_dir("cornell-static", "path", str(out), frames=3, res=(8, 6), quiet=True)
     assert sorted(os.listdir(out)) == ["old.txt"]
     assert not [p for p in os.listdir(tmp_path) if p.startswith(".dyngi-tmp")]
+
+
+def test_probe_view_writes_images(tmp_path):
+    import imageio.v3 as iio
+
+    out = tmp_path / "pv"
+    r = run("probe-view", "cornell-static", "--res", "48x36", "--set", "probe_counts=4",
+            "--set", "rays_per_probe=32", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    img = iio.imread(out / "probes.png")
+    assert img.shape == (36, 48, 3) and img.std() > 0
+    assert "probes active" in r.stdout
+    r = run("probe-view", "cornell-static", "--technique", "path", "--out", str(tmp_path / "x"))
+    assert r.returncode == 2 and "no probe volume" in r.stderr
+
+
+def test_scenes_listing_has_timing():
+    r = run("scenes")
+    assert "2 s at 30 fps (60 frames, loops)" in r.stdout      # cornell-moving-light
+    assert "static" in r.stdout                                  # cornell-static
