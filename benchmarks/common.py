@@ -4,8 +4,6 @@ from __future__ import annotations
 import os
 import time
 
-import numpy as np
-
 from dyngi.backend import dr, mi
 
 SHARED_SCENES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "scenes")

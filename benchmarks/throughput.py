@@ -11,8 +11,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
-
 from common import best_of, md_table, raw_rays_per_second, shared_scene
 from dyngi.backend import device_info, dr, mi
 from dyngi.scene import load_scene

@@ -292,11 +292,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
+    from .errors import DyngiError
+
     args = build_parser().parse_args(argv)
-    try:
-        from .errors import DyngiError
-    except Exception:  # pragma: no cover
-        raise
     try:
         return args.fn(args)
     except DyngiError as e:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..backend import dr, mi
+from ..backend import mi
 from ..errors import DyngiError
 from .animation import Animator
 from .camera import Camera, CameraPath

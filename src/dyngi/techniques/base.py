@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..backend import dr, mi
+from ..backend import dr
 from ..errors import DyngiError, unknown_choice
 from ..timing import StageTimer, maybe_stage  # noqa: F401  (re-exported)
 

@@ -200,9 +200,6 @@ class DDGITechnique(_ProbeTechniqueBase):
         self._last_signature = None
         self._warmed = False
 
-    def _warm_up(self, frame, mask, t):
-        _warm_up_volume(self, frame, mask, t)
-
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
@@ -211,7 +208,7 @@ class DDGITechnique(_ProbeTechniqueBase):
         moved = sig != self._last_signature and self._last_signature is not None
         self._last_signature = sig
         if not self._warmed:
-            self._warm_up(frame, mask, t)
+            _warm_up_volume(self, frame, mask, t)
         info = self.updater.update(self.scene, frame.index, frame.seed, mask, t, force_reclassify=moved)
         img, ind = self._primary(frame, t)
         stats = t.as_dict()

@@ -30,8 +30,6 @@ and both are averaged by sample count, so frame 0 honours the budget too.
 """
 from __future__ import annotations
 
-import time
-
 from ..backend import dr, mi
 from ..sampling.lights import EmitterSampling
 from ..sampling.rng import make_sampler, mix_seed
