@@ -72,6 +72,36 @@ import mitsuba as mi  # noqa: E402
 
 mi.set_variant(VARIANTS["cpu"])
 
+BLAS_THREADS_ENV = "DYNGI_BLAS_THREADS"
+
+
+def limit_blas_threads() -> int | None:
+    """Run NumPy's BLAS on one thread (``$DYNGI_BLAS_THREADS`` overrides); returns the limit set.
+
+    Dr.Jit's LLVM backend runs its kernels on its own pool of one thread per
+    core. An OpenBLAS pool beside it busy-waits after every matrix product
+    (the probe blend, :mod:`dyngi.probes.blend`) and steals those cores: on the
+    2-core machine a DDGI frame's Dr.Jit kernels ran up to 2x slower with two
+    BLAS threads than with one (docs/benchmarks.md, "BLAS threads"). Without
+    ``threadpoolctl`` installed nothing is changed.
+    """
+    try:
+        n = int(os.environ.get(BLAS_THREADS_ENV, "1"))
+    except ValueError:
+        raise DyngiError(f"{BLAS_THREADS_ENV} must be an integer, got '{os.environ[BLAS_THREADS_ENV]}'")
+    if n <= 0:
+        return None
+    import numpy  # noqa: F401  (load the BLAS library now, so that the limit applies to it)
+    try:
+        import threadpoolctl
+    except ImportError:  # pragma: no cover - a dependency of dyngi
+        return None
+    threadpoolctl.threadpool_limits(n, user_api="blas")
+    return n
+
+
+BLAS_THREADS = limit_blas_threads()
+
 
 def cuda_available() -> bool:
     """True when the CUDA backend of Dr.Jit can run (a GPU and driver present)."""
@@ -106,4 +136,5 @@ def device_info() -> dict:
         "drjit": dr.__version__,
         "libllvm": os.environ.get("DRJIT_LIBLLVM_PATH", ""),
         "threads": os.cpu_count(),
+        "blas_threads": BLAS_THREADS,
     }

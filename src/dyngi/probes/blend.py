@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
-from ..sampling.octahedral import texel_directions
+from ..sampling.octahedral import border_source_index, texel_directions
 from .encoding import get_encoding
 from .trace import ProbeRayResults, vector_to_numpy
 from .volume import ProbeVolume
@@ -40,12 +40,17 @@ BRIGHTNESS_DAMPING = 0.25
 MIN_BLEND_WEIGHT = 1e-12
 
 
-def blend_matrix(ray_dirs: np.ndarray, texels: int, power: float) -> tuple[np.ndarray, np.ndarray]:
+def blend_matrix(ray_dirs: np.ndarray, texels: int, power: float,
+                 interior: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Normalised blend weights (N, T*T) float32 and a (T*T,) mask of texels that received weight.
 
     ``W[r, t] = max(0, n_t . w_r)^power / sum_r' max(0, n_t . w_r')^power``.
+    With ``interior`` only the ``(T-2)^2`` interior texels are columns (the
+    border texels copy them; see :func:`interior_source_index`).
     """
-    tdirs = texel_directions(texels).reshape(-1, 3)
+    T = int(texels)
+    tdirs = texel_directions(T, with_border=not interior)
+    tdirs = (tdirs[1:-1, 1:-1] if interior else tdirs).reshape(-1, 3)
     c = np.maximum(np.asarray(ray_dirs, np.float64) @ tdirs.T, 0.0)
     w = c if power == 1.0 else c ** power
     s = w.sum(axis=0)
@@ -53,6 +58,14 @@ def blend_matrix(ray_dirs: np.ndarray, texels: int, power: float) -> tuple[np.nd
     w[:, ok] /= s[ok]
     w[w < MIN_BLEND_WEIGHT] = 0.0   # no float32 denormals: they slow BLAS down by orders of magnitude
     return w.astype(np.float32), ok
+
+
+def interior_source_index(texels: int) -> np.ndarray:
+    """(T*T,) uint32: index ``(y-1) * (T-2) + (x-1)`` of the interior texel that each bordered texel copies."""
+    T = int(texels)
+    src = border_source_index(T).ravel()
+    sy, sx = src // T, src % T
+    return ((sy - 1) * (T - 2) + (sx - 1)).astype(np.uint32)
 
 
 class HysteresisBlend:
@@ -84,27 +97,30 @@ class HysteresisBlend:
         key = (dirs.shape, dirs.tobytes()[:64], hash(dirs.tobytes()), volume.irradiance_texels,
                volume.distance_texels, self.distance_power)
         if key != self._cache_key:
-            self._cache = (blend_matrix(dirs, volume.irradiance_texels, 1.0),
-                           blend_matrix(dirs, volume.distance_texels, self.distance_power))
+            self._cache = (blend_matrix(dirs, volume.irradiance_texels, 1.0, interior=True),
+                           blend_matrix(dirs, volume.distance_texels, self.distance_power, interior=True))
             self._cache_key = key
         return self._cache
 
     # -- one frame ----------------------------------------------------------------
     def new_estimates(self, volume: ProbeVolume, results: ProbeRayResults):
-        """This frame's per-texel estimates, channel-planar: irradiance (3, P*Ti*Ti), moments (2, P*Td*Td),
-        and the (Ti, Ti) / (Td, Td) masks of texels that received weight."""
+        """This frame's estimates for the *interior* texels, channel-planar: irradiance (3, P*(Ti-2)^2),
+        moments (2, P*(Td-2)^2), and the masks ((Ti-2)^2,) / ((Td-2)^2,) of texels that received weight.
+
+        Only interior texels are products (the border texels copy them when
+        the result is stored): 44% fewer columns for 8x8 texels, 23% for 16x16.
+        """
         plan = results.plan
         if plan.shared_directions is None:
             raise ValueError("HysteresisBlend needs a shared direction set (use a per-sample accumulator)")
         (Wi, ok_i), (Wd, ok_d) = self._matrices(plan.shared_directions, volume)
         P, N = len(plan.probe_ids), plan.rays_per_probe
-        Ti, Td = volume.irradiance_texels, volume.distance_texels
         rad = vector_to_numpy(results.radiance).reshape(3 * P, N)
-        irr = (rad @ Wi).reshape(3, P * Ti * Ti)
+        irr = (rad @ Wi).reshape(3, -1)
         d = np.asarray(results.distance, np.float32).reshape(P, N)
         d = np.minimum(np.abs(d), np.float32(volume.max_distance))
-        mom = (np.concatenate([d, d * d], axis=0) @ Wd).reshape(2, P * Td * Td)
-        return irr, mom, ok_i.reshape(Ti, Ti), ok_d.reshape(Td, Td)
+        mom = (np.concatenate([d, d * d], axis=0) @ Wd).reshape(2, -1)
+        return irr, mom, ok_i, ok_d
 
     def update(self, volume: ProbeVolume, results: ProbeRayResults) -> None:
         """Blend this frame's rays into the probes they came from.
@@ -125,11 +141,11 @@ class HysteresisBlend:
         Ti, Td = volume.irradiance_texels, volume.distance_texels
 
         # -- irradiance: perceptual space, change detection, brightness damping --
-        k, probe_local, gidx, texel = _texel_indices(pid_dr, len(pid), Ti * Ti)
-        new = _gather_planar(mi.Color3f, irr, k)
+        k, probe_local, gidx, src = _texel_indices(pid_dr, len(pid), Ti)
+        new = _gather_planar(mi.Color3f, irr, probe_local * (Ti - 2) ** 2 + src)
         old = dr.gather(mi.Color3f, dev.irradiance, gidx)
         fresh = dr.gather(mi.Bool, fresh_dr, probe_local)
-        ok = dr.gather(mi.Bool, mi.Bool(ok_i.ravel()), texel)
+        ok = dr.gather(mi.Bool, mi.Bool(ok_i), src)
         inv_g = dr.opaque(mi.Float, 1.0 / self.irradiance_gamma)
         g = dr.opaque(mi.Float, self.irradiance_gamma)
         new_g = dr.power(dr.maximum(new, 0.0), inv_g)
@@ -148,11 +164,11 @@ class HysteresisBlend:
         dr.scatter(dev.irradiance, res, gidx)
 
         # -- distance moments: plain hysteresis --
-        k, probe_local, gidx, texel = _texel_indices(pid_dr, len(pid), Td * Td)
-        newd = _gather_planar(mi.Vector2f, mom, k)
+        k, probe_local, gidx, src = _texel_indices(pid_dr, len(pid), Td)
+        newd = _gather_planar(mi.Vector2f, mom, probe_local * (Td - 2) ** 2 + src)
         oldd = dr.gather(mi.Vector2f, dev.distance, gidx)
         fresh = dr.gather(mi.Bool, fresh_dr, probe_local)
-        ok = dr.gather(mi.Bool, mi.Bool(ok_d.ravel()), texel)
+        ok = dr.gather(mi.Bool, mi.Bool(ok_d), src)
         hd = dr.select(fresh, 0.0, h)
         resd = dr.fma(1.0 - hd, newd - oldd, oldd)
         resd = self.encoding.quantize_distance(resd, dr.opaque(mi.Float, volume.grid.cell_diagonal))
@@ -174,13 +190,21 @@ def _gather_planar(cls, planar: np.ndarray, k):
     return cls(*[dr.gather(mi.Float, flat, k + dr.opaque(mi.UInt32, c * n)) for c in range(planar.shape[0])])
 
 
-def _texel_indices(pid_dr, n_probes: int, texels2: int):
-    """Flat texel index k of the traced probes, its probe slot, global texel index and in-probe texel."""
+_SOURCE_TABLES: dict = {}
+
+
+def _texel_indices(pid_dr, n_probes: int, texels: int):
+    """Per bordered texel ``k`` of the traced probes: its probe slot, global texel index and the
+    interior texel it copies (:func:`interior_source_index`)."""
+    if texels not in _SOURCE_TABLES:
+        _SOURCE_TABLES[texels] = mi.UInt32(interior_source_index(texels))
+    texels2 = texels * texels
     k = dr.arange(mi.UInt32, n_probes * texels2)
     probe_local = k // texels2
     texel = k - probe_local * texels2
     probe = dr.gather(mi.UInt32, pid_dr, probe_local)
-    return k, probe_local, probe * texels2 + texel, texel
+    src = dr.gather(mi.UInt32, _SOURCE_TABLES[texels], texel)
+    return k, probe_local, probe * texels2 + texel, src
 
 
 class TrueAverage:
