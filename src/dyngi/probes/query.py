@@ -102,24 +102,27 @@ class ProbeQuery:
             probe = (base.x + ox) + nx * ((base.y + oy) + ny * (base.z + oz))
             tri = ((alpha.x if ox else 1.0 - alpha.x) * (alpha.y if oy else 1.0 - alpha.y)
                    * (alpha.z if oz else 1.0 - alpha.z))
-            ppos = dr.gather(mi.Point3f, dev.positions, probe, active)
-            live = active & (dr.gather(mi.UInt32, dev.states, probe, active) != 0)
+            # position and state in one packet gather: the query is bound by gather throughput
+            pdata = dr.gather(mi.Vector4f, dev.probe_data, probe, active)
+            ppos = mi.Point3f(pdata.x, pdata.y, pdata.z)
+            live = active & (pdata.w > 0.0)
 
             w = mi.Float(1.0)
             if self.wrap:
-                to_probe = dr.normalize(ppos - pos)
-                w = dr.square((dr.dot(to_probe, normal) + 1.0) * 0.5) + WRAP_OFFSET
+                to_probe = ppos - pos      # dot(normalize(v), n) without the divisions
+                cos = dr.dot(to_probe, normal) * dr.rsqrt(dr.maximum(dr.squared_norm(to_probe), 1e-20))
+                w = dr.square((cos + 1.0) * 0.5) + WRAP_OFFSET
             if self.visibility:
                 bvec = ppos - bpos
                 bdist = dr.norm(bvec)
-                bdir = bvec / dr.maximum(bdist, 1e-8)
-                dc = direction_to_texel_coords(-bdir, vol.distance_texels)
+                # the octahedral map is scale-invariant: -bvec needs no normalisation
+                dc = direction_to_texel_coords(-bvec, vol.distance_texels)
                 mom = bilinear_gather(dev.distance, probe, dc, vol.distance_texels, 2)
                 mean = mom.x
                 var = dr.abs(mom.y - mean * mean)
                 diff = dr.maximum(bdist - mean, 0.0)
                 cheb = var / dr.maximum(var + diff * diff, 1e-12)
-                cheb = dr.maximum(cheb * cheb * cheb, 0.0)
+                cheb = cheb * cheb * cheb
                 w *= dr.select(bdist <= mean, 1.0, dr.maximum(cheb, CHEBYSHEV_FLOOR))
             w = dr.maximum(w, MIN_WEIGHT)
             w = dr.select(w < CRUSH_THRESHOLD, w * w * w * (1.0 / (CRUSH_THRESHOLD * CRUSH_THRESHOLD)), w)

@@ -57,6 +57,23 @@ class ProbeVolumeState:
                     and np.all(np.isfinite(self.offsets)))
 
 
+def upload(array: np.ndarray, cls=None):
+    """A flat Dr.Jit array holding a *copy* of ``array`` in memory that Dr.Jit allocated.
+
+    ``mi.Float(numpy_array)`` on the LLVM backend aliases the NumPy memory
+    (later host writes show through) and, when that memory is not 16-byte
+    aligned, Dr.Jit silently falls back from packet gathers to one gather per
+    component -- a different kernel, i.e. a recompile, depending on where NumPy
+    happened to allocate. Scattering into a Dr.Jit allocation avoids both.
+    """
+    cls = cls or mi.Float
+    a = np.ascontiguousarray(array).ravel()
+    out = dr.empty(cls, a.size)
+    dr.scatter(out, cls(a), dr.arange(mi.UInt32, a.size))
+    dr.eval(out)
+    return out
+
+
 @dataclass
 class DeviceAtlas:
     """Flat Dr.Jit mirrors of a :class:`ProbeVolumeState` for gathers inside kernels."""
@@ -65,6 +82,7 @@ class DeviceAtlas:
     distance: "mi.Float"        # P*Td*Td*2
     positions: "mi.Float"       # P*3 (lattice + offsets)
     states: "mi.UInt32"         # P
+    probe_data: "mi.Float" = None   # P*4: position xyz and 1.0 (active) / 0.0 -- one packet gather per probe
 
 
 class ProbeVolume:
@@ -116,17 +134,20 @@ class ProbeVolume:
         s = self.state
         if self.device is None:
             what = ("irradiance", "distance", "positions", "states")
-            self.device = DeviceAtlas(None, None, None, None)
+            self.device = DeviceAtlas(None, None, None, None, None)
         d = self.device
         if "irradiance" in what:
-            d.irradiance = mi.Float(np.ascontiguousarray(s.irradiance, np.float32).ravel())
+            d.irradiance = upload(s.irradiance.astype(np.float32))
         if "distance" in what:
-            d.distance = mi.Float(np.ascontiguousarray(s.distance, np.float32).ravel())
+            d.distance = upload(s.distance.astype(np.float32))
         if "positions" in what:
-            d.positions = mi.Float(self.positions().astype(np.float32).ravel())
+            d.positions = upload(self.positions().astype(np.float32))
         if "states" in what:
-            d.states = mi.UInt32(s.states.astype(np.uint32))
-        dr.eval(d.irradiance, d.distance, d.positions, d.states)
+            d.states = upload(s.states.astype(np.uint32), mi.UInt32)
+        if "positions" in what or "states" in what:
+            pd = np.concatenate([self.positions(), (s.states != 0)[:, None]], axis=1)
+            d.probe_data = upload(pd.astype(np.float32))
+        dr.eval(d.irradiance, d.distance, d.positions, d.states, d.probe_data)
 
     def copy_state(self) -> ProbeVolumeState:
         s = self.state

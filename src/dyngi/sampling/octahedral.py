@@ -37,8 +37,12 @@ def _sign_not_zero(x):
 
 
 def oct_encode(d):
-    """Unit direction (``mi.Vector3f``) -> ``mi.Point2f`` in [-1, 1]^2. Inverse: :func:`oct_decode`."""
-    inv_l1 = dr.rcp(dr.abs(d.x) + dr.abs(d.y) + dr.abs(d.z))
+    """Direction (``mi.Vector3f``, any length) -> ``mi.Point2f`` in [-1, 1]^2. Inverse: :func:`oct_decode`.
+
+    The map only depends on the direction, so ``d`` need not be normalised; a
+    zero vector maps to the centre (the +z pole) instead of NaN.
+    """
+    inv_l1 = dr.rcp(dr.maximum(dr.abs(d.x) + dr.abs(d.y) + dr.abs(d.z), 1e-30))
     px, py = d.x * inv_l1, d.y * inv_l1
     fx = (1.0 - dr.abs(py)) * _sign_not_zero(px)
     fy = (1.0 - dr.abs(px)) * _sign_not_zero(py)
