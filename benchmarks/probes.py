@@ -55,6 +55,23 @@ def raw_intersect_rate(scene, counts, rays: int, reps: int):
     return n / median_time(full, reps), n / median_time(prelim, reps)
 
 
+def probe_query_time(scene, tech, reps: int) -> float:
+    """Seconds for the 8-probe irradiance query alone at the front-face hits of one frame's probe rays."""
+    vol = tech.volume
+    plan = tech.directions.plan(5, 0, vol.active_indices())
+    origin = dr.gather(mi.Point3f, vol.device.positions, plan.probe)
+    ray = mi.Ray3f(origin, plan.direction)
+    si = scene.mi_scene.ray_intersect(ray, mi.RayFlags.All, False)
+    front = si.is_valid() & (dr.dot(si.n, ray.d) < 0.0)
+    p, n, wo = mi.Point3f(si.p), mi.Vector3f(si.sh_frame.n), -ray.d
+    dr.eval(p, n, wo, front)
+
+    def once():
+        dr.eval(tech.query.irradiance(p, n, wo, active=front))
+
+    return median_time(once, reps)
+
+
 def ddgi_frames(scene, params, res, frames: int, warm: int = 3):
     tech = create_technique("ddgi", scene, params)
     stats = []
@@ -146,11 +163,18 @@ def main():
     update_ms = sum(med(stats, "ms", k) for k in ("trace probes", "shade probes", "blend", "states")
                     if not np.isnan(med(stats, "ms", k)))
     probe_rays = med(stats, "rays", "trace probes")
+    shadow_rays = med(stats, "rays", "shade probes")
     upd_rate = probe_rays / (update_ms * 1e-3)
+    all_rate = (probe_rays + shadow_rays) / (update_ms * 1e-3)
+    query_ms = 1e3 * probe_query_time(sc, tech, reps)
     rows.append(("raw ray_intersect (full SurfaceInteraction), probe rays", f"{full_rate / 1e6:.1f} Mrays/s", ""))
     rows.append(("raw ray_intersect_preliminary, probe rays", f"{pre_rate / 1e6:.1f} Mrays/s", ""))
-    rows.append(("probe update incl. NEE shadow ray, multi-bounce query, blend, states",
+    rows.append(("probe update (trace, shade with NEE + multi-bounce query, blend, states), probe rays only",
                  f"{upd_rate / 1e6:.1f} Mrays/s", f"{upd_rate / full_rate:.0%} of full ray_intersect"))
+    rows.append(("probe update, probe rays + NEE shadow rays", f"{all_rate / 1e6:.1f} Mrays/s",
+                 f"{all_rate / full_rate:.0%} of full ray_intersect"))
+    rows.append((f"of which: multi-bounce probe query alone at the {int(probe_rays)} probe-ray hits",
+                 f"{query_ms:.1f} ms", f"{query_ms / update_ms:.0%} of the update ({update_ms:.1f} ms)"))
     # -- 2. default ddgi frame vs Mitsuba path 1 spp --
     for k in ("trace probes", "shade probes", "blend", "states", "primary"):
         rows.append((f"ddgi stage '{k}' ({int(probe_rays)} probe rays, {res[0]}x{res[1]})",

@@ -20,7 +20,7 @@ The host copy (NumPy, what blending and tests use) and the device copy
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,16 +29,55 @@ from ..errors import DyngiError
 from .grid import PROBE_ACTIVE, ProbeGrid
 
 
-@dataclass
 class ProbeVolumeState:
-    """Temporal state of a probe volume (host arrays; shapes documented in the module docstring)."""
+    """Temporal state of a probe volume (host arrays; shapes documented in the module docstring).
 
-    irradiance: np.ndarray      # (P, Ti, Ti, 3) float32, stores E/pi
-    distance: np.ndarray        # (P, Td, Td, 2) float32, (mean, mean of squares)
-    offsets: np.ndarray         # (P, 3) float32 relocation offsets
-    states: np.ndarray          # (P,) uint8, 1 active / 0 inactive
-    updates: np.ndarray         # (P,) int32, number of blends received (0: no history yet)
-    extra: dict = field(default_factory=dict)  # encoding-specific arrays (e.g. ADGI sample counts)
+    ``irradiance`` and ``distance`` may be newer on the device (the hysteresis
+    blend updates them there every frame): :meth:`device_is_newer` registers a
+    function that copies them back, and the host arrays are refreshed the
+    first time they are read after that -- a frame that never looks at the host
+    copy pays no Dr.Jit -> NumPy transfer.
+    """
+
+    def __init__(self, irradiance: np.ndarray, distance: np.ndarray, offsets: np.ndarray, states: np.ndarray,
+                 updates: np.ndarray, extra: dict | None = None):
+        self._irradiance = irradiance   # (P, Ti, Ti, 3) float32, stores E/pi
+        self._distance = distance       # (P, Td, Td, 2) float32, (mean, mean of squares)
+        self.offsets = offsets          # (P, 3) float32 relocation offsets
+        self.states = states            # (P,) uint8, 1 active / 0 inactive
+        self.updates = updates          # (P,) int32, number of blends received (0: no history yet)
+        self.extra = extra if extra is not None else {}  # encoding-specific arrays (e.g. packed words)
+        self._pull = None
+
+    def device_is_newer(self, pull) -> None:
+        """``pull(name, out)`` will copy atlas ``name`` ('irradiance' / 'distance') into ``out`` when read."""
+        self._pull = pull
+
+    def _fresh(self, name: str) -> np.ndarray:
+        arr = getattr(self, "_" + name)
+        if self._pull is not None:
+            pull, self._pull = self._pull, None
+            pull("irradiance", self._irradiance)
+            pull("distance", self._distance)
+        return arr
+
+    @property
+    def irradiance(self) -> np.ndarray:
+        return self._fresh("irradiance")
+
+    @irradiance.setter
+    def irradiance(self, value: np.ndarray) -> None:
+        self._fresh("irradiance")
+        self._irradiance = value
+
+    @property
+    def distance(self) -> np.ndarray:
+        return self._fresh("distance")
+
+    @distance.setter
+    def distance(self, value: np.ndarray) -> None:
+        self._fresh("distance")
+        self._distance = value
 
     @staticmethod
     def zeros(n_probes: int, irradiance_texels: int, distance_texels: int) -> "ProbeVolumeState":
