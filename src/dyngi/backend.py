@@ -83,7 +83,7 @@ def limit_blas_threads() -> int | None:
     (the probe blend, :mod:`dyngi.probes.blend`) and steals those cores: on the
     2-core machine a DDGI frame's Dr.Jit kernels ran up to 2x slower with two
     BLAS threads than with one (docs/benchmarks.md, "BLAS threads"). Without
-    ``threadpoolctl`` installed nothing is changed.
+    ``threadpoolctl`` installed only libraries loaded after this call are limited.
     """
     try:
         n = int(os.environ.get(BLAS_THREADS_ENV, "1"))
@@ -91,7 +91,11 @@ def limit_blas_threads() -> int | None:
         raise DyngiError(f"{BLAS_THREADS_ENV} must be an integer, got '{os.environ[BLAS_THREADS_ENV]}'")
     if n <= 0:
         return None
-    import numpy  # noqa: F401  (load the BLAS library now, so that the limit applies to it)
+    # BLAS libraries loaded later (SciPy's own OpenBLAS) read these at load time ...
+    for var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS"):
+        os.environ.setdefault(var, str(n))
+    # ... those loaded already (NumPy's, if the user imported it first) are limited by threadpoolctl
+    import numpy  # noqa: F401
     try:
         import threadpoolctl
     except ImportError:  # pragma: no cover - a dependency of dyngi
