@@ -373,3 +373,19 @@ def test_blas_runs_on_one_thread_beside_drjit():
     blas = [i for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
     assert blas, "NumPy's BLAS was not found by threadpoolctl"
     assert all(i["num_threads"] == backend.BLAS_THREADS for i in blas)
+
+
+def test_query_symbolic_loop_matches_unrolled():
+    sc = load_scene("cornell-static")
+    vol, q, up = make_updater(sc, counts=(4, 4, 4), rays=64)
+    run(up, sc, 3)
+    rng = np.random.default_rng(3)
+    lo, hi = np.array(sc.mi_scene.bbox().min), np.array(sc.mi_scene.bbox().max)
+    p = rng.uniform(lo, hi, (500, 3))
+    nrm = rng.normal(size=(500, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    args = (mi.Point3f(p.T), mi.Vector3f(nrm.T), mi.Vector3f(-nrm.T))
+    loop = np.array(ProbeQuery(vol, unroll=False).irradiance(*args))
+    unrolled = np.array(ProbeQuery(vol, unroll=True).irradiance(*args))
+    assert loop.max() > 0.0
+    assert np.allclose(loop, unrolled, rtol=1e-5, atol=1e-6)

