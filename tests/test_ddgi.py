@@ -196,3 +196,33 @@ def test_sun_and_sky_direct_light_is_noise_free():
     # between two frames only the probes change (slowly): no per-pixel coin flips between sun and sky
     assert np.median(np.abs(a - b)) < 0.02 * max(a.mean(), 1e-3) + 1e-4
     assert direct_a.mean() > 0
+
+
+# -- comparison budgets -------------------------------------------------------------
+
+def test_equal_rays_budget_sets_rays_per_probe():
+    sc = load_scene("cornell-static")
+    tech = create_technique("ddgi", sc, {"probe_counts": "4", "warmup": 0})
+    res = (32, 24)
+    cam = sc.camera(0.0)
+    tech.step(Frame(0, 0.0, cam, res))                    # classification settles first
+    for budget in (60_000, 200_000):
+        r = tech.step(Frame(1, 0.0, cam, res, ray_budget=budget))   # frame 1: no re-classification
+        total = r.stats["total_rays"]
+        assert r.stats["rays_per_probe"] != 256
+        assert 0.9 * budget <= total <= budget, (budget, total)
+
+
+def test_equal_time_budget_scales_rays_with_the_budget():
+    sc = load_scene("cornell-static")
+    tech = create_technique("ddgi", sc, {"probe_counts": "4", "warmup": 0})
+    res = (32, 24)
+    cam = sc.camera(0.0)
+    first = tech.step(Frame(0, 0.0, cam, res, time_budget_ms=50.0))
+    assert first.stats["rays_per_probe"] == 256             # nothing measured yet: the parameter
+    tech.step(Frame(1, 0.0, cam, res))                     # a measured frame
+    probes = int(np.count_nonzero(tech.volume.state.states))
+    ms = tech._ms_fixed + tech._ms_per_probe_ray * 256 * probes   # that frame's time at 256 rays per probe
+    small = tech._budget_rays_per_probe(Frame(2, 0.0, cam, res, time_budget_ms=0.5 * ms), None)
+    large = tech._budget_rays_per_probe(Frame(2, 0.0, cam, res, time_budget_ms=2.0 * ms), None)
+    assert small < 256 < large

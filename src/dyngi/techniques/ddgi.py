@@ -34,6 +34,11 @@ update_offscreen : bool = True  False: only probes in the extended camera frustu
 relocate, classify : bool = True
 jitter : bool = False           jitter primary rays inside the pixel (else pixel centres)
 
+Budgets (``dyngi compare --budget equal-rays|equal-time``): ``ddgi`` and
+``qddgi`` spend what the frame's budget leaves after primary shading on
+probe rays, i.e. they change ``rays_per_probe`` per frame (at least 8); see
+:meth:`DDGITechnique._budget_rays_per_probe`.
+
 Bias: the probes lag lighting changes (hysteresis), blur indirect light
 spatially (probe spacing) and angularly (8x8 texels), and leak where the
 Chebyshev test fails; the perceptual blend and the quantised encodings bias
@@ -161,6 +166,7 @@ class DDGITechnique(_ProbeTechniqueBase):
     """DDGI (Majercik et al. 2019): hysteresis-blended irradiance probes, NEE direct + probe indirect."""
 
     name = "ddgi"
+    BUDGETS = ("equal-rays", "equal-time")
     description = ("DDGI irradiance probes (Majercik et al. 2019): NEE direct + probe indirect at the primary "
                    "hit; indirect light is diffuse only (glossy surfaces get no indirect reflections)")
     PARAMS = {
@@ -209,14 +215,64 @@ class DDGITechnique(_ProbeTechniqueBase):
         self._last_signature = sig
         if not self._warmed:
             _warm_up_volume(self, frame, mask, t)
+        rpp = self._budget_rays_per_probe(frame, mask)
+        self.updater.directions = self._directions_for(rpp)
         info = self.updater.update(self.scene, frame.index, frame.seed, mask, t, force_reclassify=moved)
         img, ind = self._primary(frame, t)
         stats = t.as_dict()
         stats.update({k: v for k, v in info.items() if k != "rays"})
         stats["active_probes"] = int(np.count_nonzero(self.volume.state.states))
+        stats["rays_per_probe"] = rpp
+        self._measure(stats, info["probes_traced"], rpp)
         return FrameResult(image=img, indirect=ind, stats=stats)
 
+    # -- comparison budgets ---------------------------------------------------------
+    def _directions_for(self, n: int):
+        if n != self.directions.n:
+            self._budget_dirs = getattr(self, "_budget_dirs", {})
+            if n not in self._budget_dirs:
+                self._budget_dirs[n] = UniformSFDirections(n)
+            return self._budget_dirs[n]
+        return self.directions
 
+    def _budget_rays_per_probe(self, frame: Frame, mask) -> int:
+        """Rays per probe this frame: the parameter, or what fits ``frame.ray_budget`` / ``time_budget_ms``.
+
+        Equal rays: the budget minus the primary rays (camera + ``direct_samples``
+        shadow rays per pixel) is shared by the probes that will be traced, two
+        rays each (probe ray + NEE shadow ray). Equal time: the budget minus the
+        previous frame's time outside the probe update, divided by the measured
+        update time per probe ray. The first frame has nothing measured for
+        equal time and runs the parameter (plus its warm-up).
+        """
+        p = self.params
+        n = p["rays_per_probe"]
+        live = self.volume.state.states != 0
+        if mask is not None:
+            live &= mask
+        probes = max(int(np.count_nonzero(live)), 1)
+        if frame.ray_budget is not None:
+            primary = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
+            up = self.updater
+            if up.states is not None and up.states.classify and up.reclassify_interval > 0 \
+                    and frame.index % up.reclassify_interval == 0:   # re-test rays of inactive probes
+                primary += int(np.count_nonzero(self.volume.state.states == 0)) * up.classify_dirs.n
+            n = (frame.ray_budget - primary) / (2 * probes)
+        elif frame.time_budget_ms is not None and getattr(self, "_ms_per_probe_ray", None):
+            n = (frame.time_budget_ms - self._ms_fixed) / (self._ms_per_probe_ray * probes)
+        else:
+            return n
+        return int(max(MIN_BUDGET_RAYS, min(1 << 14, int(n))))
+
+    def _measure(self, stats: dict, probes: int, rpp: int) -> None:
+        ms = stats["ms"]
+        update = sum(ms.get(k, 0.0) for k in ("trace probes", "shade probes", "blend", "states"))
+        if probes and update > 0.0 and "warmup" not in ms:
+            self._ms_per_probe_ray = update / (probes * rpp)
+            self._ms_fixed = max(stats["total_ms"] - update, 0.0)
+
+
+MIN_BUDGET_RAYS = 8   # fewest rays per probe a budget can leave (below this the blend has holes)
 WARMUP_FRAME_BASE = 1 << 24   # frame indices of warm-up updates: distinct RNG streams from real frames
 
 
