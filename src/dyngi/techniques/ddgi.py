@@ -262,7 +262,7 @@ class DDGITechnique(_ProbeTechniqueBase):
             n = (frame.time_budget_ms - self._ms_fixed) / (self._ms_per_probe_ray * probes)
         else:
             return n
-        return int(max(MIN_BUDGET_RAYS, min(1 << 14, int(n))))
+        return budget_ladder_floor(n)
 
     def _measure(self, stats: dict, probes: int, rpp: int) -> None:
         ms = stats["ms"]
@@ -273,6 +273,20 @@ class DDGITechnique(_ProbeTechniqueBase):
 
 
 MIN_BUDGET_RAYS = 8   # fewest rays per probe a budget can leave (below this the blend has holes)
+
+
+def budget_ladder_floor(n: float) -> int:
+    """The largest of 8, 10, 12, 14, 16, 20, ... (4 steps per octave, up to 2^14) that is <= ``n``.
+
+    Budgeted rays per probe snap to this ladder: kernels that depend on the
+    ray count (blend, state reductions) are compiled for a few counts only,
+    not once per frame as the budget wobbles; at most 20% of the budget's
+    probe rays are left unspent.
+    """
+    n = min(max(float(n), MIN_BUDGET_RAYS), float(1 << 14))
+    octave = 1 << (int(n).bit_length() - 1)          # power of two <= n
+    step = max(octave // 4, 1)
+    return int(octave + step * int((n - octave) // step))
 WARMUP_FRAME_BASE = 1 << 24   # frame indices of warm-up updates: distinct RNG streams from real frames
 
 
