@@ -365,14 +365,21 @@ def test_host_copy_follows_the_device_after_blends():
     assert host.max() > 0.0
 
 
-def test_blas_runs_on_one_thread_beside_drjit():
-    threadpoolctl = pytest.importorskip("threadpoolctl")
-    import dyngi.backend as backend
-    if backend.BLAS_THREADS is None:
-        pytest.skip("BLAS thread limit disabled by DYNGI_BLAS_THREADS")
-    blas = [i for i in threadpoolctl.threadpool_info() if i["user_api"] == "blas"]
-    assert blas, "NumPy's BLAS was not found by threadpoolctl"
-    assert all(i["num_threads"] == backend.BLAS_THREADS for i in blas)
+@pytest.mark.parametrize("env", ["", "2"])
+def test_blas_threads_limited_beside_drjit(env):
+    """By default NumPy's BLAS runs one thread (Dr.Jit owns the cores); DYNGI_BLAS_THREADS overrides."""
+    import os
+    import subprocess
+    import sys
+    code = ("import numpy, threadpoolctl, dyngi.backend as b; "
+            "print(b.BLAS_THREADS, sorted({i['num_threads'] for i in threadpoolctl.threadpool_info() "
+            "if i['user_api'] == 'blas'}))")
+    e = {k: v for k, v in os.environ.items() if k not in ("DYNGI_BLAS_THREADS", "OPENBLAS_NUM_THREADS")}
+    if env:
+        e["DYNGI_BLAS_THREADS"] = env
+    out = subprocess.run([sys.executable, "-c", code], env=e, capture_output=True, text=True, check=True).stdout
+    want = int(env or 1)
+    assert out.split() == [str(want), f"[{want}]"], out
 
 
 def test_query_symbolic_loop_matches_unrolled():

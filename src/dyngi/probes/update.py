@@ -39,14 +39,27 @@ class ProbeUpdater:
         self.classify_dirs = FixedSFDirections(classify_rays, stream=3)
         self.last_results = None
 
+    def probes_to_trace(self, probe_mask: np.ndarray | None = None) -> np.ndarray:
+        """Ids (uint32) of the probes the next update traces: active ones, within ``probe_mask``."""
+        live = self.volume.state.states != 0
+        if probe_mask is not None:
+            live &= probe_mask
+        return np.flatnonzero(live).astype(np.uint32)
+
+    def probes_to_reclassify(self, frame: int, probe_mask: np.ndarray | None = None,
+                             force: bool = False) -> np.ndarray:
+        """Ids (uint32) of the inactive probes that re-test their state this frame (none on most frames)."""
+        if self.states is None or not self.states.classify or \
+                not (force or (self.reclassify_interval > 0 and frame % self.reclassify_interval == 0)):
+            return np.zeros(0, np.uint32)
+        dead = np.flatnonzero(self.volume.state.states == 0).astype(np.uint32)
+        return dead if probe_mask is None else dead[probe_mask[dead]]
+
     def update(self, scene, frame: int, seed: int, probe_mask: np.ndarray | None = None, timer=None,
                force_reclassify: bool = False) -> dict:
         """Run one update; returns counts (probes traced, rays, state changes)."""
         vol = self.volume
-        live = vol.state.states != 0
-        if probe_mask is not None:
-            live &= probe_mask
-        ids = np.flatnonzero(live).astype(np.uint32)
+        ids = self.probes_to_trace(probe_mask)
         info = {"probes_traced": int(len(ids)), "moved": 0, "deactivated": 0, "activated": 0}
         if len(ids):
             plan = self.directions.plan(frame, seed, ids)
@@ -66,20 +79,16 @@ class ProbeUpdater:
                     for k in c:
                         info[k] += c[k]
         # -- re-test inactive probes with fixed rays --
-        if self.states is not None and self.states.classify and \
-                (force_reclassify or (self.reclassify_interval > 0 and frame % self.reclassify_interval == 0)):
-            dead = np.flatnonzero(vol.state.states == 0).astype(np.uint32)
-            if probe_mask is not None:
-                dead = dead[probe_mask[dead]]
-            if len(dead):
-                with maybe_stage(timer, "states"):
-                    plan = self.classify_dirs.plan(frame, seed, dead)
-                    dist = trace_probe_distances(scene, vol, plan)
-                    c = self.states.update(vol, dead, plan.shared_directions, dist)
-                    for k in c:
-                        info[k] += c[k]
-                if timer is not None:
-                    timer.add_rays("states", len(dead) * self.classify_dirs.n)
+        dead = self.probes_to_reclassify(frame, probe_mask, force_reclassify)
+        if len(dead):
+            with maybe_stage(timer, "states"):
+                plan = self.classify_dirs.plan(frame, seed, dead)
+                dist = trace_probe_distances(scene, vol, plan)
+                c = self.states.update(vol, dead, plan.shared_directions, dist)
+                for k in c:
+                    info[k] += c[k]
+            if timer is not None:
+                timer.add_rays("states", len(dead) * self.classify_dirs.n)
         info["rays"] = int(len(ids)) * int(getattr(self.directions, "n", 0) or 0)
         return info
 

@@ -29,6 +29,23 @@ from ..errors import DyngiError
 from .grid import PROBE_ACTIVE, ProbeGrid
 
 
+class _DeviceBacked:
+    """A host atlas of :class:`ProbeVolumeState` that is refreshed from the device before any access."""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.slot = "_" + name
+
+    def __get__(self, state, owner=None):
+        if state is None:
+            return self
+        state._refresh()
+        return getattr(state, self.slot)
+
+    def __set__(self, state, value: np.ndarray) -> None:
+        state._refresh()
+        setattr(state, self.slot, value)
+
+
 class ProbeVolumeState:
     """Temporal state of a probe volume (host arrays; shapes documented in the module docstring).
 
@@ -53,31 +70,14 @@ class ProbeVolumeState:
         """``pull(name, out)`` will copy atlas ``name`` ('irradiance' / 'distance') into ``out`` when read."""
         self._pull = pull
 
-    def _fresh(self, name: str) -> np.ndarray:
-        arr = getattr(self, "_" + name)
+    def _refresh(self) -> None:
         if self._pull is not None:
             pull, self._pull = self._pull, None
             pull("irradiance", self._irradiance)
             pull("distance", self._distance)
-        return arr
 
-    @property
-    def irradiance(self) -> np.ndarray:
-        return self._fresh("irradiance")
-
-    @irradiance.setter
-    def irradiance(self, value: np.ndarray) -> None:
-        self._fresh("irradiance")
-        self._irradiance = value
-
-    @property
-    def distance(self) -> np.ndarray:
-        return self._fresh("distance")
-
-    @distance.setter
-    def distance(self, value: np.ndarray) -> None:
-        self._fresh("distance")
-        self._distance = value
+    irradiance = _DeviceBacked()
+    distance = _DeviceBacked()
 
     @staticmethod
     def zeros(n_probes: int, irradiance_texels: int, distance_texels: int) -> "ProbeVolumeState":

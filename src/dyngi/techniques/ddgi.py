@@ -205,6 +205,9 @@ class DDGITechnique(_ProbeTechniqueBase):
                                     self.query, reclassify_interval=p["reclassify_interval"])
         self._last_signature = None
         self._warmed = False
+        self._dirs_by_count = {self.directions.n: self.directions}   # budgets change the rays per probe
+        self._ms_per_probe_ray = None    # measured on the last frame, for equal-time budgets
+        self._ms_fixed = 0.0
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
@@ -228,12 +231,9 @@ class DDGITechnique(_ProbeTechniqueBase):
 
     # -- comparison budgets ---------------------------------------------------------
     def _directions_for(self, n: int):
-        if n != self.directions.n:
-            self._budget_dirs = getattr(self, "_budget_dirs", {})
-            if n not in self._budget_dirs:
-                self._budget_dirs[n] = UniformSFDirections(n)
-            return self._budget_dirs[n]
-        return self.directions
+        if n not in self._dirs_by_count:
+            self._dirs_by_count[n] = UniformSFDirections(n)
+        return self._dirs_by_count[n]
 
     def _budget_rays_per_probe(self, frame: Frame, mask) -> int:
         """Rays per probe this frame: the parameter, or what fits ``frame.ray_budget`` / ``time_budget_ms``.
@@ -247,18 +247,13 @@ class DDGITechnique(_ProbeTechniqueBase):
         """
         p = self.params
         n = p["rays_per_probe"]
-        live = self.volume.state.states != 0
-        if mask is not None:
-            live &= mask
-        probes = max(int(np.count_nonzero(live)), 1)
+        up = self.updater
+        probes = max(len(up.probes_to_trace(mask)), 1)
         if frame.ray_budget is not None:
-            primary = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
-            up = self.updater
-            if up.states is not None and up.states.classify and up.reclassify_interval > 0 \
-                    and frame.index % up.reclassify_interval == 0:   # re-test rays of inactive probes
-                primary += int(np.count_nonzero(self.volume.state.states == 0)) * up.classify_dirs.n
-            n = (frame.ray_budget - primary) / (2 * probes)
-        elif frame.time_budget_ms is not None and getattr(self, "_ms_per_probe_ray", None):
+            other = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])      # camera + NEE rays
+            other += len(up.probes_to_reclassify(frame.index, mask)) * up.classify_dirs.n
+            n = (frame.ray_budget - other) / (2 * probes)
+        elif frame.time_budget_ms is not None and self._ms_per_probe_ray:
             n = (frame.time_budget_ms - self._ms_fixed) / (self._ms_per_probe_ray * probes)
         else:
             return n
