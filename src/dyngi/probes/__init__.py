@@ -19,11 +19,12 @@ from .grid import PROBE_ACTIVE, PROBE_INACTIVE, ProbeGrid
 from .query import ProbeQuery
 from .rays import FixedSFDirections, LobeDirections, RayPlan, UniformSFDirections
 from .states import ProbeStates
-from .trace import DIRECT_MODES, DiffuseHitShader, trace_probe_rays
+from .trace import DIRECT_MODES, HIT_LOOKUPS, DiffuseHitShader, trace_probe_rays
 from .update import ProbeUpdater, probes_in_frustum
 from .volume import ProbeVolume, ProbeVolumeState
 
 __all__ = ["ProbeGrid", "ProbeVolume", "ProbeVolumeState", "ProbeQuery", "UniformSFDirections",
            "FixedSFDirections", "LobeDirections", "RayPlan", "DiffuseHitShader", "trace_probe_rays",
            "HysteresisBlend", "TrueAverage", "blend_matrix", "ProbeStates", "ProbeUpdater",
-           "probes_in_frustum", "ENCODINGS", "get_encoding", "DIRECT_MODES", "PROBE_ACTIVE", "PROBE_INACTIVE"]
+           "probes_in_frustum", "ENCODINGS", "get_encoding", "DIRECT_MODES", "HIT_LOOKUPS", "PROBE_ACTIVE",
+           "PROBE_INACTIVE"]

@@ -16,6 +16,19 @@ reference GLSL; biases as in Majercik et al., JCGT 2021, Sec. 4):
 The result is the irradiance ``E`` (W/m^2); the stored texels hold ``E / pi``
 (see :mod:`dyngi.probes.volume`). Interpolation is linear in ``E`` (DDGI's
 optional perceptual "gamma" interpolation is not used: it biases the mean).
+
+**Stochastic filtering** (``sampler=`` given): step 4 is replaced by one texel
+of one probe, the probe drawn with probability ``w_i / sum w`` (weighted
+reservoir sampling over the 8 corners with one uniform number, rescaled after
+each decision) and the texel of its bilinear footprint drawn with the
+bilinear weights -- stochastic texture filtering (Pharr, Wronski, Salvi and
+Fajardo, "Filtering After Shading With Stochastic Texture Filtering", I3D
+2024, Sec. 3). The expectation is exactly the filtered value of step 4 for
+the same weights (which are still computed from the bilinearly filtered
+distance moments), so a consumer that averages many lookups -- the probe
+update, whose texels average hundreds of ray hits and ~1/(1-hysteresis)
+frames -- converges to the same probes while reading 1 instead of 32
+irradiance texels per lookup.
 """
 from __future__ import annotations
 
@@ -27,12 +40,14 @@ WRAP_OFFSET = 0.2          # constant added to the wrap weight so back-side prob
 CHEBYSHEV_FLOOR = 0.05     # lower bound of the Chebyshev visibility factor
 CRUSH_THRESHOLD = 0.2      # weights below this are crushed towards zero
 MIN_WEIGHT = 1e-6
+ONE_MINUS_EPS = 0.99999994   # largest float32 below 1
 
 
-def bilinear_gather(atlas, probe, coords, texels: int, channels: int):
+def bilinear_gather(atlas, probe, coords, texels: int, channels: int, active=True):
     """Bilinear read of a bordered probe square: ``atlas`` flat Float, ``probe`` UInt32, ``coords`` texel coords.
 
-    Returns a Vector2f (2 channels) or Color3f (3 channels).
+    Returns a Vector2f (2 channels) or Color3f (3 channels); 0 where ``active`` is
+    False (masked lanes touch no memory: the query is bound by memory latency).
     """
     cls = mi.Color3f if channels == 3 else mi.Vector2f
     x = coords.x - 0.5
@@ -43,10 +58,10 @@ def bilinear_gather(atlas, probe, coords, texels: int, channels: int):
     fy = dr.clip(y - y0f, 0.0, 1.0)
     x0, y0 = mi.UInt32(x0f), mi.UInt32(y0f)
     base = probe * (texels * texels) + y0 * texels + x0
-    v00 = dr.gather(cls, atlas, base)
-    v01 = dr.gather(cls, atlas, base + 1)
-    v10 = dr.gather(cls, atlas, base + texels)
-    v11 = dr.gather(cls, atlas, base + texels + 1)
+    v00 = dr.gather(cls, atlas, base, active)
+    v01 = dr.gather(cls, atlas, base + 1, active)
+    v10 = dr.gather(cls, atlas, base + texels, active)
+    v11 = dr.gather(cls, atlas, base + texels + 1, active)
     return dr.lerp(dr.lerp(v00, v01, fx), dr.lerp(v10, v11, fx), fy)
 
 
@@ -61,6 +76,10 @@ class ProbeQuery:
     wrap : bool = True           smooth back-face weighting
     unroll : bool = False        unroll the 8 corners in Python (default: one symbolic Dr.Jit loop; same
                                  kernel speed, 4x less time spent tracing the kernel per call)
+
+    :meth:`irradiance` filters the 8 probes x 4 texels (DDGI), or, given a
+    ``sampler``, reads one stochastically chosen texel with the same
+    expectation (see the module docstring).
     """
 
     def __init__(self, volume: ProbeVolume, normal_bias: float = 0.05, view_bias: float = 0.2,
@@ -72,12 +91,14 @@ class ProbeQuery:
         self.wrap = bool(wrap)
         self.unroll = bool(unroll)
 
-    def irradiance(self, pos, normal, wo, direction=None, active=True):
+    def irradiance(self, pos, normal, wo, direction=None, active=True, sampler=None):
         """Irradiance ``E`` (Color3f) at ``pos`` for a surface with ``normal`` seen from ``wo`` (towards viewer).
 
         ``direction`` (default: ``normal``) selects the octahedral texel read;
         pass another direction to read the irradiance field around it (e.g. a
         reflection direction for glossy lookups, as in DDGI Resampling).
+        ``sampler`` (a ``mi.Sampler``, 3 dimensions drawn): stochastic
+        filtering -- one texel of one probe, unbiased for the filtered value.
         """
         vol = self.volume
         dev = vol.device
@@ -99,8 +120,8 @@ class ProbeQuery:
 
         irr_coords = direction_to_texel_coords(lookup, vol.irradiance_texels)
 
-        def corner_term(corner, ox, oy, oz):
-            """Weight and irradiance of one of the 8 cell corners (ox, oy, oz in {0, 1})."""
+        def corner_weight(ox, oy, oz):
+            """Index and weight of one of the 8 cell corners (ox, oy, oz in {0, 1})."""
             probe = (base.x + ox) + nx * ((base.y + oy) + ny * (base.z + oz))
             tri = (dr.select(ox != 0, alpha.x, 1.0 - alpha.x) * dr.select(oy != 0, alpha.y, 1.0 - alpha.y)
                    * dr.select(oz != 0, alpha.z, 1.0 - alpha.z))
@@ -128,22 +149,64 @@ class ProbeQuery:
                 w *= dr.select(bdist <= mean, 1.0, dr.maximum(cheb, CHEBYSHEV_FLOOR))
             w = dr.maximum(w, MIN_WEIGHT)
             w = dr.select(w < CRUSH_THRESHOLD, w * w * w * (1.0 / (CRUSH_THRESHOLD * CRUSH_THRESHOLD)), w)
-            w = dr.select(live, w * tri, 0.0)
-            irr = bilinear_gather(dev.irradiance, probe, irr_coords, vol.irradiance_texels, 3)
-            return w, irr
+            return probe, dr.select(live, w * tri, 0.0)
 
+        def corner(c):
+            return corner_weight(c & 1, (c >> 1) & 1, (c >> 2) & 1)
+
+        def irradiance_of(probe, w):
+            return bilinear_gather(dev.irradiance, probe, irr_coords, vol.irradiance_texels, 3)
+
+        if sampler is not None:
+            return self._stochastic(corner, irr_coords, active, sampler)
         if self.unroll:
             E = mi.Color3f(0.0)
             wsum = mi.Float(0.0)
-            for corner in range(8):
-                w, irr = corner_term(corner, corner & 1, (corner >> 1) & 1, (corner >> 2) & 1)
-                E += irr * w
+            for c in range(8):
+                probe, w = corner(c)
+                E += irradiance_of(probe, w) * w
                 wsum += w
         else:
             # a symbolic loop over the corners: one copy of the code in the kernel (8x less to trace)
-            def body(corner, E, wsum):
-                w, irr = corner_term(corner, corner & 1, (corner >> 1) & 1, (corner >> 2) & 1)
-                return corner + 1, dr.fma(irr, w, E), wsum + w
+            def body(c, E, wsum):
+                probe, w = corner(c)
+                return c + 1, dr.fma(irradiance_of(probe, w), w, E), wsum + w
             _, E, wsum = dr.while_loop((mi.UInt32(0), mi.Color3f(0.0), mi.Float(0.0)),
                                        lambda c, E, wsum: c < 8, body, labels=("corner", "E", "wsum"))
         return dr.select(wsum > 0.0, E * (dr.pi / dr.maximum(wsum, 1e-20)), mi.Color3f(0.0))
+
+    def _stochastic(self, corner, irr_coords, active, sampler):
+        """One texel of one probe: the corner by weighted reservoir sampling, the texel by its bilinear weight."""
+        vol = self.volume
+        u_probe = sampler.next_1d(active)
+        u_texel = sampler.next_2d(active)
+
+        def body(c, wsum, chosen, u):
+            probe, w = corner(c)
+            wsum = wsum + w
+            p = dr.select(wsum > 0.0, w / dr.maximum(wsum, 1e-30), 0.0)   # P(replace the choice so far)
+            take = u < p
+            chosen = dr.select(take, probe, chosen)
+            # rescale u to a fresh uniform number on the branch taken (one uniform serves all 8 draws)
+            u = dr.select(take, u / dr.maximum(p, 1e-30), (u - p) / dr.maximum(1.0 - p, 1e-30))
+            return c + 1, wsum, chosen, dr.clip(u, 0.0, ONE_MINUS_EPS)
+
+        if self.unroll:
+            state = (mi.UInt32(0), mi.Float(0.0), mi.UInt32(0), mi.Float(u_probe))
+            for c in range(8):
+                state = body(c, *state[1:])
+            _, wsum, chosen, _ = state
+        else:
+            _, wsum, chosen, _ = dr.while_loop(
+                (mi.UInt32(0), mi.Float(0.0), mi.UInt32(0), mi.Float(u_probe)),
+                lambda c, wsum, chosen, u: c < 8, body, labels=("corner", "wsum", "chosen", "u"))
+        t = vol.irradiance_texels
+        x = irr_coords.x - 0.5
+        y = irr_coords.y - 0.5
+        x0 = dr.clip(dr.floor(x), 0.0, t - 2.0)
+        y0 = dr.clip(dr.floor(y), 0.0, t - 2.0)
+        xi = mi.UInt32(x0) + mi.UInt32(u_texel.x < dr.clip(x - x0, 0.0, 1.0))
+        yi = mi.UInt32(y0) + mi.UInt32(u_texel.y < dr.clip(y - y0, 0.0, 1.0))
+        ok = active & (wsum > 0.0)
+        irr = dr.gather(mi.Color3f, vol.device.irradiance, chosen * (t * t) + yi * t + xi, ok)
+        return dr.select(ok, irr * dr.pi, mi.Color3f(0.0))

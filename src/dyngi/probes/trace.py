@@ -90,16 +90,27 @@ def check_direct_mode(mode: str) -> str:
     return mode
 
 
+HIT_LOOKUPS = ("stochastic", "filtered")
+
+
 class DiffuseHitShader:
     """Shades surface points as diffuse: emission + albedo/pi * (NEE + probe irradiance).
 
     ``shade(scene, ray, si, sampler, query, active) -> Color3f``; ``query`` is a
     :class:`~dyngi.probes.query.ProbeQuery` (or ``None`` for no multi-bounce).
+    ``lookup``: how the multi-bounce term reads the probes -- ``'filtered'``
+    (default: DDGI's 8 probes x bilinear texels at every hit) or
+    ``'stochastic'`` (one texel of one probe with the expectation of the full
+    filter, see :mod:`dyngi.probes.query`; the blend averages the extra noise
+    away; the ``ddgi`` technique's default).
     """
 
-    def __init__(self, direct: str = "sky", lights=None):
+    def __init__(self, direct: str = "sky", lights=None, lookup: str = "filtered"):
         self.direct = check_direct_mode(direct)
         self.lights = lights   # None: NEE over the emitters the probes do not carry (nee_lights)
+        if lookup not in HIT_LOOKUPS:
+            raise unknown_choice("probe lookup at hits", lookup, HIT_LOOKUPS)
+        self.lookup = lookup
 
     def shade(self, scene, ray, si, sampler, query, active):
         hit = active & si.is_valid()
@@ -121,7 +132,8 @@ class DiffuseHitShader:
         E = w * cos
         # -- multi-bounce from the previous frame's probes --
         if query is not None:
-            E += query.irradiance(si.p, si.sh_frame.n, -ray.d, active=front)
+            E += query.irradiance(si.p, si.sh_frame.n, -ray.d, active=front,
+                                  sampler=sampler if self.lookup == "stochastic" else None)
         L += dr.select(front, albedo * dr.inv_pi * E, 0.0)
         return L, hit, front
 

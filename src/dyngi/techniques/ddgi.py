@@ -29,6 +29,8 @@ distance_power : float = 50
 irradiance_gamma : float = 5    perceptual blending space (1: linear)
 normal_bias, view_bias : float  in units of the smallest probe spacing
 encoding : str = 'fp32'         'fp32' | 'qddgi' | 'adgi'
+hit_lookup : str = 'stochastic' multi-bounce read at probe-ray hits: one stochastically chosen texel
+                                (same expectation as the filter) or 'filtered' (8 probes x 4 texels)
 direct : str = 'sky'            which emitters NEE handles (see :mod:`dyngi.probes.trace`)
 update_offscreen : bool = True  False: only probes in the extended camera frustum are updated
 relocate, classify : bool = True
@@ -52,7 +54,7 @@ from ..backend import dr, mi
 from ..errors import DyngiError
 from ..probes import (DiffuseHitShader, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
                       ProbeUpdater, ProbeVolume, TrueAverage, UniformSFDirections, probes_in_frustum)
-from ..probes.trace import DIRECT_MODES, emitter_via_probes, nee_lights, trace_probe_rays
+from ..probes.trace import DIRECT_MODES, HIT_LOOKUPS, emitter_via_probes, nee_lights, trace_probe_rays
 from ..sampling.rng import make_sampler
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
@@ -186,6 +188,10 @@ class DDGITechnique(_ProbeTechniqueBase):
                                       "has no such damping and it slows the reaction to new light ~4x)",
                                       min=0.0),
         "encoding": Param("fp32", "texel storage encoding", choices=("fp32", "qddgi", "adgi")),
+        "hit_lookup": Param("stochastic", "how probe-ray hits read the previous probes (multi-bounce): "
+                            "'stochastic' one texel of one probe with the filtered value as expectation "
+                            "(Pharr et al. 2024), 'filtered' DDGI's 8 probes x bilinear texels",
+                            choices=HIT_LOOKUPS),
         "update_offscreen": Param(True, "update probes outside the (extended) camera frustum"),
         "relocate": Param(True, "move probes out of geometry"),
         "classify": Param(True, "deactivate probes inside geometry or far from any surface"),
@@ -197,7 +203,7 @@ class DDGITechnique(_ProbeTechniqueBase):
         p = self.params
         self._setup_volume(p["irradiance_texels"], p["distance_texels"])
         self.directions = UniformSFDirections(p["rays_per_probe"])
-        self.shader = DiffuseHitShader(p["direct"])
+        self.shader = DiffuseHitShader(p["direct"], lookup=p["hit_lookup"])
         self.blender = HysteresisBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
                                        p["change_threshold"], p["brightness_threshold"], p["encoding"])
         self.states = ProbeStates(p["relocate"], p["classify"])
@@ -343,7 +349,7 @@ class ProbesReferenceTechnique(_ProbeTechniqueBase):
         self._setup_volume(p["texels"], p["texels"])
         self.irr_dirs = LobeDirections(p["texels"], p["rays_per_texel"], 1.0, stream=21)
         self.dist_dirs = LobeDirections(p["texels"], p["rays_per_texel"], p["distance_power"], stream=22)
-        self.shader = DiffuseHitShader(p["direct"])
+        self.shader = DiffuseHitShader(p["direct"], lookup="filtered")   # the reference filters exactly
         self.blender = TrueAverage()
 
     def step(self, frame: Frame) -> FrameResult:
