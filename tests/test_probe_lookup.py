@@ -111,3 +111,24 @@ def test_coherent_order_is_a_permutation_with_close_neighbours():
     # consecutive rays (one SIMD packet) leave the probe in nearby directions, unlike the index order
     assert step(d[perm]) < 0.4 * step(d)
     assert np.array_equal(np.sort(UniformSFDirections(256).base, axis=0), np.sort(d, axis=0))
+
+
+@pytest.mark.parametrize("stochastic", [False, True])
+def test_query_ignores_non_finite_inactive_lanes(stochastic):
+    """Misses carry non-finite positions and normals: masked-off lanes must read nothing out of bounds
+    and return exactly 0; a non-finite position is treated as inactive even when the mask says active."""
+    sc = load_scene("cornell-static")
+    vol = ProbeVolume(ProbeGrid.from_scene(sc, (4, 4, 4)))
+    vol.state.irradiance[...] = 1.0
+    vol.sync(("irradiance",))
+    n = 1 << 16
+    p = np.full((3, n), np.nan, np.float32)
+    p[:, ::3] = np.inf
+    p[0, ::5] = -3e38
+    nrm = np.full((3, n), np.nan, np.float32)
+    nrm[:, ::7] = 3e38
+    s = make_sampler(n, 0, 0, 1) if stochastic else None
+    E = np.asarray(ProbeQuery(vol).irradiance(mi.Point3f(p), mi.Vector3f(nrm), mi.Vector3f(nrm), sampler=s,
+                                              active=mi.Bool(np.arange(n) % 2 == 0)))
+    assert np.all(E[:, 1::2] == 0.0)
+    assert np.all(np.isfinite(E))

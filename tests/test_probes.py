@@ -99,6 +99,19 @@ def test_blend_matrix_normalised_and_border_consistent():
         assert np.array_equal(W[:, src], W)    # border columns equal their source columns
 
 
+def test_blend_matrix_matches_float64_definition():
+    """The float32 per-frame rebuild (cosines cut below the weight floor) equals the float64 definition."""
+    dirs = UniformSFDirections(256).directions(5, 1)
+    for T, power in ((8, 1.0), (16, 50.0), (16, 7.5)):
+        W, ok = blend_matrix(dirs, T, power, interior=True)
+        tdirs = texel_directions(T)[1:-1, 1:-1].reshape(-1, 3)
+        ref = np.maximum(dirs @ tdirs.T, 0.0) ** power
+        ref /= ref.sum(0)
+        assert ok.all() and W.dtype == np.float32
+        assert np.max(np.abs(W - ref)) < 1e-5 * ref.max()
+        assert not np.any((W > 0) & (W < np.finfo(np.float32).tiny))    # no denormals
+
+
 def test_blend_of_constant_radiance_is_exact():
     """A probe seeing constant radiance 2 and distance 0.3 everywhere stores exactly that."""
     sc = load_scene("furnace")

@@ -26,6 +26,8 @@ matrix fills them consistently with no separate border pass.
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from ..backend import dr, mi
@@ -47,17 +49,31 @@ def blend_matrix(ray_dirs: np.ndarray, texels: int, power: float,
     ``W[r, t] = max(0, n_t . w_r)^power / sum_r' max(0, n_t . w_r')^power``.
     With ``interior`` only the ``(T-2)^2`` interior texels are columns (the
     border texels copy them; see :func:`interior_source_index`).
+
+    Rebuilt every frame (the rays rotate), so it is computed in float32 with
+    cosines below ``MIN_BLEND_WEIGHT^(1/power)`` set to 0 first: their weights
+    would be cut anyway, and no float32 denormal (slow in the power and in the
+    BLAS products) can arise.
     """
-    T = int(texels)
-    tdirs = texel_directions(T, with_border=not interior)
-    tdirs = (tdirs[1:-1, 1:-1] if interior else tdirs).reshape(-1, 3)
-    c = np.maximum(np.asarray(ray_dirs, np.float64) @ tdirs.T, 0.0)
+    tdirs = _texel_directions_table(int(texels), bool(interior))
+    c = np.asarray(ray_dirs, np.float32) @ tdirs.T
+    cut = MIN_BLEND_WEIGHT ** (1.0 / power) if power > 1.0 else 0.0
+    c[c <= cut] = 0.0
     w = _power(c, power)
-    s = w.sum(axis=0)
+    s = w.sum(axis=0, dtype=np.float64)
     ok = s > 0.0
-    w[:, ok] /= s[ok]
-    w[w < MIN_BLEND_WEIGHT] = 0.0   # no float32 denormals: they slow BLAS down by orders of magnitude
-    return w.astype(np.float32), ok
+    w[:, ok] *= (1.0 / s[ok]).astype(np.float32)
+    w[w < MIN_BLEND_WEIGHT] = 0.0
+    return w, ok
+
+
+@functools.lru_cache(maxsize=None)
+def _texel_directions_table(texels: int, interior: bool) -> np.ndarray:
+    """(T*T or (T-2)^2, 3) float32 texel directions (read-only, shared)."""
+    tdirs = texel_directions(texels, with_border=not interior)
+    tdirs = (tdirs[1:-1, 1:-1] if interior else tdirs).reshape(-1, 3).astype(np.float32)
+    tdirs.flags.writeable = False
+    return tdirs
 
 
 def _power(c: np.ndarray, p: float) -> np.ndarray:
@@ -65,11 +81,11 @@ def _power(c: np.ndarray, p: float) -> np.ndarray:
     if p == 1.0:
         return c
     if p != int(p) or p < 1 or p > 1024:
-        return c ** p
+        return c ** np.float32(p)
     n, out, sq = int(p), None, c
     while n:
         if n & 1:
-            out = sq.copy() if out is None else out * sq
+            out = sq.copy() if out is None else np.multiply(out, sq, out=out)
         n >>= 1
         if n:
             sq = sq * sq
