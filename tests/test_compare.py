@@ -339,3 +339,18 @@ def test_cli_reference_then_compare(tmp_path):
     assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
     assert "unknown technique 'nope'" in lines[0] and "valid techniques:" in lines[0]
     assert not (tmp_path / "bad").exists()
+
+
+def test_cost_figures_exclude_the_first_frame(env, tmp_path):
+    """ddgi's first frame runs 8 warm-up probe updates: Mrays/frame and ms/frame are steady-state means."""
+    import json
+    out = tmp_path / "ddgi"
+    _compare(out, ["ddgi"], frames=3, params={"ddgi.probe_counts": "4"}, grid_frames=[])
+    rays = _by_tech(_rows(out), "ddgi", "rays")
+    assert rays[0] > 2 * rays[1:].max()         # the warm-up frame really differs
+    summary = json.loads((out / "summary.json").read_text())
+    s = summary["techniques"]["ddgi"]
+    assert s["rays_per_frame"] == pytest.approx(rays[1:].mean(), rel=1e-6)
+    md = (out / "summary.md").read_text()
+    line = next(l for l in md.splitlines() if l.startswith("| ddgi |"))
+    assert float(line.strip("|").split("|")[-1]) == pytest.approx(rays[1:].mean() / 1e6, rel=1e-2)
