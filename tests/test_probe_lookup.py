@@ -132,3 +132,13 @@ def test_query_ignores_non_finite_inactive_lanes(stochastic):
                                               active=mi.Bool(np.arange(n) % 2 == 0)))
     assert np.all(E[:, 1::2] == 0.0)
     assert np.all(np.isfinite(E))
+
+
+def test_stochastic_lookup_loop_matches_unrolled(cornell_volume):
+    """The symbolic corner loop and its unrolled twin draw the same texel from the same random numbers."""
+    vol, q, pts, nrm, wo = cornell_volume
+    n = len(pts)
+    a = _lookup(ProbeQuery(vol, unroll=False), pts, nrm, wo, 4, make_sampler(n * 4, 2, 0, 3))
+    b = _lookup(ProbeQuery(vol, unroll=True), pts, nrm, wo, 4, make_sampler(n * 4, 2, 0, 3))
+    assert a.max() > 0.0
+    assert np.allclose(a, b, rtol=1e-5, atol=1e-7)

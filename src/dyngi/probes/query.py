@@ -43,11 +43,12 @@ MIN_WEIGHT = 1e-6
 ONE_MINUS_EPS = 0.99999994   # largest float32 below 1
 
 
-def bilinear_gather(atlas, probe, coords, texels: int, channels: int, active=True):
+def bilinear_gather(atlas, probe, coords, texels: int, channels: int):
     """Bilinear read of a bordered probe square: ``atlas`` flat Float, ``probe`` UInt32, ``coords`` texel coords.
 
-    Returns a Vector2f (2 channels) or Color3f (3 channels); 0 where ``active`` is
-    False (masked lanes touch no memory: the query is bound by memory latency).
+    Returns a Vector2f (2 channels) or Color3f (3 channels). Unmasked: masked
+    gathers made the query slower in Dr.Jit's LLVM backend (docs/benchmarks.md),
+    so callers point lanes they do not need at a valid, cached texel instead.
     """
     cls = mi.Color3f if channels == 3 else mi.Vector2f
     x = coords.x - 0.5
@@ -58,10 +59,10 @@ def bilinear_gather(atlas, probe, coords, texels: int, channels: int, active=Tru
     fy = dr.clip(y - y0f, 0.0, 1.0)
     x0, y0 = mi.UInt32(x0f), mi.UInt32(y0f)
     base = probe * (texels * texels) + y0 * texels + x0
-    v00 = dr.gather(cls, atlas, base, active)
-    v01 = dr.gather(cls, atlas, base + 1, active)
-    v10 = dr.gather(cls, atlas, base + texels, active)
-    v11 = dr.gather(cls, atlas, base + texels + 1, active)
+    v00 = dr.gather(cls, atlas, base)
+    v01 = dr.gather(cls, atlas, base + 1)
+    v10 = dr.gather(cls, atlas, base + texels)
+    v11 = dr.gather(cls, atlas, base + texels + 1)
     return dr.lerp(dr.lerp(v00, v01, fx), dr.lerp(v10, v11, fx), fy)
 
 
@@ -162,7 +163,8 @@ class ProbeQuery:
             return corner_weight(c & 1, (c >> 1) & 1, (c >> 2) & 1)
 
         def irradiance_of(probe, w):
-            return bilinear_gather(dev.irradiance, dr.select(w > 0.0, probe, 0), irr_coords, vol.irradiance_texels, 3)
+            probe = dr.select(w > 0.0, probe, 0)      # zero-weight corners read a cached line
+            return bilinear_gather(dev.irradiance, probe, irr_coords, vol.irradiance_texels, 3)
 
         if sampler is not None:
             return self._stochastic(corner, irr_coords, active, sampler)
