@@ -57,7 +57,9 @@ def bilinear_gather(atlas, probe, coords, texels: int, channels: int):
     y0f = dr.clip(dr.floor(y), 0.0, texels - 2.0)
     fx = dr.clip(x - x0f, 0.0, 1.0)
     fy = dr.clip(y - y0f, 0.0, 1.0)
-    x0, y0 = mi.UInt32(x0f), mi.UInt32(y0f)
+    # integer clamps too: whatever float reaches here, no index leaves the probe's square
+    x0 = dr.minimum(mi.UInt32(x0f), texels - 2)
+    y0 = dr.minimum(mi.UInt32(y0f), texels - 2)
     base = probe * (texels * texels) + y0 * texels + x0
     v00 = dr.gather(cls, atlas, base)
     v01 = dr.gather(cls, atlas, base + 1)
@@ -108,9 +110,13 @@ class ProbeQuery:
         origin, spacing, inv_spacing = g.opaque_params()
         scale = g.min_spacing
         lookup = normal if direction is None else direction
-        # inactive lanes (misses: non-finite positions) get harmless inputs: a NaN would survive the
-        # clamps (NaN-propagating min/max) and turn into an out-of-bounds texel index of an unmasked gather
-        active = mi.Bool(active) & dr.all(dr.isfinite(pos))
+        # lanes with a non-finite input (misses; a NaN shading normal of a degenerate triangle) become
+        # inactive and get harmless inputs: a NaN survives the float clamps (NaN-propagating min/max) and
+        # would turn into an out-of-bounds index of an unmasked gather
+        finite = dr.all(dr.isfinite(pos)) & dr.all(dr.isfinite(normal)) & dr.all(dr.isfinite(wo))
+        if direction is not None:
+            finite &= dr.all(dr.isfinite(direction))
+        active = mi.Bool(active) & finite
         pos = dr.select(active, pos, origin)
         normal = dr.select(active, normal, mi.Vector3f(0.0, 0.0, 1.0))
         wo = dr.select(active, wo, mi.Vector3f(0.0, 0.0, 1.0))
@@ -123,7 +129,7 @@ class ProbeQuery:
         cmax = mi.Vector3f(nx - 2, ny - 2, nz - 2)
         base_f = dr.clip(dr.floor(rel), 0.0, cmax)
         alpha = dr.clip(rel - base_f, 0.0, 1.0)
-        base = mi.Vector3u(base_f)
+        base = dr.minimum(mi.Vector3u(base_f), mi.Vector3u(nx - 2, ny - 2, nz - 2))
 
         irr_coords = direction_to_texel_coords(lookup, vol.irradiance_texels)
 
@@ -214,8 +220,8 @@ class ProbeQuery:
         y = irr_coords.y - 0.5
         x0 = dr.clip(dr.floor(x), 0.0, t - 2.0)
         y0 = dr.clip(dr.floor(y), 0.0, t - 2.0)
-        xi = mi.UInt32(x0) + mi.UInt32(u_texel.x < dr.clip(x - x0, 0.0, 1.0))
-        yi = mi.UInt32(y0) + mi.UInt32(u_texel.y < dr.clip(y - y0, 0.0, 1.0))
+        xi = dr.minimum(mi.UInt32(x0), t - 2) + mi.UInt32(u_texel.x < dr.clip(x - x0, 0.0, 1.0))
+        yi = dr.minimum(mi.UInt32(y0), t - 2) + mi.UInt32(u_texel.y < dr.clip(y - y0, 0.0, 1.0))
         ok = active & (wsum > 0.0)
         irr = dr.gather(mi.Color3f, vol.device.irradiance, chosen * (t * t) + yi * t + xi, ok)
         return dr.select(ok, irr * dr.pi, mi.Color3f(0.0))

@@ -26,6 +26,7 @@ NEE, never both:
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,15 +74,27 @@ def emitter_via_probes_host(emitter, mode: str) -> bool:
     return not delta
 
 
-_NEE_CACHE: dict = {}
+_NEE_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
+NEE_CACHE_SIZE = 8
 
 
 def nee_lights(mi_scene, mode: str) -> EmitterSubsetSampling:
-    """NEE over exactly the emitters that the probes do not carry under ``mode`` (cached per scene)."""
+    """NEE over exactly the emitters that the probes do not carry under ``mode`` (cached per scene).
+
+    The cache holds the scene itself (Mitsuba scenes take no weak references):
+    keyed by ``id`` alone, a freed scene's entry -- with pointers to its freed
+    emitters -- was handed to a new scene that got the same address, and the
+    next kernel crashed. At most ``NEE_CACHE_SIZE`` scenes are kept alive.
+    """
     key = (id(mi_scene), mode)
-    if key not in _NEE_CACHE:
-        _NEE_CACHE[key] = EmitterSubsetSampling(mi_scene, lambda e: not emitter_via_probes_host(e, mode))
-    return _NEE_CACHE[key]
+    entry = _NEE_CACHE.get(key)
+    if entry is None or entry[0] is not mi_scene:
+        entry = (mi_scene, EmitterSubsetSampling(mi_scene, lambda e: not emitter_via_probes_host(e, mode)))
+        _NEE_CACHE[key] = entry
+        while len(_NEE_CACHE) > NEE_CACHE_SIZE:
+            _NEE_CACHE.popitem(last=False)
+    _NEE_CACHE.move_to_end(key)
+    return entry[1]
 
 
 def check_direct_mode(mode: str) -> str:
