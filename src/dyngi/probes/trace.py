@@ -26,7 +26,6 @@ NEE, never both:
 """
 from __future__ import annotations
 
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -74,26 +73,26 @@ def emitter_via_probes_host(emitter, mode: str) -> bool:
     return not delta
 
 
-_NEE_CACHE: "OrderedDict[tuple, tuple]" = OrderedDict()
-NEE_CACHE_SIZE = 8
+_NEE_CACHE: dict = {}    # mode -> (mi_scene, sampler), for the most recent scene only
 
 
 def nee_lights(mi_scene, mode: str) -> EmitterSubsetSampling:
     """NEE over exactly the emitters that the probes do not carry under ``mode`` (cached per scene).
 
-    The cache holds the scene itself (Mitsuba scenes take no weak references):
-    keyed by ``id`` alone, a freed scene's entry -- with pointers to its freed
-    emitters -- was handed to a new scene that got the same address, and the
-    next kernel crashed. At most ``NEE_CACHE_SIZE`` scenes are kept alive.
+    The cache holds the one scene it serves and checks identity (Mitsuba scenes
+    take no weak references). Keyed by ``id`` alone, a freed scene's entry --
+    with pointers to its freed emitters -- was handed to a new scene that got
+    the same address, and the next kernel crashed. Only the latest scene is
+    kept: every live scene's emitters and BSDFs take part in Dr.Jit's virtual
+    calls, so keeping old scenes alive made every kernel bigger (the slow test
+    suite ran 3x longer with 8 cached scenes).
     """
-    key = (id(mi_scene), mode)
-    entry = _NEE_CACHE.get(key)
+    entry = _NEE_CACHE.get(mode)
     if entry is None or entry[0] is not mi_scene:
+        for m in [m for m, e in _NEE_CACHE.items() if e[0] is not mi_scene]:
+            del _NEE_CACHE[m]
         entry = (mi_scene, EmitterSubsetSampling(mi_scene, lambda e: not emitter_via_probes_host(e, mode)))
-        _NEE_CACHE[key] = entry
-        while len(_NEE_CACHE) > NEE_CACHE_SIZE:
-            _NEE_CACHE.popitem(last=False)
-    _NEE_CACHE.move_to_end(key)
+        _NEE_CACHE[mode] = entry
     return entry[1]
 
 
