@@ -137,8 +137,7 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
             rows.append(row)
             per_frame.append(m)
         tm = temporal_errors(np.stack([np.maximum(np.nan_to_num(x), 0) for x in seq.images]), np.stack(refs))
-        # cost figures exclude the first frame (kernel compilation, probe warm-up updates)
-        steady = seq.stats[1:] or seq.stats
+        steady, steady_ms = seq.steady()
         stage_ms = {}
         for st in steady:
             for k, v in st.get("ms", {}).items():
@@ -146,7 +145,7 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
         summary[name] = {
             "mean": {k: float(np.mean([f[k] for f in per_frame])) for k in names},
             "E": float(tm["E"]), "E_prime": float(tm["E_prime"]),
-            "ms_per_frame": float(np.mean(seq.wall_ms[1:] or seq.wall_ms)),
+            "ms_per_frame": float(np.mean(steady_ms)),
             "stage_ms": stage_ms,
             "rays_per_frame": float(np.mean([s.get("total_rays", 0) for s in steady])),
         }
@@ -188,8 +187,7 @@ def _run_with_budget(scene, tech, frames, res, seed, budget, budgets, bar):
     wrapped = _Budgeted(tech, None, None)
     # equal time: the first technique's steady median frame time (frame 0 includes kernel compilation,
     # and single frames on a shared CPU are noisy)
-    steady = budgets.wall_ms[1:] or budgets.wall_ms
-    time_budget = float(np.median(steady))
+    time_budget = float(np.median(budgets.steady()[1]))
     for i in range(frames):
         wrapped.rb = budgets.stats[i].get("total_rays") if budget == "equal-rays" else None
         wrapped.tb = time_budget if budget == "equal-time" else None

@@ -50,6 +50,6 @@ def render_to_dir(scene_name: str, technique: str, out_dir: str, frames: int = 1
                        for i, (t, w, s) in enumerate(zip(seq.times, seq.wall_ms, seq.stats))],
         }
         write_json(os.path.join(tmp, "stats.json"), stats)
-    return {"scene": scene.name, "frames": frames,
-            "mean_ms": float(np.mean(seq.wall_ms[1:] if frames > 1 else seq.wall_ms)),
-            "mean_rays": float(np.mean([s.get("total_rays", 0) for s in (seq.stats[1:] or seq.stats)]))}
+    steady, steady_ms = seq.steady()
+    return {"scene": scene.name, "frames": frames, "mean_ms": float(np.mean(steady_ms)),
+            "mean_rays": float(np.mean([s.get("total_rays", 0) for s in steady]))}

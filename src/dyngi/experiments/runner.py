@@ -35,6 +35,11 @@ class SequenceResult:
     stats: list = field(default_factory=list)          # per frame dict
     wall_ms: list = field(default_factory=list)        # wall time of step() per frame
 
+    def steady(self) -> tuple[list, list]:
+        """(stats, wall_ms) of the frames after the first: cost figures leave out frame 0 (kernel
+        compilation, probe warm-up updates) unless it is the only frame."""
+        return (self.stats[1:] or self.stats), (self.wall_ms[1:] or self.wall_ms)
+
 
 def parse_res(text: str) -> tuple[int, int]:
     try:

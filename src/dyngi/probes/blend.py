@@ -173,7 +173,7 @@ class HysteresisBlend:
         Ti, Td = volume.irradiance_texels, volume.distance_texels
 
         # -- irradiance: perceptual space, change detection, brightness damping --
-        k, probe_local, gidx, src = _texel_indices(pid_dr, len(pid), Ti)
+        probe_local, gidx, src = _texel_indices(pid_dr, len(pid), Ti)
         new = _gather_planar(mi.Color3f, irr, probe_local * (Ti - 2) ** 2 + src)
         old = dr.gather(mi.Color3f, dev.irradiance, gidx)
         fresh = dr.gather(mi.Bool, fresh_dr, probe_local)
@@ -196,7 +196,7 @@ class HysteresisBlend:
         dr.scatter(dev.irradiance, res, gidx)
 
         # -- distance moments: plain hysteresis --
-        k, probe_local, gidx, src = _texel_indices(pid_dr, len(pid), Td)
+        probe_local, gidx, src = _texel_indices(pid_dr, len(pid), Td)
         newd = _gather_planar(mi.Vector2f, mom, probe_local * (Td - 2) ** 2 + src)
         oldd = dr.gather(mi.Vector2f, dev.distance, gidx)
         fresh = dr.gather(mi.Bool, fresh_dr, probe_local)
@@ -232,21 +232,21 @@ def _gather_planar(cls, planar: np.ndarray, k):
     return cls(*[dr.gather(mi.Float, flat, k + dr.opaque(mi.UInt32, c * n)) for c in range(planar.shape[0])])
 
 
-_SOURCE_TABLES: dict = {}
+@functools.lru_cache(maxsize=None)
+def _source_table(texels: int):
+    return mi.UInt32(interior_source_index(texels))
 
 
 def _texel_indices(pid_dr, n_probes: int, texels: int):
-    """Per bordered texel ``k`` of the traced probes: its probe slot, global texel index and the
+    """Per bordered texel of the traced probes: its probe slot, global texel index and the
     interior texel it copies (:func:`interior_source_index`)."""
-    if texels not in _SOURCE_TABLES:
-        _SOURCE_TABLES[texels] = mi.UInt32(interior_source_index(texels))
     texels2 = texels * texels
     k = dr.arange(mi.UInt32, n_probes * texels2)
     probe_local = k // texels2
     texel = k - probe_local * texels2
     probe = dr.gather(mi.UInt32, pid_dr, probe_local)
-    src = dr.gather(mi.UInt32, _SOURCE_TABLES[texels], texel)
-    return k, probe_local, probe * texels2 + texel, src
+    src = dr.gather(mi.UInt32, _source_table(texels), texel)
+    return probe_local, probe * texels2 + texel, src
 
 
 class TrueAverage:
@@ -266,7 +266,6 @@ class TrueAverage:
 
     @staticmethod
     def _fill(interior: np.ndarray, texels: int) -> np.ndarray:
-        from ..sampling.octahedral import border_source_index
         P, _, C = interior.shape
         full = np.zeros((P, texels, texels, C), np.float32)
         full[:, 1:-1, 1:-1] = interior.reshape(P, texels - 2, texels - 2, C)

@@ -87,13 +87,11 @@ def nee_lights(mi_scene, mode: str) -> EmitterSubsetSampling:
     calls, so keeping old scenes alive made every kernel bigger (the slow test
     suite ran 3x longer with 8 cached scenes).
     """
-    entry = _NEE_CACHE.get(mode)
-    if entry is None or entry[0] is not mi_scene:
-        for m in [m for m, e in _NEE_CACHE.items() if e[0] is not mi_scene]:
-            del _NEE_CACHE[m]
-        entry = (mi_scene, EmitterSubsetSampling(mi_scene, lambda e: not emitter_via_probes_host(e, mode)))
-        _NEE_CACHE[mode] = entry
-    return entry[1]
+    if any(scene is not mi_scene for scene, _ in _NEE_CACHE.values()):
+        _NEE_CACHE.clear()                      # a new scene: drop the old one
+    if mode not in _NEE_CACHE:
+        _NEE_CACHE[mode] = (mi_scene, EmitterSubsetSampling(mi_scene, lambda e: not emitter_via_probes_host(e, mode)))
+    return _NEE_CACHE[mode][1]
 
 
 def check_direct_mode(mode: str) -> str:

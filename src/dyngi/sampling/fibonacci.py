@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from .octahedral import oct_encode_np
 
 GOLDEN_FRACTION = (np.sqrt(5.0) + 1.0) * 0.5 - 1.0
 
@@ -52,7 +53,6 @@ def coherent_order(dirs: np.ndarray, bits: int = 10) -> np.ndarray:
     docs/benchmarks.md). The spherical-Fibonacci index order, in contrast,
     jumps by the golden angle in azimuth from one ray to the next.
     """
-    from .octahedral import oct_encode_np
     q = np.clip(((oct_encode_np(dirs) * 0.5 + 0.5) * (1 << bits)).astype(np.int64), 0, (1 << bits) - 1)
     return np.argsort(_part1by1(q[:, 0]) | (_part1by1(q[:, 1]) << 1), kind="stable")
 
