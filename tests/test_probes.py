@@ -430,3 +430,14 @@ def test_nee_light_cache_never_serves_a_freed_scene():
         del sc, ms, lights
         gc.collect()
     assert len(trace._NEE_CACHE) <= 2
+
+
+def test_probes_carry_emitters_decides_whether_hits_read_emission():
+    """Probe-ray shading skips the emitter lookup exactly when no emitter reaches the probes directly."""
+    from dyngi.probes.trace import probes_carry_emitters
+
+    cornell = load_scene("cornell-static").mi_scene          # one area light, no sky
+    assert not probes_carry_emitters(cornell, "sky") and not probes_carry_emitters(cornell, "nee")
+    assert probes_carry_emitters(cornell, "emissive")        # area lights enter through the probes there
+    sky = load_scene("sky-pit").mi_scene                     # sun + sky: the sky reaches the probes in 'sky' mode
+    assert probes_carry_emitters(sky, "sky") and not probes_carry_emitters(sky, "nee")

@@ -94,6 +94,12 @@ def nee_lights(mi_scene, mode: str) -> EmitterSubsetSampling:
     return _NEE_CACHE[mode][1]
 
 
+def probes_carry_emitters(mi_scene, mode: str) -> bool:
+    """Does any emitter of the scene reach the probes directly (a probe ray that sees it records its
+    emission) under ``mode``? When none does, probe-ray shading skips the emitter lookup altogether."""
+    return nee_lights(mi_scene, mode).count < len(mi_scene.emitters())
+
+
 def check_direct_mode(mode: str) -> str:
     if mode not in DIRECT_MODES:
         raise unknown_choice("direct-light mode", mode, DIRECT_MODES)
@@ -125,11 +131,12 @@ class DiffuseHitShader:
     def shade(self, scene, ray, si, sampler, query, active):
         hit = active & si.is_valid()
         front = hit & (dr.dot(si.n, ray.d) < 0.0)
-        # -- emission seen by the ray (hit emitter or environment on a miss) --
-        em = si.emitter(scene, active)
-        Le = em.eval(si, active & (front | ~hit))
-        L = dr.select(emitter_via_probes(em, self.direct, active), Le, 0.0)
-        L = mi.Color3f(L)
+        # -- emission seen by the ray (hit emitter or environment on a miss), if the probes carry any --
+        L = mi.Color3f(0.0)
+        if probes_carry_emitters(scene, self.direct):
+            em = si.emitter(scene, active)
+            Le = em.eval(si, active & (front | ~hit))
+            L = mi.Color3f(dr.select(emitter_via_probes(em, self.direct, active), Le, 0.0))
         # -- diffuse albedo --
         bsdf = si.bsdf(ray)
         albedo = bsdf.eval_diffuse_reflectance(si, front)
