@@ -328,7 +328,7 @@ def test_state_summaries_drjit_match_numpy():
     dist[rng.random(dist.shape) < 0.2] = np.inf          # misses
     dist[:3] = np.inf                                     # probes with no hit at all
     a = _summaries_numpy(vol, pid, dirs, dist, True)
-    b = _summaries_drjit(vol, pid, dirs, mi.Float(dist.ravel()))
+    b = _summaries_drjit(vol, pid, dirs, mi.Float(dist.ravel()))()
     for k in ("back_ratio", "t_back", "t_front", "near_any"):
         assert np.allclose(a[k], b[k]), k
     has_b, has_f = np.isfinite(a["t_back"]), np.isfinite(a["t_front"])

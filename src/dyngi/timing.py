@@ -16,10 +16,19 @@ class StageTimer:
         self.rays: dict[str, int] = {}
 
     @contextmanager
-    def stage(self, name: str):
+    def stage(self, name: str, sync: bool = True):
+        """Time a block as (part of) stage ``name``; repeated blocks add up.
+
+        ``sync=False`` leaves the Dr.Jit kernels the block launched running
+        (they finish during the next blocks, which then wait for them): for a
+        stage whose kernels overlap host work of another stage. Its time counts
+        where its results are waited for, so stage times still add up to the
+        wall time.
+        """
         t0 = time.perf_counter()
         yield
-        dr.sync_thread()
+        if sync:
+            dr.sync_thread()
         self.ms[name] = self.ms.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
 
     def add_rays(self, name: str, n: int) -> None:
@@ -30,6 +39,6 @@ class StageTimer:
                 "total_ms": float(sum(self.ms.values())), "total_rays": int(sum(self.rays.values()))}
 
 
-def maybe_stage(timer: StageTimer | None, name: str):
-    """``timer.stage(name)``, or a no-op context when ``timer`` is None."""
-    return timer.stage(name) if timer is not None else contextlib.nullcontext()
+def maybe_stage(timer: StageTimer | None, name: str, sync: bool = True):
+    """``timer.stage(name, sync)``, or a no-op context when ``timer`` is None."""
+    return timer.stage(name, sync) if timer is not None else contextlib.nullcontext()

@@ -147,11 +147,15 @@ class HysteresisBlend:
             raise ValueError("HysteresisBlend needs a shared direction set (use a per-sample accumulator)")
         (Wi, ok_i), (Wd, ok_d) = self._matrices(plan.shared_directions, volume)
         P, N = len(plan.probe_ids), plan.rays_per_probe
-        rad = vector_to_numpy(results.radiance).reshape(3 * P, N)
+        rad_host, dist_host = results.host()
+        rad = rad_host.reshape(3 * P, N)
         irr = (rad @ Wi).reshape(3, -1)
-        d = np.asarray(results.distance, np.float32).reshape(P, N)
-        d = np.minimum(np.abs(d), np.float32(volume.max_distance))
-        mom = (np.concatenate([d, d * d], axis=0) @ Wd).reshape(2, -1)
+        # the moments' rays: (|d| clamped, its square) stacked, built in place (no concatenation)
+        dd = np.empty((2 * P, N), np.float32)
+        np.abs(dist_host.reshape(P, N), out=dd[:P])
+        np.minimum(dd[:P], np.float32(volume.max_distance), out=dd[:P])
+        np.multiply(dd[:P], dd[:P], out=dd[P:])
+        mom = (dd @ Wd).reshape(2, -1)
         return irr, mom, ok_i, ok_d
 
     def update(self, volume: ProbeVolume, results: ProbeRayResults) -> None:

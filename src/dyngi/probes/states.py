@@ -54,16 +54,28 @@ class ProbeStates:
         come back to the host.
         Returns counts ``{'moved', 'deactivated', 'activated'}``.
         """
-        st = volume.state
+        return self.begin(volume, probe_ids, dirs, dist)()
+
+    def begin(self, volume: ProbeVolume, probe_ids: np.ndarray, dirs: np.ndarray, dist):
+        """:meth:`update` in two halves: launch the per-ray Dr.Jit reductions now and return ``finish()``,
+        which waits for their (P,) summaries and applies relocation and classification.
+
+        In between the kernels run on Dr.Jit's pool while the host does other
+        work (the probe update's blend products), instead of after it.
+        """
         pid = np.asarray(probe_ids, np.int64)
         if len(pid) == 0 or not (self.relocate or self.classify):
-            return {"moved": 0, "deactivated": 0, "activated": 0}
+            return lambda: {"moved": 0, "deactivated": 0, "activated": 0}
         shared = np.ndim(dirs) == 2
         dirs = np.asarray(dirs, np.float32)
         if isinstance(dist, np.ndarray) or not shared:
-            sm = _summaries_numpy(volume, pid, dirs, np.asarray(dist, np.float32).reshape(len(pid), -1), shared)
-        else:
-            sm = _summaries_drjit(volume, pid, dirs, dist)
+            return lambda: self._apply(volume, pid, dirs, shared, _summaries_numpy(
+                volume, pid, dirs, np.asarray(dist, np.float32).reshape(len(pid), -1), shared))
+        pending = _summaries_drjit(volume, pid, dirs, dist)
+        return lambda: self._apply(volume, pid, dirs, shared, pending())
+
+    def _apply(self, volume: ProbeVolume, pid: np.ndarray, dirs: np.ndarray, shared: bool, sm: dict) -> dict:
+        st = volume.state
         back_ratio, tb, tf, near_any = sm["back_ratio"], sm["t_back"], sm["t_front"], sm["near_any"]
         rows = np.arange(len(pid))
         moved = np.zeros(len(pid), bool)
@@ -141,7 +153,8 @@ def _summaries_numpy(volume, pid, dirs, dist, shared):
 
 def _summaries_drjit(volume, pid, dirs, dist):
     """The same summaries as :func:`_summaries_numpy` from the device distances of a shared
-    direction set: per-ray work and block reductions in Dr.Jit, (P,) arrays to the host."""
+    direction set: per-ray work and block reductions in Dr.Jit, launched here without waiting;
+    returns a function that collects the (P,) arrays on the host."""
     from ..backend import dr, mi
 
     P, N = len(pid), len(dirs)
@@ -172,6 +185,6 @@ def _summaries_drjit(volume, pid, dirs, dist):
     ib = dr.block_reduce(dr.ReduceOp.Min, dr.select(back & (t_back == dr.gather(mi.Float, tb, slot)), r, big), N)
     i_f = dr.block_reduce(dr.ReduceOp.Min, dr.select(front & (t_front == dr.gather(mi.Float, tf, slot)), r, big), N)
     dr.eval(ib, i_f)
-    return {"back_ratio": np.asarray(n_back, np.float64) / N, "t_back": np.asarray(tb, np.float32),
-            "t_front": np.asarray(tf, np.float32), "i_back": np.minimum(np.asarray(ib, np.int64), N - 1),
-            "i_front": np.minimum(np.asarray(i_f, np.int64), N - 1), "near_any": np.asarray(n_near) > 0}
+    return lambda: {"back_ratio": np.asarray(n_back, np.float64) / N, "t_back": np.asarray(tb, np.float32),
+                    "t_front": np.asarray(tf, np.float32), "i_back": np.minimum(np.asarray(ib, np.int64), N - 1),
+                    "i_front": np.minimum(np.asarray(i_f, np.int64), N - 1), "near_any": np.asarray(n_near) > 0}

@@ -160,14 +160,25 @@ class ProbeRayResults:
     radiance: "mi.Color3f"      # per ray
     distance: "mi.Float"        # per ray: hit distance, negative (-0.2 t) for back faces, +inf on a miss
     plan: RayPlan
+    _host: tuple | None = None
+
+    def host(self) -> tuple:
+        """(radiance (3, n) channel-planar, distance (n,)) float32 host copies, pulled once and kept.
+
+        Pulling waits for the Dr.Jit work queued so far; the probe update pulls
+        right after tracing, so that kernels it launches later (the state
+        summaries) can run beside the host's blend products.
+        """
+        if self._host is None:
+            self._host = (vector_to_numpy(self.radiance), np.asarray(self.distance, np.float32))
+        return self._host
 
     def to_numpy(self):
         """(radiance (P, N, 3) float32, distance (P, N) float32) for plans with a constant count per probe."""
         n = self.plan.rays_per_probe
         P = len(self.plan.probe_ids)
-        rad = vector_to_numpy(self.radiance).reshape(3, P, n).transpose(1, 2, 0)
-        dist = np.asarray(self.distance, np.float32).reshape(P, n)
-        return rad, dist
+        rad, dist = self.host()
+        return rad.reshape(3, P, n).transpose(1, 2, 0), dist.reshape(P, n)
 
 
 def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, query, seed: int, frame: int,

@@ -66,16 +66,23 @@ class ProbeUpdater:
             res = trace_probe_rays(scene, vol, plan, self.shader, self.query, seed, frame, timer=timer)
             self.last_results = res
             with maybe_stage(timer, "blend"):
-                self.blender.update(vol, res)
+                res.host()      # the blend's host copies, pulled before anything else is queued
+            finish_states = None
             if self.states is not None:
-                with maybe_stage(timer, "states"):
+                # the state summaries' kernels run on Dr.Jit's pool beside the blend's host products
+                with maybe_stage(timer, "states", sync=False):
                     dirs = plan.shared_directions
                     if dirs is None:
                         dirs = vector_to_numpy(plan.direction).T.reshape(len(ids), -1, 3)
-                        dist = np.asarray(res.distance, np.float32).reshape(len(ids), -1)
+                        dist = res.host()[1].reshape(len(ids), -1)
                     else:
                         dist = res.distance    # device array: per-ray work stays in Dr.Jit
-                    c = self.states.update(vol, ids, dirs, dist)
+                    finish_states = self.states.begin(vol, ids, dirs, dist)
+            with maybe_stage(timer, "blend"):
+                self.blender.update(vol, res)
+            if finish_states is not None:
+                with maybe_stage(timer, "states"):
+                    c = finish_states()
                     for k in c:
                         info[k] += c[k]
         # -- re-test inactive probes with fixed rays --
