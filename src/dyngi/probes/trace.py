@@ -194,7 +194,9 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
         origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
         ray = mi.Ray3f(origin, plan.direction)
         pi = mscene.ray_intersect_preliminary(ray, coherent=False)
-        dr.eval(ray, pi)
+        # only the hits are stored: the shade kernel recomputes the rays (two gathers) instead of
+        # reading back 6 floats per ray
+        dr.eval(pi)
     if timer is not None:
         timer.add_rays("trace probes", n)
     with maybe_stage(timer, "shade probes"):
