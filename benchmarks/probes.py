@@ -36,19 +36,20 @@ def median_time(fn, reps: int, warm: int = 2) -> float:
     return float(np.median(ts))
 
 
-def raw_intersect_rate(scene, tech, reps: int):
-    """Rays/s of full ``ray_intersect`` (and the preliminary test) on exactly the rays one update traces.
+def raw_intersect_timers(scene, tech):
+    """Timers (one pass each, seconds) of full ``ray_intersect`` and of the preliminary test on exactly
+    the rays one update traces, of ``ray_test`` on shadow rays from their hits to the light, and the
+    ray count.
 
     The same plan as the technique's update (its active probes, its rays per
     probe, a frame's rotation): the rays of inactive probes (outside the room,
-    inside walls) are cheaper and would flatter the raw rate. Returns (full, preliminary).
+    inside walls) are cheaper and would flatter the raw rate.
     """
     vol = tech.volume
     plan = tech.directions.plan(5, 0, vol.active_indices())
     origin = dr.gather(mi.Point3f, vol.device.positions, plan.probe)
     ray = mi.Ray3f(origin, plan.direction)
     dr.eval(ray)
-    n = dr.width(plan.direction)
 
     def full():
         si = scene.mi_scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False)
@@ -58,7 +59,28 @@ def raw_intersect_rate(scene, tech, reps: int):
         pi = scene.mi_scene.ray_intersect_preliminary(ray, coherent=False)
         dr.eval(pi.t, pi.prim_index, pi.shape)
 
-    return n / median_time(full, reps), n / median_time(prelim, reps)
+    # the update's shadow rays: from the hits to a point on a light (Mitsuba's emitter sampling)
+    si = scene.mi_scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False)
+    ok = si.is_valid() & (dr.dot(si.n, ray.d) < 0.0)
+    u = make_sampler(dr.width(ray.d), 0, 5, 13).next_2d()
+    ds, _ = scene.mi_scene.sample_emitter_direction(si, u, False, ok)
+    shadow = si.spawn_ray_to(ds.p)
+    dr.eval(shadow, ok)
+
+    def test():
+        dr.eval(scene.mi_scene.ray_test(shadow, ok))
+
+    def timer(fn):
+        def once():
+            dr.sync_thread()
+            t0 = time.perf_counter()
+            fn()
+            dr.sync_thread()
+            return time.perf_counter() - t0
+        once()                       # compile
+        return once
+
+    return timer(full), timer(prelim), timer(test), dr.width(plan.direction)
 
 
 def probe_query_time(scene, tech, reps: int, stochastic: bool) -> float:
@@ -180,39 +202,44 @@ def main():
 
     print(f"device: {device_info()}")
     rows = []
-    # -- 1. probe update vs raw ray_intersect, in interleaved rounds (the shared machine drifts) --
-    tech, stats = ddgi_frames(sc, {"probe_counts": "16,8,16"}, res, reps)
-    upd_ratios, all_ratios, raws, upds = [], [], [], []
-    frame0 = len(stats) + 3
-    for r in range(args.rounds):
-        st = stats if r == 0 else more_frames(tech, sc, res, frame0 + r * reps, reps)
-        full_rate, pre_rate = raw_intersect_rate(sc, tech, reps)
-        update_ms = sum(med(st, "ms", k) for k in ("trace probes", "shade probes", "blend", "states")
-                        if not np.isnan(med(st, "ms", k)))
-        probe_rays = med(st, "rays", "trace probes")
-        shadow_rays = med(st, "rays", "shade probes")
-        upd_ratios.append(probe_rays / (update_ms * 1e-3) / full_rate)
-        all_ratios.append((probe_rays + shadow_rays) / (update_ms * 1e-3) / full_rate)
-        raws.append((full_rate, pre_rate))
-        upds.append((update_ms, st))
-    k_med = int(np.argsort(all_ratios)[len(all_ratios) // 2])      # the median round, reported whole
-    full_rate, pre_rate = raws[k_med]
-    update_ms, stats = upds[k_med]
+    # -- 1. probe update vs raw ray_intersect, frame by frame (the shared machine drifts by up to 1.5x
+    #       within a minute: each ratio compares an update with a raw pass timed right after it) --
+    tech, stats = ddgi_frames(sc, {"probe_counts": "16,8,16"}, res, 1)
+    full_once, pre_once, test_once, n_raw = raw_intersect_timers(sc, tech)
+    stats, upd_ratios, all_ratios, time_ratios, fulls, pres = [], [], [], [], [], []
+    stages = ("trace probes", "shade probes", "blend", "states")
+    for f in range(args.rounds * reps):
+        st = more_frames(tech, sc, res, 10 + f, 1)[0]
+        t_full, t_pre, t_test = full_once(), pre_once(), test_once()
+        update_s = 1e-3 * sum(st["ms"].get(k, 0.0) for k in stages)
+        raw = n_raw / t_full
+        upd_ratios.append(st["rays"]["trace probes"] / update_s / raw)
+        all_ratios.append((st["rays"]["trace probes"] + st["rays"]["shade probes"]) / update_s / raw)
+        # stricter: raw Mitsuba's time for the same work (full intersections + shadow tests) / update time
+        time_ratios.append((t_full + t_test) * st["rays"]["trace probes"] / n_raw / update_s)
+        stats.append(st)
+        fulls.append(raw)
+        pres.append(n_raw / t_pre)
+    full_rate, pre_rate = float(np.median(fulls)), float(np.median(pres))
+    update_ms = float(np.median([sum(s["ms"].get(k, 0.0) for k in stages) for s in stats]))
     probe_rays = med(stats, "rays", "trace probes")
     shadow_rays = med(stats, "rays", "shade probes")
     upd_rate = probe_rays / (update_ms * 1e-3)
     all_rate = (probe_rays + shadow_rays) / (update_ms * 1e-3)
     query_ms = 1e3 * probe_query_time(sc, tech, reps, stochastic=True)
     filtered_ms = 1e3 * probe_query_time(sc, tech, reps, stochastic=False)
-    rng = lambda v: f"rounds: {min(v):.0%}-{max(v):.0%}"   # noqa: E731
+    def spread(v):
+        q1, q3 = np.percentile(v, [25, 75])
+        return f"{np.median(v):.0%} of full ray_intersect (median of {len(v)} frame/raw pairs; quartiles {q1:.0%}-{q3:.0%})"
     rows.append(("raw ray_intersect (full SurfaceInteraction), probe rays", f"{full_rate / 1e6:.1f} Mrays/s",
-                 "measured between the update's frames in each round"))
+                 "median; one pass timed after each update"))
     rows.append(("raw ray_intersect_preliminary, probe rays", f"{pre_rate / 1e6:.1f} Mrays/s", ""))
     rows.append(("probe update (trace, shade with NEE + multi-bounce query, blend, states), probe rays only",
-                 f"{upd_rate / 1e6:.1f} Mrays/s", f"{np.median(upd_ratios):.0%} of full ray_intersect "
-                 f"(median of {len(upd_ratios)} interleaved rounds; {rng(upd_ratios)})"))
-    rows.append(("probe update, probe rays + NEE shadow rays", f"{all_rate / 1e6:.1f} Mrays/s",
-                 f"{np.median(all_ratios):.0%} of full ray_intersect ({rng(all_ratios)})"))
+                 f"{upd_rate / 1e6:.1f} Mrays/s", spread(upd_ratios)))
+    rows.append(("probe update, probe rays + NEE shadow rays", f"{all_rate / 1e6:.1f} Mrays/s", spread(all_ratios)))
+    rows.append(("raw time for the update's rays (full ray_intersect of the probe rays + ray_test of as many shadow "
+                 "rays) / update time", f"{np.median(time_ratios):.0%}",
+                 "quartiles " + "-".join(f"{q:.0%}" for q in np.percentile(time_ratios, [25, 75]))))
     rows.append((f"of which: multi-bounce lookups alone at the {int(probe_rays)} probe-ray hits (stochastic, "
                  "as in the update)", f"{query_ms:.1f} ms", f"{query_ms / update_ms:.0%} of the update "
                  f"({update_ms:.1f} ms); the full 8-probe filter: {filtered_ms:.1f} ms"))
@@ -223,7 +250,7 @@ def main():
     # interleaved rounds: the shared machine drifts, so each ratio compares times taken side by side
     ratios, ddgi_all, path_all = [], [], []
     for _ in range(args.rounds):
-        _, st = ddgi_frames(sc, {"probe_counts": "16,8,16"}, res, reps, warm=1) if ratios else (tech, stats)
+        _, st = ddgi_frames(sc, {"probe_counts": "16,8,16"}, res, reps, warm=1)
         ddgi_ms = med(st, "total_ms")
         path_ms = 1e3 * mitsuba_path_1spp(sc, res, reps)
         ratios.append(ddgi_ms / path_ms)
