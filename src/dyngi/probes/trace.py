@@ -186,7 +186,9 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
     """Trace all rays of ``plan`` from the probes of ``volume`` (one batch) and shade their hits.
 
     Two kernels: the preliminary intersection (stage ``trace probes`` of ``timer``)
-    and surface interaction + shading (stage ``shade probes``).
+    and surface interaction + shading (stage ``shade probes``). The shade kernel
+    is traced (built in Python) while the intersection kernel runs, so that
+    Python time hides behind it; it counts towards ``trace probes``.
     """
     mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
     n = dr.width(plan.direction)
@@ -197,14 +199,15 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
         # only the hits are stored: the shade kernel recomputes the rays (two gathers) instead of
         # reading back 6 floats per ray
         dr.eval(pi)
-    if timer is not None:
-        timer.add_rays("trace probes", n)
-    with maybe_stage(timer, "shade probes"):
+        # -- the shade kernel, traced while the intersection kernel runs --
         si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
         sampler = make_sampler(n, seed, frame, stream)
         L, hit, front = shader.shade(mscene, ray, si, sampler, query, mi.Bool(True))
         dist = dr.select(hit, dr.select(front, si.t, -BACKFACE_DISTANCE_SCALE * si.t), dr.inf)
         L = dr.select(dr.isfinite(L), L, 0.0)   # guard: a NaN/Inf sample must never enter the cache
+    if timer is not None:
+        timer.add_rays("trace probes", n)
+    with maybe_stage(timer, "shade probes"):
         dr.eval(L, dist)
     if timer is not None:
         timer.add_rays("shade probes", n)     # shadow rays of NEE
