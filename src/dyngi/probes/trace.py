@@ -26,7 +26,7 @@ NEE, never both:
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -160,7 +160,7 @@ class ProbeRayResults:
     radiance: "mi.Color3f"      # per ray
     distance: "mi.Float"        # per ray: hit distance, negative (-0.2 t) for back faces, +inf on a miss
     plan: RayPlan
-    _host: tuple | None = None
+    _host: tuple | None = field(default=None, init=False, repr=False)
 
     def host(self) -> tuple:
         """(radiance (3, n) channel-planar, distance (n,)) float32 host copies, pulled once and kept.

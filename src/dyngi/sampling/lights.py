@@ -52,11 +52,11 @@ class EmitterSubsetSampling:
         emitters = list(mi_scene.emitters())
         idx = [i for i, e in enumerate(emitters) if keep(e)]
         self.count = len(idx)
+        self.single = emitters[idx[0]] if self.count == 1 else None   # sampled without dispatch
         if self.count:
             w = [float(emitters[i].sampling_weight()) for i in idx]
             if sum(w) <= 0:
                 w = [1.0] * len(idx)
-            self.single = emitters[idx[0]] if self.count == 1 else None
             self.table = mi.DiscreteDistribution(w)
             self.ptrs = dr.gather(mi.EmitterPtr, mi_scene.emitters_dr(), mi.UInt32(idx))
             # selection pmf by emitter registry id (what an EmitterPtr holds), for pdf()
