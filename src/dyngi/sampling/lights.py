@@ -71,16 +71,14 @@ class EmitterSubsetSampling:
         active = mi.Bool(active)
         if self.single is not None:      # no selection, no virtual call
             ds, spec = self.single.sample_direction(si, u2, active)
-            pmf = 1.0
         else:
             k, ux, pmf = self.table.sample_reuse_pmf(u2.x, active)
             em = dr.gather(mi.EmitterPtr, self.ptrs, k, active)
             ds, spec = em.sample_direction(si, mi.Point2f(ux, u2.y), active)
+            ds.pdf *= pmf                # the selection pmf (> 0 for the selected emitter)
+            spec = spec / pmf
         active &= ds.pdf != 0.0
         occluded = scene.ray_test(si.spawn_ray_to(ds.p), active)
-        if self.single is None:
-            ds.pdf *= pmf
-            spec = spec / pmf
         spec = dr.select(active & ~occluded, spec, 0.0)
         return ds, mi.Color3f(spec)
 
