@@ -37,9 +37,9 @@ def median_time(fn, reps: int, warm: int = 2) -> float:
 
 
 def raw_intersect_timers(scene, tech):
-    """Timers (best of 3 back-to-back passes, seconds) of full ``ray_intersect`` and of the preliminary test on exactly
-    the rays one update traces, of ``ray_test`` on shadow rays from their hits to the light, and the
-    ray count.
+    """Timers (seconds, best of 3 back-to-back passes) of full ``ray_intersect`` and of the preliminary
+    test on exactly the rays one update traces, of ``ray_test`` on shadow rays from their hits to the
+    light, and the ray count.
 
     The same plan as the technique's update (its active probes, its rays per
     probe, a frame's rotation): the rays of inactive probes (outside the room,
@@ -108,21 +108,14 @@ def probe_query_time(scene, tech, reps: int, stochastic: bool) -> float:
 
 
 def ddgi_frames(scene, params, res, frames: int, warm: int = 3):
+    """A new ``ddgi`` technique and the stats of ``frames`` frames after ``warm`` unmeasured ones."""
     tech = create_technique("ddgi", scene, params)
-    stats = []
-    for f in range(warm + frames):
-        t0 = time.perf_counter()
-        r = tech.step(Frame(f, 0.0, scene.camera(0.0), res, seed=0))
-        wall = time.perf_counter() - t0
-        if f >= warm:
-            s = dict(r.stats)
-            s["wall_ms"] = 1e3 * wall
-            stats.append(s)
-    return tech, stats
+    more_frames(tech, scene, res, 0, warm)
+    return tech, more_frames(tech, scene, res, warm, frames)
 
 
 def more_frames(tech, scene, res, first: int, frames: int):
-    """Stats of ``frames`` more steady frames of an existing ``ddgi`` technique."""
+    """Stats (with ``wall_ms``) of frames ``first`` .. ``first + frames - 1`` of a ``ddgi`` technique."""
     stats = []
     for f in range(first, first + frames):
         t0 = time.perf_counter()
@@ -206,8 +199,8 @@ def main():
     print(f"device: {device_info()}")
     rows = []
     # -- 1. probe update vs raw ray_intersect, frame by frame (the shared machine drifts by up to 1.5x
-    #       within a minute: each ratio compares an update with a raw pass timed right after it) --
-    tech, stats = ddgi_frames(sc, {"probe_counts": "16,8,16"}, res, 1)
+    #       within a minute: each ratio compares an update with the raw passes timed right after it) --
+    tech, _ = ddgi_frames(sc, {"probe_counts": "16,8,16"}, res, 1)
     full_once, pre_once, test_once, n_raw = raw_intersect_timers(sc, tech)
     stats, upd_ratios, all_ratios, time_ratios, fulls, pres = [], [], [], [], [], []
     stages = ("trace probes", "shade probes", "blend", "states")
@@ -231,6 +224,7 @@ def main():
     all_rate = (probe_rays + shadow_rays) / (update_ms * 1e-3)
     query_ms = 1e3 * probe_query_time(sc, tech, reps, stochastic=True)
     filtered_ms = 1e3 * probe_query_time(sc, tech, reps, stochastic=False)
+
     def spread(v):
         q1, q3 = np.percentile(v, [25, 75])
         return f"{np.median(v):.0%} of full ray_intersect (median of {len(v)} frame/raw pairs; quartiles {q1:.0%}-{q3:.0%})"
