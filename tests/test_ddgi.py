@@ -234,3 +234,22 @@ def test_equal_time_budget_scales_rays_with_the_budget():
     small = tech._budget_rays_per_probe(Frame(2, 0.0, cam, res, time_budget_ms=0.5 * ms), None)
     large = tech._budget_rays_per_probe(Frame(2, 0.0, cam, res, time_budget_ms=2.0 * ms), None)
     assert small < 256 < large
+
+
+def test_shadow_rays_are_counted_as_cast():
+    """Ray counts are measured: a probe ray casts an NEE shadow ray only at a front-face hit whose
+    light sample lies above the surface, and a primary ray only at a visible front face."""
+    sc = load_scene("cornell-static")
+    tech = create_technique("ddgi", sc, {"probe_counts": "6", "warmup": 0, "rays_per_probe": 64})
+    res = (32, 24)
+    r = run(tech, sc, 2, res=res)
+    rays = r.stats["rays"]
+    dist = np.asarray(tech.updater.last_results.distance)
+    front = np.isfinite(dist) & (dist > 0)
+    assert rays["trace probes"] == dist.size
+    # the box is open towards the camera: some probe rays miss, and cast no shadow ray
+    assert front.sum() < dist.size
+    assert 0.5 * front.sum() < rays["shade probes"] <= front.sum()
+    n = res[0] * res[1]
+    assert n < rays["primary"] <= 2 * n
+    assert r.stats["total_rays"] == sum(rays.values())

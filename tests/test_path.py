@@ -280,3 +280,43 @@ def test_emitter_subset_single_emitter_direct_call_matches_dispatch(backend):
     assert np.count_nonzero(np.asarray(w_a)) > n // 10       # the comparison covers lit samples
     for a, b in ((ds_a.p, ds_b.p), (ds_a.pdf, ds_b.pdf), (w_a, w_b)):
         assert np.allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("single", [True, False])
+def test_emitter_subset_shadow_mask_and_receiver_cull(backend, single):
+    """``sample_traced``: the same samples and weights as ``sample`` wherever the receiver faces the
+    sample, weight 0 and no shadow ray where it does not, and the mask says which lanes cast a ray."""
+    from dyngi.backend import dr, mi
+    from dyngi.sampling.lights import EmitterSubsetSampling, sample_traced
+
+    sc = _many_light_scene()
+    emitters = list(sc.mi_scene.emitters())
+    keep = emitters[2:3] if single else emitters[:6]
+    lights = EmitterSubsetSampling(sc.mi_scene, lambda e: any(e is k or e == k for k in keep))
+    assert (lights.single is not None) == single
+    n = 4096
+    rng = np.random.default_rng(11)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.p = mi.Point3f(*(rng.uniform(-1.5, 1.5, (3, n)) * [[1], [0.5], [1]] + [[0], [0.6], [0]]).astype(np.float32))
+    nrm = rng.normal(size=(3, n))
+    nrm /= np.linalg.norm(nrm, axis=0)
+    si.n = mi.Normal3f(*nrm.astype(np.float32))
+    si.sh_frame = mi.Frame3f(si.n)
+    u = mi.Point2f(rng.random(n), rng.random(n))
+    active = mi.Bool(rng.random(n) < 0.9)
+    ds_a, w_a = lights.sample(sc.mi_scene, si, u, active)
+    ds_b, w_b, traced = sample_traced(lights, sc.mi_scene, si, u, active, receiver=si.sh_frame.n)
+    dr.eval(ds_a, w_a, ds_b, w_b, traced)
+    facing = np.asarray(dr.dot(si.sh_frame.n, ds_a.d)) > 0.0
+    pdf_ok = np.asarray(ds_a.pdf) != 0.0
+    wa, wb = np.asarray(w_a), np.asarray(w_b)
+    expect = np.asarray(active) & pdf_ok & facing
+    assert np.array_equal(np.asarray(traced), expect)
+    assert 0.2 * n < expect.sum() < 0.8 * n            # both cases occur
+    assert np.allclose(wb[:, facing], wa[:, facing], rtol=1e-5, atol=1e-7)
+    assert np.all(wb[:, ~facing] == 0.0)
+    assert np.count_nonzero(wa[:, ~facing]) > 0      # the cull removed lit samples (their cosine is <= 0)
+    # without a receiver: the lanes with a nonzero pdf cast a ray, the weights are `sample`'s
+    _, w_c, traced_c = sample_traced(lights, sc.mi_scene, si, u, active)
+    assert np.array_equal(np.asarray(traced_c), np.asarray(active) & pdf_ok)
+    assert np.allclose(np.asarray(w_c), wa, rtol=1e-5, atol=1e-7)

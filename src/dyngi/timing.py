@@ -5,6 +5,8 @@ import contextlib
 import time
 from contextlib import contextmanager
 
+import numpy as np
+
 from .backend import dr
 
 
@@ -14,6 +16,7 @@ class StageTimer:
     def __init__(self):
         self.ms: dict[str, float] = {}
         self.rays: dict[str, int] = {}
+        self._lazy: list = []
 
     @contextmanager
     def stage(self, name: str, sync: bool = True):
@@ -31,10 +34,18 @@ class StageTimer:
             dr.sync_thread()
         self.ms[name] = self.ms.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
 
-    def add_rays(self, name: str, n: int) -> None:
-        self.rays[name] = self.rays.get(name, 0) + int(n)
+    def add_rays(self, name: str, n) -> None:
+        """Add ``n`` rays to stage ``name``: an int, or a Dr.Jit count (e.g. ``dr.count(mask)``) that is
+        read only in :meth:`as_dict`, so that counting measured rays adds no wait to the stage."""
+        if isinstance(n, (int, np.integer)):
+            self.rays[name] = self.rays.get(name, 0) + int(n)
+        else:
+            self._lazy.append((name, n))
 
     def as_dict(self) -> dict:
+        for name, n in self._lazy:
+            self.rays[name] = self.rays.get(name, 0) + int(np.asarray(n).ravel()[0])
+        self._lazy.clear()
         return {"ms": dict(self.ms), "rays": dict(self.rays),
                 "total_ms": float(sum(self.ms.values())), "total_rays": int(sum(self.rays.values()))}
 

@@ -161,9 +161,9 @@ class HysteresisBlend:
     def update(self, volume: ProbeVolume, results: ProbeRayResults) -> None:
         """Blend this frame's rays into the probes they came from.
 
-        The per-texel hysteresis runs as one Dr.Jit kernel per atlas on the
-        device mirror (in place, with the storage quantisation fused in); the
-        host arrays are refreshed from it afterwards.
+        The per-texel hysteresis (with the storage quantisation fused in) runs
+        as Dr.Jit kernels on the device mirror, whose atlases are then updated
+        in place; the host arrays are refreshed from it when read.
         """
         st = volume.state
         pid = np.asarray(results.plan.probe_ids, np.int64)
@@ -173,11 +173,26 @@ class HysteresisBlend:
         dev = volume.device
         pid_dr = mi.UInt32(pid.astype(np.uint32))
         fresh_dr = mi.Bool(st.updates[pid] == 0)
-        h = dr.opaque(mi.Float, self.hysteresis)
-        Ti, Td = volume.irradiance_texels, volume.distance_texels
+        # the blended texels are evaluated before they are scattered: a pending gather of an atlas
+        # would make the scatter copy the whole atlas first (5.5 MB per frame)
+        irr_new, irr_idx = self._blend_irradiance(volume, irr, ok_i, pid_dr, fresh_dr, len(pid))
+        mom_new, mom_idx = self._blend_distance(volume, mom, ok_d, pid_dr, fresh_dr, len(pid))
+        dr.eval(irr_new, mom_new)
+        dr.scatter(dev.irradiance, irr_new, irr_idx)
+        dr.scatter(dev.distance, mom_new, mom_idx)
+        dr.eval(dev.irradiance, dev.distance)
 
-        # -- irradiance: perceptual space, change detection, brightness damping --
-        probe_local, gidx, src = _texel_indices(pid_dr, len(pid), Ti)
+        # -- the host copy is refreshed only when something reads it --
+        st.device_is_newer(_pull_from(dev))
+        st.updates[pid] += 1
+
+    def _blend_irradiance(self, volume, irr, ok_i, pid_dr, fresh_dr, n_probes: int):
+        """Blended irradiance texels of the traced probes (all bordered texels) and their atlas indices:
+        perceptual space, change detection, brightness damping, storage quantisation."""
+        dev = volume.device
+        Ti = volume.irradiance_texels
+        h = dr.opaque(mi.Float, self.hysteresis)
+        probe_local, gidx, src = _texel_indices(pid_dr, n_probes, Ti)
         new = _gather_planar(mi.Color3f, irr, probe_local * (Ti - 2) ** 2 + src)
         old = dr.gather(mi.Color3f, dev.irradiance, gidx)
         fresh = dr.gather(mi.Bool, fresh_dr, probe_local)
@@ -196,25 +211,21 @@ class HysteresisBlend:
         res_g = dr.maximum(old_g + (1.0 - hh) * delta, 0.0)
         res = dr.select(res_g > 0.0, dr.power(res_g, g), 0.0)
         res = self.encoding.quantize_irradiance(res)
-        res = dr.select(ok, res, old)
-        dr.scatter(dev.irradiance, res, gidx)
+        return dr.select(ok, res, old), gidx
 
-        # -- distance moments: plain hysteresis --
-        probe_local, gidx, src = _texel_indices(pid_dr, len(pid), Td)
+    def _blend_distance(self, volume, mom, ok_d, pid_dr, fresh_dr, n_probes: int):
+        """Blended distance moments of the traced probes (plain hysteresis) and their atlas indices."""
+        dev = volume.device
+        Td = volume.distance_texels
+        probe_local, gidx, src = _texel_indices(pid_dr, n_probes, Td)
         newd = _gather_planar(mi.Vector2f, mom, probe_local * (Td - 2) ** 2 + src)
         oldd = dr.gather(mi.Vector2f, dev.distance, gidx)
         fresh = dr.gather(mi.Bool, fresh_dr, probe_local)
         ok = dr.gather(mi.Bool, mi.Bool(ok_d), src)
-        hd = dr.select(fresh, 0.0, h)
+        hd = dr.select(fresh, 0.0, dr.opaque(mi.Float, self.hysteresis))
         resd = dr.fma(1.0 - hd, newd - oldd, oldd)
         resd = self.encoding.quantize_distance(resd, dr.opaque(mi.Float, volume.grid.cell_diagonal))
-        resd = dr.select(ok, resd, oldd)
-        dr.scatter(dev.distance, resd, gidx)
-        dr.eval(dev.irradiance, dev.distance)
-
-        # -- the host copy is refreshed only when something reads it --
-        st.device_is_newer(_pull_from(dev))
-        st.updates[pid] += 1
+        return dr.select(ok, resd, oldd), gidx
 
 
 def _pull_from(dev):

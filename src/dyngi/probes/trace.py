@@ -32,7 +32,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import unknown_choice
-from ..sampling.lights import EmitterSubsetSampling
+from ..sampling.lights import EmitterSubsetSampling, sample_traced
 from ..sampling.rng import make_sampler
 from ..timing import maybe_stage
 from .rays import RayPlan
@@ -112,7 +112,9 @@ HIT_LOOKUPS = ("stochastic", "filtered")
 class DiffuseHitShader:
     """Shades surface points as diffuse: emission + albedo/pi * (NEE + probe irradiance).
 
-    ``shade(scene, ray, si, sampler, query, active) -> Color3f``; ``query`` is a
+    ``shade(scene, ray, si, sampler, query, active) -> (L, hit, front, shadow)``: radiance towards the
+    ray's origin, the hit and front-face masks and the lanes that cast an NEE shadow ray (samples below
+    the shading normal cast none: their diffuse contribution is 0). ``query`` is a
     :class:`~dyngi.probes.query.ProbeQuery` (or ``None`` for no multi-bounce).
     ``lookup``: how the multi-bounce term reads the probes -- ``'filtered'``
     (default: DDGI's 8 probes x bilinear texels at every hit) or
@@ -142,7 +144,7 @@ class DiffuseHitShader:
         albedo = bsdf.eval_diffuse_reflectance(si, front)
         # -- direct light by NEE (one shadow ray) --
         lights = self.lights if self.lights is not None else nee_lights(scene, self.direct)
-        ds, w = lights.sample(scene, si, sampler.next_2d(), front)
+        ds, w, shadow = sample_traced(lights, scene, si, sampler.next_2d(), front, receiver=si.sh_frame.n)
         cos = dr.maximum(dr.dot(si.sh_frame.n, ds.d), 0.0)
         if self.lights is not None:   # a general strategy may pick emitters the probes carry
             w = dr.select(emitter_via_probes(ds.emitter, self.direct, front), 0.0, w)
@@ -152,7 +154,7 @@ class DiffuseHitShader:
             E += query.irradiance(si.p, si.sh_frame.n, -ray.d, active=front,
                                   sampler=sampler if self.lookup == "stochastic" else None)
         L += dr.select(front, albedo * dr.inv_pi * E, 0.0)
-        return L, hit, front
+        return L, hit, front, shadow
 
 
 @dataclass
@@ -202,15 +204,18 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
         # -- the shade kernel, traced while the intersection kernel runs --
         si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
         sampler = make_sampler(n, seed, frame, stream)
-        L, hit, front = shader.shade(mscene, ray, si, sampler, query, mi.Bool(True))
+        L, hit, front, shadow = shader.shade(mscene, ray, si, sampler, query, mi.Bool(True))
         dist = dr.select(hit, dr.select(front, si.t, -BACKFACE_DISTANCE_SCALE * si.t), dr.inf)
         L = dr.select(dr.isfinite(L), L, 0.0)   # guard: a NaN/Inf sample must never enter the cache
     if timer is not None:
         timer.add_rays("trace probes", n)
     with maybe_stage(timer, "shade probes"):
-        dr.eval(L, dist)
+        if timer is None:
+            dr.eval(L, dist)
+        else:
+            dr.eval(L, dist, shadow)
     if timer is not None:
-        timer.add_rays("shade probes", n)     # shadow rays of NEE
+        timer.add_rays("shade probes", dr.count(shadow))     # the NEE shadow rays cast (counted lazily)
     return ProbeRayResults(L, dist, plan)
 
 

@@ -8,6 +8,12 @@ A strategy provides the pair used by NEE with multiple importance sampling:
 * ``pdf(scene, ref_si, ds, active) -> Float``: the solid-angle pdf with which
   ``sample`` would have produced ``ds`` (for the BSDF-sampled MIS weight).
 
+Optionally ``sample_traced(scene, si, u2, active, receiver=None) -> (ds, weight,
+traced)`` also returns the mask of lanes that cast a shadow ray (ray counts
+are measured, not assumed) and, given a ``receiver`` normal, skips the shadow
+ray of samples below it; :func:`sample_traced` falls back to ``sample`` for
+strategies without it.
+
 ReSTIR, the light BVH, the VLC and the CDQ replace :class:`EmitterSampling`.
 """
 from __future__ import annotations
@@ -66,8 +72,19 @@ class EmitterSubsetSampling:
             self.pmf_by_id = mi.Float(table)
 
     def sample(self, scene, si, u2, active):
+        ds, w, _ = self.sample_traced(scene, si, u2, active)
+        return ds, w
+
+    def sample_traced(self, scene, si, u2, active, receiver=None):
+        """``sample``, plus the mask of lanes that cast a shadow ray.
+
+        With a ``receiver`` normal, samples with ``dot(receiver, d) <= 0`` get
+        weight 0 and no shadow ray: exact for a receiver that only reflects
+        light arriving above it (a diffuse surface, ``receiver`` its shading
+        normal), as pbrt skips the shadow ray of a zero BSDF value.
+        """
         if not self.count:
-            return dr.zeros(mi.DirectionSample3f), mi.Color3f(0.0)
+            return dr.zeros(mi.DirectionSample3f), mi.Color3f(0.0), mi.Bool(False)
         active = mi.Bool(active)
         if self.single is not None:      # no selection, no virtual call
             ds, spec = self.single.sample_direction(si, u2, active)
@@ -78,9 +95,11 @@ class EmitterSubsetSampling:
             ds.pdf *= pmf                # the selection pmf (> 0 for the selected emitter)
             spec = spec / pmf
         active &= ds.pdf != 0.0
+        if receiver is not None:
+            active &= dr.dot(receiver, ds.d) > 0.0
         occluded = scene.ray_test(si.spawn_ray_to(ds.p), active)
         spec = dr.select(active & ~occluded, spec, 0.0)
-        return ds, mi.Color3f(spec)
+        return ds, mi.Color3f(spec), active
 
     def pdf(self, scene, ref_si, ds, active):
         if not self.count:
@@ -89,3 +108,14 @@ class EmitterSubsetSampling:
         rid = dr.reinterpret_array(mi.UInt32, ds.emitter)
         pmf = dr.gather(mi.Float, self.pmf_by_id, rid, active & (rid < dr.width(self.pmf_by_id)))
         return ds.emitter.pdf_direction(ref_si, ds, active & (pmf > 0.0)) * pmf
+
+
+def sample_traced(lights, scene, si, u2, active, receiver=None):
+    """``lights.sample_traced(...)``: (ds, weight, lanes that cast a shadow ray); for a strategy without
+    it, ``sample`` with the shadow-ray mask taken as the lanes with a nonzero pdf."""
+    if hasattr(lights, "sample_traced"):
+        return lights.sample_traced(scene, si, u2, active, receiver)
+    ds, w = lights.sample(scene, si, u2, active)
+    if receiver is not None:
+        w = dr.select(dr.dot(receiver, ds.d) > 0.0, w, 0.0)
+    return ds, w, mi.Bool(active) & (ds.pdf != 0.0)

@@ -55,6 +55,7 @@ from ..errors import DyngiError
 from ..probes import (DiffuseHitShader, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
                       ProbeUpdater, ProbeVolume, TrueAverage, UniformSFDirections, probes_in_frustum)
 from ..probes.trace import DIRECT_MODES, HIT_LOOKUPS, emitter_via_probes, nee_lights, trace_probe_rays
+from ..sampling.lights import sample_traced
 from ..sampling.rng import make_sampler
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
@@ -85,7 +86,8 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     maps (noise-free); here it is Monte Carlo, so a many-light scene needs more
     samples (or a better light sampler) to look clean.
 
-    Returns (image Color3f, indirect Color3f, rays traced as an int).
+    Returns (image Color3f, indirect Color3f, rays cast: the camera rays plus the shadow rays
+    actually traced, as a lazily read Dr.Jit count for :meth:`~dyngi.timing.StageTimer.add_rays`).
     """
     mscene = scene.mi_scene
     custom = lights is not None
@@ -106,8 +108,10 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     bsdf = si.bsdf(ray)
     ctx = mi.BSDFContext()
     k = max(int(direct_samples), 1)
+    shadow_rays = mi.UInt32(0)
     for _ in range(k):
-        ds, wl = lights.sample(mscene, si, sampler.next_2d(), front)
+        ds, wl, traced = sample_traced(lights, mscene, si, sampler.next_2d(), front)
+        shadow_rays += mi.UInt32(traced)
         if custom:
             wl = dr.select(emitter_via_probes(ds.emitter, direct, front), 0.0, wl)
         f = bsdf.eval(ctx, si, si.to_local(ds.d), front)
@@ -118,8 +122,8 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     ind = dr.select(front, albedo * dr.inv_pi * E, 0.0)
     L += ind
     L = dr.select(dr.isfinite(L), L, 0.0)
-    dr.eval(L, ind)
-    return L, ind, (1 + k) * n
+    dr.eval(L, ind, shadow_rays)
+    return L, ind, dr.sum(shadow_rays) + n
 
 
 class _ProbeTechniqueBase(Technique):
@@ -214,6 +218,8 @@ class DDGITechnique(_ProbeTechniqueBase):
         self._dirs_by_count = {self.directions.n: self.directions}   # budgets change the rays per probe
         self._ms_per_probe_ray = None    # measured on the last frame, for equal-time budgets
         self._ms_fixed = 0.0
+        self._shadow_per_probe_ray = 1.0      # measured on the last frame, for equal-ray budgets
+        self._primary_per_pixel = None
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
@@ -232,7 +238,7 @@ class DDGITechnique(_ProbeTechniqueBase):
         stats.update({k: v for k, v in info.items() if k != "rays"})
         stats["active_probes"] = int(np.count_nonzero(self.volume.state.states))
         stats["rays_per_probe"] = rpp
-        self._measure(stats, info["probes_traced"], rpp)
+        self._measure(stats, info["probes_traced"], rpp, frame.res)
         return FrameResult(image=img, indirect=ind, stats=stats)
 
     # -- comparison budgets ---------------------------------------------------------
@@ -244,9 +250,11 @@ class DDGITechnique(_ProbeTechniqueBase):
     def _budget_rays_per_probe(self, frame: Frame, mask) -> int:
         """Rays per probe this frame: the parameter, or what fits ``frame.ray_budget`` / ``time_budget_ms``.
 
-        Equal rays: the budget minus the primary rays (camera + ``direct_samples``
-        shadow rays per pixel) is shared by the probes that will be traced, two
-        rays each (probe ray + NEE shadow ray). Equal time: the budget minus the
+        Equal rays: the budget minus the primary rays (camera + NEE shadow rays)
+        is shared by the probes that will be traced, each probe ray costing
+        itself + its shadow ray; the shadow rays per probe ray and the primary
+        rays per pixel are those the last frame cast (at first 1 and
+        ``1 + direct_samples``: an upper bound). Equal time: the budget minus the
         previous frame's time outside the probe update, divided by the measured
         update time per probe ray. The first frame has nothing measured for
         equal time and runs the parameter (plus its warm-up).
@@ -256,16 +264,22 @@ class DDGITechnique(_ProbeTechniqueBase):
         up = self.updater
         probes = max(len(up.probes_to_trace(mask)), 1)
         if frame.ray_budget is not None:
-            other = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])      # camera + NEE rays
+            per_pixel = self._primary_per_pixel or (1 + p["direct_samples"])      # camera + NEE rays
+            other = frame.res[0] * frame.res[1] * per_pixel
             other += len(up.probes_to_reclassify(frame.index, mask)) * up.classify_dirs.n
-            n = (frame.ray_budget - other) / (2 * probes)
+            n = (frame.ray_budget - other) / ((1.0 + self._shadow_per_probe_ray) * probes)
         elif frame.time_budget_ms is not None and self._ms_per_probe_ray:
             n = (frame.time_budget_ms - self._ms_fixed) / (self._ms_per_probe_ray * probes)
         else:
             return n
         return budget_ladder_floor(n)
 
-    def _measure(self, stats: dict, probes: int, rpp: int) -> None:
+    def _measure(self, stats: dict, probes: int, rpp: int, res) -> None:
+        rays = stats["rays"]
+        if rays.get("trace probes"):
+            self._shadow_per_probe_ray = rays.get("shade probes", 0) / rays["trace probes"]
+        if rays.get("primary"):
+            self._primary_per_pixel = rays["primary"] / (res[0] * res[1])
         ms = stats["ms"]
         update = sum(ms.get(k, 0.0) for k in ("trace probes", "shade probes", "blend", "states"))
         if probes and update > 0.0 and "warmup" not in ms:
