@@ -22,6 +22,8 @@ from dyngi.scene import load_scene
 from dyngi.sampling.rng import make_sampler
 from dyngi.techniques.base import Frame, create_technique
 
+from common import shared_scene
+
 
 def median_time(fn, reps: int, warm: int = 2) -> float:
     for _ in range(warm):
@@ -39,7 +41,8 @@ def median_time(fn, reps: int, warm: int = 2) -> float:
 def raw_intersect_timers(scene, tech):
     """Timers (seconds, best of 3 back-to-back passes) of full ``ray_intersect`` and of the preliminary
     test on exactly the rays one update traces, of ``ray_test`` on shadow rays from their hits to the
-    light, and the ray count.
+    light (where the update casts one: front-face hits with the light sample above the surface), and the
+    counts of probe rays and shadow rays.
 
     The same plan as the technique's update (its active probes, its rays per
     probe, a frame's rotation): the rays of inactive probes (outside the room,
@@ -64,6 +67,7 @@ def raw_intersect_timers(scene, tech):
     ok = si.is_valid() & (dr.dot(si.n, ray.d) < 0.0)
     u = make_sampler(dr.width(ray.d), 0, 5, 13).next_2d()
     ds, _ = scene.mi_scene.sample_emitter_direction(si, u, False, ok)
+    ok &= (ds.pdf != 0.0) & (dr.dot(si.sh_frame.n, ds.d) > 0.0)
     shadow = si.spawn_ray_to(ds.p)
     dr.eval(shadow, ok)
 
@@ -83,7 +87,56 @@ def raw_intersect_timers(scene, tech):
         best_of_3()                  # compile
         return best_of_3
 
-    return timer(full), timer(prelim), timer(test), dr.width(plan.direction)
+    return timer(full), timer(prelim), timer(test), dr.width(plan.direction), int(dr.count(ok)[0])
+
+
+UPDATE_STAGES = ("trace probes", "shade probes", "blend", "states")
+OTHER_SCENES = ("atrium-sun", "veach-ajar/scene_nopots.xml", "staircase2/scene.xml")
+
+
+def update_vs_raw(sc, params, res, pairs: int, rows: list, label: str = ""):
+    """Probe-update rays/s against raw ``ray_intersect`` on the update's own rays, as ``pairs`` frame/raw
+    pairs (the shared machine drifts by up to 1.5x within a minute: each ratio compares an update with
+    the raw passes timed right after it). Appends table rows; returns (frame stats, technique)."""
+    tech, _ = ddgi_frames(sc, params, res, 1)
+    full_once, pre_once, test_once, n_raw, n_test = raw_intersect_timers(sc, tech)
+    stats, upd_ratios, all_ratios, time_ratios, fulls, pres = [], [], [], [], [], []
+    for f in range(pairs):
+        st = more_frames(tech, sc, res, 10 + f, 1)[0]
+        t_full, t_pre, t_test = full_once(), pre_once(), test_once()
+        update_s = 1e-3 * sum(st["ms"].get(k, 0.0) for k in UPDATE_STAGES)
+        raw = n_raw / t_full
+        probe, shadow = st["rays"]["trace probes"], st["rays"]["shade probes"]   # shadow rays as cast
+        upd_ratios.append(probe / update_s / raw)
+        all_ratios.append((probe + shadow) / update_s / raw)
+        # stricter: raw Mitsuba's time for the same work (full intersections + as many shadow tests) / update time
+        time_ratios.append((t_full * probe / n_raw + t_test * shadow / max(n_test, 1)) / update_s)
+        stats.append(st)
+        fulls.append(raw)
+        pres.append(n_raw / t_pre)
+    full_rate, pre_rate = float(np.median(fulls)), float(np.median(pres))
+    update_ms = float(np.median([sum(s["ms"].get(k, 0.0) for k in UPDATE_STAGES) for s in stats]))
+    probe_rays = med(stats, "rays", "trace probes")
+    shadow_rays = med(stats, "rays", "shade probes")
+
+    def spread(v):
+        q1, q3 = np.percentile(v, [25, 75])
+        return f"{np.median(v):.0%} of full ray_intersect (median of {len(v)} frame/raw pairs; quartiles {q1:.0%}-{q3:.0%})"
+    probes = stats[-1]["probes_traced"]
+    rows.append((f"{label}raw ray_intersect (full SurfaceInteraction), probe rays ({probes} probes x "
+                 f"{stats[-1]['rays_per_probe']})", f"{full_rate / 1e6:.1f} Mrays/s",
+                 f"median; best of 3 back-to-back passes timed after each update; preliminary only: "
+                 f"{pre_rate / 1e6:.1f} Mrays/s"))
+    rows.append((f"{label}probe update (trace, shade with NEE + multi-bounce query, blend, states), probe rays only",
+                 f"{probe_rays / (update_ms * 1e-3) / 1e6:.1f} Mrays/s", spread(upd_ratios)))
+    rows.append((f"{label}probe update, probe rays + the NEE shadow rays cast ({shadow_rays / probe_rays:.2f} per "
+                 "probe ray)", f"{(probe_rays + shadow_rays) / (update_ms * 1e-3) / 1e6:.1f} Mrays/s",
+                 spread(all_ratios)))
+    rows.append((f"{label}raw time for the update's rays (full ray_intersect of the probe rays + ray_test of as many "
+                 "shadow rays as it cast) / update time", f"{np.median(time_ratios):.0%}",
+                 "quartiles " + "-".join(f"{q:.0%}" for q in np.percentile(time_ratios, [25, 75]))
+                 + f"; update {update_ms:.1f} ms"))
+    return stats, tech
 
 
 def probe_query_time(scene, tech, reps: int, stochastic: bool) -> float:
@@ -191,6 +244,8 @@ def main():
     ap.add_argument("--big", action="store_true", help="include 64^3 probes")
     ap.add_argument("--frame-only", action="store_true", help="only parts 1 and 2 (update rate, frame time)")
     ap.add_argument("--rounds", type=int, default=3, help="interleaved ddgi / Mitsuba rounds for part 2")
+    ap.add_argument("--scenes", action="store_true",
+                    help="part 1 also on atrium-sun and the real scenes of ../shared/scenes (when present)")
     args = ap.parse_args()
     reps = 3 if args.quick else 7
     res = (640, 360)
@@ -198,48 +253,22 @@ def main():
 
     print(f"device: {device_info()}")
     rows = []
-    # -- 1. probe update vs raw ray_intersect, frame by frame (the shared machine drifts by up to 1.5x
-    #       within a minute: each ratio compares an update with the raw passes timed right after it) --
-    tech, _ = ddgi_frames(sc, {"probe_counts": "16,8,16"}, res, 1)
-    full_once, pre_once, test_once, n_raw = raw_intersect_timers(sc, tech)
-    stats, upd_ratios, all_ratios, time_ratios, fulls, pres = [], [], [], [], [], []
-    stages = ("trace probes", "shade probes", "blend", "states")
-    for f in range(args.rounds * reps):
-        st = more_frames(tech, sc, res, 10 + f, 1)[0]
-        t_full, t_pre, t_test = full_once(), pre_once(), test_once()
-        update_s = 1e-3 * sum(st["ms"].get(k, 0.0) for k in stages)
-        raw = n_raw / t_full
-        upd_ratios.append(st["rays"]["trace probes"] / update_s / raw)
-        all_ratios.append((st["rays"]["trace probes"] + st["rays"]["shade probes"]) / update_s / raw)
-        # stricter: raw Mitsuba's time for the same work (full intersections + shadow tests) / update time
-        time_ratios.append((t_full + t_test) * st["rays"]["trace probes"] / n_raw / update_s)
-        stats.append(st)
-        fulls.append(raw)
-        pres.append(n_raw / t_pre)
-    full_rate, pre_rate = float(np.median(fulls)), float(np.median(pres))
-    update_ms = float(np.median([sum(s["ms"].get(k, 0.0) for k in stages) for s in stats]))
+    # -- 1. probe update vs raw ray_intersect, frame by frame --
+    stats, tech = update_vs_raw(sc, {"probe_counts": "16,8,16"}, res, args.rounds * reps, rows)
     probe_rays = med(stats, "rays", "trace probes")
-    shadow_rays = med(stats, "rays", "shade probes")
-    upd_rate = probe_rays / (update_ms * 1e-3)
-    all_rate = (probe_rays + shadow_rays) / (update_ms * 1e-3)
+    update_ms = float(np.median([sum(s["ms"].get(k, 0.0) for k in UPDATE_STAGES) for s in stats]))
     query_ms = 1e3 * probe_query_time(sc, tech, reps, stochastic=True)
     filtered_ms = 1e3 * probe_query_time(sc, tech, reps, stochastic=False)
-
-    def spread(v):
-        q1, q3 = np.percentile(v, [25, 75])
-        return f"{np.median(v):.0%} of full ray_intersect (median of {len(v)} frame/raw pairs; quartiles {q1:.0%}-{q3:.0%})"
-    rows.append(("raw ray_intersect (full SurfaceInteraction), probe rays", f"{full_rate / 1e6:.1f} Mrays/s",
-                 "median; best of 3 back-to-back passes timed after each update"))
-    rows.append(("raw ray_intersect_preliminary, probe rays", f"{pre_rate / 1e6:.1f} Mrays/s", ""))
-    rows.append(("probe update (trace, shade with NEE + multi-bounce query, blend, states), probe rays only",
-                 f"{upd_rate / 1e6:.1f} Mrays/s", spread(upd_ratios)))
-    rows.append(("probe update, probe rays + NEE shadow rays", f"{all_rate / 1e6:.1f} Mrays/s", spread(all_ratios)))
-    rows.append(("raw time for the update's rays (full ray_intersect of the probe rays + ray_test of as many shadow "
-                 "rays) / update time", f"{np.median(time_ratios):.0%}",
-                 "quartiles " + "-".join(f"{q:.0%}" for q in np.percentile(time_ratios, [25, 75]))))
     rows.append((f"of which: multi-bounce lookups alone at the {int(probe_rays)} probe-ray hits (stochastic, "
                  "as in the update)", f"{query_ms:.1f} ms", f"{query_ms / update_ms:.0%} of the update "
                  f"({update_ms:.1f} ms); the full 8-probe filter: {filtered_ms:.1f} ms"))
+    if args.scenes:
+        for name in OTHER_SCENES:
+            path = shared_scene(name) if name.endswith(".xml") else name
+            if path is None:
+                rows.append((f"{name}: update vs raw", "skipped", "../shared/scenes absent"))
+                continue
+            update_vs_raw(load_scene(path), {}, res, reps, rows, label=name.split("/")[0] + ": ")
     # -- 2. default ddgi frame vs Mitsuba path 1 spp --
     for k in ("trace probes", "shade probes", "blend", "states", "primary"):
         rows.append((f"ddgi stage '{k}' ({int(probe_rays)} probe rays, {res[0]}x{res[1]})",
