@@ -253,3 +253,18 @@ def test_shadow_rays_are_counted_as_cast():
     n = res[0] * res[1]
     assert n < rays["primary"] <= 2 * n
     assert r.stats["total_rays"] == sum(rays.values())
+
+
+def test_equal_rays_budget_plans_with_the_measured_shadow_rays():
+    """The warm-up measures the shadow rays per probe ray (fewer than 1 in the open box): the first
+    budgeted frame already plans with it, so later frames keep its rays per probe (no recompiles)."""
+    sc = load_scene("cornell-static")
+    tech = create_technique("ddgi", sc, {"probe_counts": "4", "warmup": 2})
+    res = (32, 24)
+    cam = sc.camera(0.0)
+    budget = 120_000
+    rs = [tech.step(Frame(f, 0.0, cam, res, ray_budget=budget)) for f in range(1, 4)]
+    assert 0.0 < tech._shadow_per_probe_ray < 0.98
+    assert len({r.stats["rays_per_probe"] for r in rs}) == 1
+    for r in rs[1:]:
+        assert 0.75 * budget <= r.stats["total_rays"] <= budget

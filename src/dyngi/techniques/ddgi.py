@@ -218,8 +218,7 @@ class DDGITechnique(_ProbeTechniqueBase):
         self._dirs_by_count = {self.directions.n: self.directions}   # budgets change the rays per probe
         self._ms_per_probe_ray = None    # measured on the last frame, for equal-time budgets
         self._ms_fixed = 0.0
-        self._shadow_per_probe_ray = 1.0      # measured on the last frame, for equal-ray budgets
-        self._primary_per_pixel = None
+        self._shadow_per_probe_ray = 1.0      # measured (warm-up, then the last frame), for equal-ray budgets
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
@@ -238,7 +237,7 @@ class DDGITechnique(_ProbeTechniqueBase):
         stats.update({k: v for k, v in info.items() if k != "rays"})
         stats["active_probes"] = int(np.count_nonzero(self.volume.state.states))
         stats["rays_per_probe"] = rpp
-        self._measure(stats, info["probes_traced"], rpp, frame.res)
+        self._measure(stats, info["probes_traced"], rpp)
         return FrameResult(image=img, indirect=ind, stats=stats)
 
     # -- comparison budgets ---------------------------------------------------------
@@ -250,11 +249,11 @@ class DDGITechnique(_ProbeTechniqueBase):
     def _budget_rays_per_probe(self, frame: Frame, mask) -> int:
         """Rays per probe this frame: the parameter, or what fits ``frame.ray_budget`` / ``time_budget_ms``.
 
-        Equal rays: the budget minus the primary rays (camera + NEE shadow rays)
-        is shared by the probes that will be traced, each probe ray costing
-        itself + its shadow ray; the shadow rays per probe ray and the primary
-        rays per pixel are those the last frame cast (at first 1 and
-        ``1 + direct_samples``: an upper bound). Equal time: the budget minus the
+        Equal rays: the budget minus the primary rays (camera + ``direct_samples``
+        shadow rays per pixel, an upper bound that does not change from frame
+        to frame) is shared by the probes that will be traced, each probe ray
+        costing itself + the shadow rays per probe ray measured in the warm-up
+        and then on the last frame (1 before any is measured). Equal time: the budget minus the
         previous frame's time outside the probe update, divided by the measured
         update time per probe ray. The first frame has nothing measured for
         equal time and runs the parameter (plus its warm-up).
@@ -264,8 +263,7 @@ class DDGITechnique(_ProbeTechniqueBase):
         up = self.updater
         probes = max(len(up.probes_to_trace(mask)), 1)
         if frame.ray_budget is not None:
-            per_pixel = self._primary_per_pixel or (1 + p["direct_samples"])      # camera + NEE rays
-            other = frame.res[0] * frame.res[1] * per_pixel
+            other = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])      # camera + NEE rays
             other += len(up.probes_to_reclassify(frame.index, mask)) * up.classify_dirs.n
             n = (frame.ray_budget - other) / ((1.0 + self._shadow_per_probe_ray) * probes)
         elif frame.time_budget_ms is not None and self._ms_per_probe_ray:
@@ -274,12 +272,17 @@ class DDGITechnique(_ProbeTechniqueBase):
             return n
         return budget_ladder_floor(n)
 
-    def _measure(self, stats: dict, probes: int, rpp: int, res) -> None:
-        rays = stats["rays"]
+    def _learn_shadow_rate(self, rays: dict) -> None:
+        """Keep the measured NEE shadow rays per probe ray, for equal-ray budgets. It changes only when
+        it moves by more than 2%: a budget right at a ladder rung must not flip rungs (and recompile)
+        from frame to frame on noise."""
         if rays.get("trace probes"):
-            self._shadow_per_probe_ray = rays.get("shade probes", 0) / rays["trace probes"]
-        if rays.get("primary"):
-            self._primary_per_pixel = rays["primary"] / (res[0] * res[1])
+            rate = rays.get("shade probes", 0) / rays["trace probes"]
+            if abs(rate - self._shadow_per_probe_ray) > 0.02 * self._shadow_per_probe_ray:
+                self._shadow_per_probe_ray = rate
+
+    def _measure(self, stats: dict, probes: int, rpp: int) -> None:
+        self._learn_shadow_rate(stats["rays"])
         ms = stats["ms"]
         update = sum(ms.get(k, 0.0) for k in ("trace probes", "shade probes", "blend", "states"))
         if probes and update > 0.0 and "warmup" not in ms:
@@ -319,11 +322,16 @@ def _warm_up_volume(tech, frame: Frame, mask, t: StageTimer) -> None:
     saved = (b.hysteresis, b.brightness_threshold)
     b.hysteresis, b.brightness_threshold = 0.0, float("inf")
     try:
+        # a timer of its own: the rays the warm-up casts are counted, its shadow rays per probe ray plan
+        # the first equal-ray budget, and its kernels are the steady frames' ones (which have a timer)
+        wt = StageTimer()
         with t.stage("warmup"):
             for k in range(n):
-                tech.updater.update(tech.scene, WARMUP_FRAME_BASE + k, frame.seed, mask, None,
+                tech.updater.update(tech.scene, WARMUP_FRAME_BASE + k, frame.seed, mask, wt,
                                     force_reclassify=(k == 0))
-        t.add_rays("warmup", n * int(np.count_nonzero(tech.volume.state.states)) * tech.params["rays_per_probe"])
+        rays = wt.as_dict()["rays"]
+        t.add_rays("warmup", sum(rays.values()))
+        tech._learn_shadow_rate(rays)
     finally:
         b.hysteresis, b.brightness_threshold = saved
 
