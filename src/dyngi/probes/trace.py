@@ -6,7 +6,8 @@ estimated as in DDGI (Majercik et al., JCGT 2019, Sec. 3.1):
 
 ``L = Le + albedo / pi * (E_direct + E_probes(x, n))``
 
-with ``E_direct`` from next-event estimation (one shadow ray) and
+with ``E_direct`` from next-event estimation (one light sample; its shadow ray is skipped when the
+sample lies below the shading normal, where it adds nothing) and
 ``E_probes`` read from the *previous* frame's probes (multi-bounce through
 the cache). Surfaces are treated as diffuse with ``bsdf.eval_diffuse_reflectance``.
 Back-face hits return radiance 0 and a negative distance ``-0.2 t`` (the
@@ -142,7 +143,7 @@ class DiffuseHitShader:
         # -- diffuse albedo --
         bsdf = si.bsdf(ray)
         albedo = bsdf.eval_diffuse_reflectance(si, front)
-        # -- direct light by NEE (one shadow ray) --
+        # -- direct light by NEE (one light sample; no shadow ray below the shading normal) --
         lights = self.lights if self.lights is not None else nee_lights(scene, self.direct)
         ds, w, shadow = sample_traced(lights, scene, si, sampler.next_2d(), front, receiver=si.sh_frame.n)
         cos = dr.maximum(dr.dot(si.sh_frame.n, ds.d), 0.0)
