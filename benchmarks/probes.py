@@ -6,7 +6,8 @@
 3. frames to re-converge after the Cornell light jumps;
 4. frame time vs probe count (8^3 .. 32^3; 64^3 with --big).
 
-Usage: ``python benchmarks/probes.py [--quick] [--big] [--frame-only] [--rounds R]``. Timings are medians over
+Usage: ``python benchmarks/probes.py [--quick] [--big] [--frame-only] [--rounds R] [--scenes]
+[--device cpu|cuda]``. Timings are medians over
 repeated frames after warm-up (kernel compilation excluded).
 """
 from __future__ import annotations
@@ -16,7 +17,8 @@ import time
 
 import numpy as np
 
-from dyngi.backend import device_info, dr, mi
+from dyngi.backend import device_info, dr, mi, set_device
+from dyngi.errors import DyngiError
 from dyngi.probes import ProbeGrid, ProbeVolume, UniformSFDirections
 from dyngi.scene import load_scene
 from dyngi.sampling.rng import make_sampler
@@ -244,9 +246,15 @@ def main():
     ap.add_argument("--big", action="store_true", help="include 64^3 probes")
     ap.add_argument("--frame-only", action="store_true", help="only parts 1 and 2 (update rate, frame time)")
     ap.add_argument("--rounds", type=int, default=3, help="interleaved ddgi / Mitsuba rounds for part 2")
+    ap.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
+                    help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
     ap.add_argument("--scenes", action="store_true",
                     help="part 1 also on atrium-sun and the real scenes of ../shared/scenes (when present)")
     args = ap.parse_args()
+    try:
+        set_device(args.device)
+    except DyngiError as e:
+        raise SystemExit(f"probes.py: error: {e}")
     reps = 3 if args.quick else 7
     res = (640, 360)
     sc = load_scene("cornell-static")
