@@ -20,6 +20,7 @@ import numpy as np
 from dyngi.backend import device_info, dr, mi, set_device
 from dyngi.errors import DyngiError
 from dyngi.probes import ProbeGrid, ProbeVolume, UniformSFDirections
+from dyngi.probes.update import UPDATE_STAGES
 from dyngi.scene import load_scene
 from dyngi.sampling.rng import make_sampler
 from dyngi.techniques.base import Frame, create_technique
@@ -92,21 +93,21 @@ def raw_intersect_timers(scene, tech):
     return timer(full), timer(prelim), timer(test), dr.width(plan.direction), int(dr.count(ok)[0])
 
 
-UPDATE_STAGES = ("trace probes", "shade probes", "blend", "states")
 OTHER_SCENES = ("atrium-sun", "veach-ajar/scene_nopots.xml", "staircase2/scene.xml")
 
 
 def update_vs_raw(sc, params, res, pairs: int, rows: list, label: str = ""):
     """Probe-update rays/s against raw ``ray_intersect`` on the update's own rays, as ``pairs`` frame/raw
     pairs (the shared machine drifts by up to 1.5x within a minute: each ratio compares an update with
-    the raw passes timed right after it). Appends table rows; returns (frame stats, technique)."""
+    the raw passes timed right after it). Appends table rows; returns (frame stats, technique, median probe
+    rays, median update ms)."""
     tech, _ = ddgi_frames(sc, params, res, 1)
     full_once, pre_once, test_once, n_raw, n_test = raw_intersect_timers(sc, tech)
     stats, upd_ratios, all_ratios, time_ratios, fulls, pres = [], [], [], [], [], []
     for f in range(pairs):
         st = more_frames(tech, sc, res, 10 + f, 1)[0]
         t_full, t_pre, t_test = full_once(), pre_once(), test_once()
-        update_s = 1e-3 * sum(st["ms"].get(k, 0.0) for k in UPDATE_STAGES)
+        update_s = 1e-3 * update_ms_of(st)
         raw = n_raw / t_full
         probe, shadow = st["rays"]["trace probes"], st["rays"]["shade probes"]   # shadow rays as cast
         upd_ratios.append(probe / update_s / raw)
@@ -117,7 +118,7 @@ def update_vs_raw(sc, params, res, pairs: int, rows: list, label: str = ""):
         fulls.append(raw)
         pres.append(n_raw / t_pre)
     full_rate, pre_rate = float(np.median(fulls)), float(np.median(pres))
-    update_ms = float(np.median([sum(s["ms"].get(k, 0.0) for k in UPDATE_STAGES) for s in stats]))
+    update_ms = float(np.median([update_ms_of(s) for s in stats]))
     probe_rays = med(stats, "rays", "trace probes")
     shadow_rays = med(stats, "rays", "shade probes")
 
@@ -138,7 +139,12 @@ def update_vs_raw(sc, params, res, pairs: int, rows: list, label: str = ""):
                  "shadow rays as it cast) / update time", f"{np.median(time_ratios):.0%}",
                  "quartiles " + "-".join(f"{q:.0%}" for q in np.percentile(time_ratios, [25, 75]))
                  + f"; update {update_ms:.1f} ms"))
-    return stats, tech
+    return stats, tech, probe_rays, update_ms
+
+
+def update_ms_of(st) -> float:
+    """The probe update's time in one frame's stats: the sum of its stages."""
+    return sum(st["ms"].get(k, 0.0) for k in UPDATE_STAGES)
 
 
 def probe_query_time(scene, tech, reps: int, stochastic: bool) -> float:
@@ -262,9 +268,8 @@ def main():
     print(f"device: {device_info()}")
     rows = []
     # -- 1. probe update vs raw ray_intersect, frame by frame --
-    stats, tech = update_vs_raw(sc, {"probe_counts": "16,8,16"}, res, args.rounds * reps, rows)
-    probe_rays = med(stats, "rays", "trace probes")
-    update_ms = float(np.median([sum(s["ms"].get(k, 0.0) for k in UPDATE_STAGES) for s in stats]))
+    stats, tech, probe_rays, update_ms = update_vs_raw(sc, {"probe_counts": "16,8,16"}, res, args.rounds * reps,
+                                                       rows)
     query_ms = 1e3 * probe_query_time(sc, tech, reps, stochastic=True)
     filtered_ms = 1e3 * probe_query_time(sc, tech, reps, stochastic=False)
     rows.append((f"of which: multi-bounce lookups alone at the {int(probe_rays)} probe-ray hits (stochastic, "
@@ -278,7 +283,7 @@ def main():
                 continue
             update_vs_raw(load_scene(path), {}, res, reps, rows, label=name.split("/")[0] + ": ")
     # -- 2. default ddgi frame vs Mitsuba path 1 spp --
-    for k in ("trace probes", "shade probes", "blend", "states", "primary"):
+    for k in UPDATE_STAGES + ("primary",):
         rows.append((f"ddgi stage '{k}' ({int(probe_rays)} probe rays, {res[0]}x{res[1]})",
                      f"{med(stats, 'ms', k):.1f} ms", ""))
     # interleaved rounds: the shared machine drifts, so each ratio compares times taken side by side

@@ -211,10 +211,7 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
     if timer is not None:
         timer.add_rays("trace probes", n)
     with maybe_stage(timer, "shade probes"):
-        if timer is None:
-            dr.eval(L, dist)
-        else:
-            dr.eval(L, dist, shadow)
+        dr.eval(L, dist, shadow)     # the shadow-ray mask too: one kernel whether or not rays are counted
     if timer is not None:
         timer.add_rays("shade probes", dr.count(shadow))     # the NEE shadow rays cast (counted lazily)
     return ProbeRayResults(L, dist, plan)

@@ -25,6 +25,8 @@ from .trace import trace_probe_distances, trace_probe_rays, vector_to_numpy
 from .volume import ProbeVolume
 from ..timing import maybe_stage
 
+UPDATE_STAGES = ("trace probes", "shade probes", "blend", "states")   # the timer stages of one update
+
 
 class ProbeUpdater:
     def __init__(self, volume: ProbeVolume, directions, shader, blender, states: ProbeStates | None = None,

@@ -55,6 +55,7 @@ from ..errors import DyngiError
 from ..probes import (DiffuseHitShader, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
                       ProbeUpdater, ProbeVolume, TrueAverage, UniformSFDirections, probes_in_frustum)
 from ..probes.trace import DIRECT_MODES, HIT_LOOKUPS, emitter_via_probes, nee_lights, trace_probe_rays
+from ..probes.update import UPDATE_STAGES
 from ..sampling.lights import sample_traced
 from ..sampling.rng import make_sampler
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
@@ -284,7 +285,7 @@ class DDGITechnique(_ProbeTechniqueBase):
     def _measure(self, stats: dict, probes: int, rpp: int) -> None:
         self._learn_shadow_rate(stats["rays"])
         ms = stats["ms"]
-        update = sum(ms.get(k, 0.0) for k in ("trace probes", "shade probes", "blend", "states"))
+        update = sum(ms.get(k, 0.0) for k in UPDATE_STAGES)
         if probes and update > 0.0 and "warmup" not in ms:
             self._ms_per_probe_ray = update / (probes * rpp)
             self._ms_fixed = max(stats["total_ms"] - update, 0.0)

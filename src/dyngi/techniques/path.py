@@ -31,7 +31,7 @@ and both are averaged by sample count, so frame 0 honours the budget too.
 from __future__ import annotations
 
 from ..backend import dr, mi
-from ..sampling.lights import EmitterSampling
+from ..sampling.lights import EmitterSampling, sample_traced
 from ..sampling.rng import make_sampler, mix_seed
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
@@ -95,8 +95,7 @@ def trace_paths(scene, sampler, ray, active, max_depth: int, rr_depth: int,
 
         # -- next-event estimation --
         active_em = active_next & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        ds_em, em_weight = lights.sample(scene, si, sampler.next_2d(), active_em)
-        active_em &= ds_em.pdf != 0.0
+        ds_em, em_weight, active_em = sample_traced(lights, scene, si, sampler.next_2d(), active_em)
         n_rays += mi.UInt32(active_em)
         wo = si.to_local(ds_em.d)
         bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
