@@ -215,10 +215,10 @@ def test_output_folder_permissions_follow_umask(equal_frames):
 
 
 def test_references_rendered_once(equal_frames, equal_rays, env):
-    """Both comparisons share one set of cached references: one entry (exr + json) per frame."""
+    """Both comparisons share one set of cached references: two independent halves (exr + json) per frame."""
     files = [f for f in _cache_files(env) if f.startswith(SCENE + "-")]
-    assert len([f for f in files if f.endswith(".exr")]) == FRAMES
-    assert len([f for f in files if f.endswith(".json")]) == FRAMES
+    assert len([f for f in files if f.endswith(".exr")]) == 2 * FRAMES
+    assert len([f for f in files if f.endswith(".json")]) == 2 * FRAMES
 
 
 # -- input errors -----------------------------------------------------------------
@@ -283,7 +283,7 @@ def test_technique_failing_on_frame_2_leaves_nothing(env, tmp_path, monkeypatch)
 
 def test_failure_while_writing_keeps_old_output_and_no_temp(env, tmp_path, monkeypatch):
     """The last output step fails: nothing of the new outputs appears, old files stay."""
-    from dyngi.experiments import compare as cmod
+    from dyngi.experiments import report as cmod
 
     def broken(*a, **k):
         raise OSError("disk full (simulated)")
@@ -322,7 +322,7 @@ def test_cli_reference_then_compare(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "2 frame(s)" in r.stdout and "0 already cached" in r.stdout, r.stdout
     filled = _cache_files(cache)
-    assert len([f for f in filled if f.endswith(".exr")]) == 2
+    assert len([f for f in filled if f.endswith(".exr")]) == 4   # two independent halves per frame
 
     out = tmp_path / "cmp"
     r = _cli("compare", SCENE, "--techniques", "path", "--frames", "2", "--res", "32x24", "--ref-spp", "8",
@@ -352,5 +352,9 @@ def test_cost_figures_exclude_the_first_frame(env, tmp_path):
     s = summary["techniques"]["ddgi"]
     assert s["rays_per_frame"] == pytest.approx(rays[1:].mean(), rel=1e-6)
     md = (out / "summary.md").read_text()
+    header = next(l for l in md.splitlines() if l.startswith("| technique"))
+    cols = [c.strip() for c in header.strip("|").split("|")]
     line = next(l for l in md.splitlines() if l.startswith("| ddgi |"))
-    assert float(line.strip("|").split("|")[-1]) == pytest.approx(rays[1:].mean() / 1e6, rel=1e-2)
+    cells = dict(zip(cols, (c.strip().strip("*") for c in line.strip("|").split("|"))))
+    assert float(cells["Mrays/frame"]) == pytest.approx(rays[1:].mean() / 1e6, rel=1e-2)
+    assert cells["NaN/Inf px"] == "0"

@@ -4,7 +4,8 @@
     dyngi techniques                   list techniques and their parameters
     dyngi render SCENE --technique T   render frames, video and stats
     dyngi reference SCENE              fill the ground-truth cache
-    dyngi compare SCENE --techniques a,b,c   metrics, plots, report.html
+    dyngi compare SCENE --techniques a,b:key=v   metrics, plots, report.html
+    dyngi reproduce NAME [--quick]     a paper's comparison on the analog scenes, beside its figures
     dyngi probe-view SCENE             the probe volume of ddgi as spheres
     dyngi demo                         the main job on a built-in scene
 
@@ -79,6 +80,7 @@ def cmd_scenes(args) -> int:
 def cmd_techniques(args) -> int:
     from .techniques.base import REGISTRY, technique_names
 
+    print("Name a technique with settings as a spec NAME[:KEY=VALUE...], e.g. ddgi:hysteresis=0.9\n")
     for n in technique_names():
         cls = REGISTRY[n]
         print(f"{n}: {cls.description}")
@@ -103,20 +105,26 @@ def cmd_render(args) -> int:
     from .experiments.render import render_to_dir
     from .experiments.runner import parse_res
 
+    from .techniques.base import get_technique, parse_spec
+
     _setup(args)
     params = _parse_sets(args.set)
+    spec = parse_spec(args.technique)
+    for k in params:
+        if k not in get_technique(spec.name).PARAMS:
+            raise DyngiError(f"unknown parameter '{k}' for technique '{spec.name}'; valid parameters: "
+                             + (", ".join(sorted(get_technique(spec.name).PARAMS)) or "(none)"))
     if args.spp is not None:
-        from .techniques.base import get_technique
-
-        if "spp" not in get_technique(args.technique).PARAMS:
-            raise DyngiError(f"--spp does not apply to technique '{args.technique}' (it has no 'spp' "
+        if "spp" not in get_technique(spec.name).PARAMS:
+            raise DyngiError(f"--spp does not apply to technique '{spec.name}' (it has no 'spp' "
                              "parameter; see 'dyngi techniques')")
         params.setdefault("spp", args.spp)
-    res = parse_res(args.res)
+    res = parse_res(args.res) if args.res is not None else None
     summary = render_to_dir(args.scene, args.technique, args.out, frames=args.frames, res=res,
                             seed=args.seed, params=params, t0=args.t0, quiet=args.quiet)
-    print(f"wrote {summary['frames']} frame(s) of '{summary['scene']}' with '{args.technique}' to {args.out} "
-          f"({summary['mean_ms']:.1f} ms/frame, {summary['mean_rays'] / 1e6:.2f} Mrays/frame)")
+    w, h = summary["res"]
+    print(f"wrote {summary['frames']} frame(s) of '{summary['scene']}' at {w}x{h} with '{args.technique}' to "
+          f"{args.out} ({summary['mean_ms']:.1f} ms/frame, {summary['mean_rays'] / 1e6:.2f} Mrays/frame)")
     return 0
 
 
@@ -133,8 +141,23 @@ def cmd_reference(args) -> int:
     if not args.quiet:
         from tqdm import tqdm
         bar = tqdm(total=args.frames, desc=f"reference {scene.name}", unit="frame", file=sys.stderr)
-    recs = fill_reference_cache(scene, args.frames, res, indirect=args.indirect,
-                                progress=(lambda r: bar.update(1)) if bar else None, **kw)
+    from .experiments.reference import scene_max_depth
+
+    depth = scene_max_depth(scene) if args.ref_depth is None else args.ref_depth
+    ind = None
+    if args.indirect:   # the indirect-only reference that 'dyngi compare --indirect' reads
+        from .experiments.evaluate import indirect_reference_fn
+        from .experiments.reference import DEFAULT_REF_SPP
+
+        fn = indirect_reference_fn()
+        ind = lambda r: fn(scene, r["time"], res, kw.get("spp", DEFAULT_REF_SPP), depth)  # noqa: E731
+
+    def progress(rec):
+        if ind is not None:
+            ind(rec)
+        if bar is not None:
+            bar.update(1)
+    recs = fill_reference_cache(scene, args.frames, res, max_depth=depth, progress=progress, halves=True, **kw)
     if bar is not None:
         bar.close()
     hits = sum(r["cached"] for r in recs)
@@ -143,19 +166,57 @@ def cmd_reference(args) -> int:
     return 0
 
 
+def _report_failures(out) -> int:
+    """Print the techniques that returned NaN/Inf pixels (from summary.json); 1 if any, else 0."""
+    import json
+
+    with open(os.path.join(out, "summary.json")) as f:
+        techs = json.load(f)["techniques"]
+    bad = [f"{t} ({s['nonfinite_pixels']} NaN/Inf pixels in {s['nonfinite_frames']} frame(s))"
+           for t, s in techs.items() if s.get("failed")]
+    if bad:
+        print(f"dyngi: FAILED: {'; '.join(bad)}; their metrics are NaN (see summary.md)", file=sys.stderr)
+        return 1
+    return 0
+
+
 def cmd_compare(args) -> int:
     from .experiments.compare import run_compare
     from .experiments.runner import parse_res
+    from .techniques.base import split_spec_list
 
     _setup(args)
-    techs = [t.strip() for t in args.techniques.split(",") if t.strip()]
+    techs = split_spec_list(args.techniques)
     out = run_compare(args.scene, techs, args.out, frames=args.frames, res=parse_res(args.res),
                       budget=args.budget, seed=args.seed, ref_spp=args.ref_spp, quiet=args.quiet,
                       params=_parse_sets(args.set),
                       metrics=[m.strip() for m in args.metrics.split(",") if m.strip()],
-                      grid_frames=_frame_list(args.grid_frames, args.frames))
+                      grid_frames=_frame_list(args.grid_frames, args.frames),
+                      ref_depth=args.ref_depth, indirect=args.indirect)
     print(f"wrote comparison to {out} (open {os.path.join(out, 'report.html')})")
-    return 0
+    return _report_failures(out)
+
+
+def cmd_reproduce(args) -> int:
+    from .experiments.reproduce import experiment_names, get_experiment, run_experiment
+
+    if args.list:
+        from .experiments.reproduce import EXPERIMENTS
+
+        for n in experiment_names():
+            print(f"{n}: {EXPERIMENTS[n].description}")
+        return 0
+    from .errors import DyngiError
+
+    if not args.name:
+        raise DyngiError("name an experiment, e.g. 'dyngi reproduce ddgi --quick'; registered experiments: "
+                         + ", ".join(experiment_names()))
+    get_experiment(args.name)
+    _setup(args)
+    out = args.out or os.path.join("out", "reproduce", args.name + ("-quick" if args.quick else ""))
+    out = run_experiment(args.name, out, quick=args.quick, quiet=args.quiet)
+    print(f"wrote reproduction '{args.name}' to {out} (open {os.path.join(out, 'report.html')})")
+    return _report_failures(out)
 
 
 def cmd_probe_view(args) -> int:
@@ -198,7 +259,7 @@ def cmd_demo(args) -> int:
     print(f"demo written to {out}: frames, video, metrics.csv, summary.md, report.html")
     with open(os.path.join(out, "summary.md")) as f:
         print(f.read())
-    return 0
+    return _report_failures(out)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -218,6 +279,16 @@ def _time(text):
     return v
 
 
+def _depth(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--ref-depth must be an integer, got '{text}'") from None
+    if v < 1 and v != -1:
+        raise argparse.ArgumentTypeError(f"--ref-depth must be >= 1 or -1 (unbounded), got {v}")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="dyngi", description="Real-time dynamic GI research on Mitsuba 3 + Dr.Jit")
     sub = p.add_subparsers(dest="cmd", metavar="COMMAND", parser_class=_Parser)
@@ -231,14 +302,18 @@ def build_parser() -> argparse.ArgumentParser:
     def common(sp, frames_default=1, res_default="320x240"):
         sp.add_argument("--frames", type=_positive("--frames"), default=frames_default,
                         help=f"number of frames, at the scene's fps (default {frames_default})")
-        sp.add_argument("--res", default=res_default, help=f"image size WxH (default {res_default})")
+        sp.add_argument("--res", default=res_default,
+                        help=f"image size WxH (default {res_default})" if res_default else
+                        "image size WxH (default: a scene file's film resolution; 320x240 for built-in scenes)")
         sp.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
                         help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
         sp.add_argument("--quiet", action="store_true", help="no progress bar")
 
     s = sub.add_parser("render", help="render a scene with a technique")
     s.add_argument("scene", help="built-in scene name or path to a scene file")
-    s.add_argument("--technique", default="path", help="technique name (default path; see 'dyngi techniques')")
+    s.add_argument("--technique", default="path",
+                   help="technique spec NAME[:KEY=VALUE...] (default path; e.g. ddgi:hysteresis=0.9; "
+                        "see 'dyngi techniques')")
     s.add_argument("--spp", type=_positive("--spp"), default=None,
                    help="samples per pixel, for techniques with an 'spp' parameter (path)")
     s.add_argument("--seed", type=int, default=0, help="random seed (default 0); same seed, same EXRs")
@@ -247,30 +322,52 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="technique parameter, repeatable (see 'dyngi techniques')")
     s.add_argument("--out", required=True, help="output folder (created; files in it are replaced)")
-    common(s)
+    common(s, res_default=None)
     s.set_defaults(fn=cmd_render)
 
     s = sub.add_parser("reference", help="fill the ground-truth cache (Mitsuba's path integrator)")
     s.add_argument("scene")
     s.add_argument("--spp", type=_positive("--spp"), default=None)
     s.add_argument("--indirect", action="store_true", help="also the indirect-only reference")
+    s.add_argument("--ref-depth", type=_depth, default=None,
+                   help="reference max depth (default: the scene's own max depth, 12 for built-in scenes)")
     common(s, res_default="160x120")
     s.set_defaults(fn=cmd_reference)
 
     s = sub.add_parser("compare", help="compare techniques against the reference")
     s.add_argument("scene")
-    s.add_argument("--techniques", required=True, help="comma-separated names")
+    s.add_argument("--techniques", required=True,
+                   help="comma-separated specs NAME[:KEY=VALUE...], e.g. ddgi,ddgi:hysteresis=0.9,path:spp=4; "
+                        "each is labelled as typed")
     s.add_argument("--budget", default="equal-frames", choices=("equal-frames", "equal-rays", "equal-time"))
     s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=None)
+    s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=None,
+                   help="reference samples per pixel (default 1024; rendered as two independent halves whose "
+                        "difference estimates the reference's own noise)")
+    s.add_argument("--ref-depth", type=_depth, default=None,
+                   help="reference max depth (default: the scene's own max depth, 12 for built-in scenes)")
+    s.add_argument("--indirect", action="store_true",
+                   help="compare indirect-only images against an indirect-only reference")
     s.add_argument("--grid-frames", default=None, metavar="I,J,...",
                    help="frames shown in the image grids (default: the middle and the last)")
     s.add_argument("--metrics", default="mse,relmse,mape,flip,ssim",
                    help="comma-separated metrics (FLIP is the slow one)")
-    s.add_argument("--set", action="append", metavar="TECH.KEY=VALUE", help="technique parameter")
+    s.add_argument("--set", action="append", metavar="TECH.KEY=VALUE",
+                   help="technique parameter for every spec of TECH (or KEY=VALUE for every technique that has "
+                        "KEY); a spec's own settings win")
     s.add_argument("--out", required=True)
     common(s, frames_default=30, res_default="160x120")
     s.set_defaults(fn=cmd_compare)
+
+    s = sub.add_parser("reproduce", help="a paper's comparison on the analog scenes, beside its published figures")
+    s.add_argument("name", nargs="?", help="experiment name (see --list)")
+    s.add_argument("--list", action="store_true", help="list the registered experiments")
+    s.add_argument("--quick", action="store_true", help="a small version (minutes on 2 CPU cores)")
+    s.add_argument("--out", default=None, help="output folder (default out/reproduce/NAME[-quick])")
+    s.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
+                   help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(fn=cmd_reproduce)
 
     s = sub.add_parser("probe-view", help="render a technique's probes as spheres shaded by their irradiance")
     s.add_argument("scene")

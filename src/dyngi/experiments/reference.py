@@ -31,6 +31,14 @@ measure; noise scales as 1/spp (256 spp: ~6.5e-4). The numbers above are
 from one scene; :func:`estimate_reference_noise` repeats the measurement
 for any scene and settings.
 
+``dyngi compare`` measures the noise of the very reference it uses, at no extra
+cost: :func:`reference_halves` renders the ``spp`` samples as two independent
+cached halves (seeds 0 and 1), uses their sample-weighted mean as the
+reference and ``mean((a - b)^2) * n1 n2 / spp^2`` as its MSE (relMSE
+likewise), reported per run beside a warning when it is not 10x below the
+smallest technique error. :func:`scene_max_depth` gives the default depth
+(``--ref-depth``): a scene file's integrator ``max_depth``, else 12.
+
 Indirect-only references
 ------------------------
 Several papers compare indirect illumination only (light that reflected at
@@ -62,7 +70,8 @@ An entry is ``<scene>-<key>.exr`` (float32 RGB, lossless) plus
 ``<scene>-<key>.json`` (the settings, for humans and for a consistency check
 on load). The key hashes: ``scene.state_hash(t)`` (scene content +
 animation state + camera at ``t``), resolution, spp, max_depth, rr_depth,
-seed, the Mitsuba version and a format number. Frames whose state is equal
+seed, the Mitsuba version and variant, the sensor and its pixel filter
+(:data:`SENSOR`, :data:`PIXEL_FILTER`) and a format number. Frames whose state is equal
 (a static scene) share one entry. Writes go to a temporary file in the same
 directory and are moved into place with ``os.replace`` (EXR first, then the
 JSON that marks the entry complete), so an interrupted run never leaves a
@@ -93,8 +102,13 @@ RR_DEPTH = 5
 DIRECT_DEPTH = 2            # Mitsuba's max_depth for emission + direct illumination
 MAX_SAMPLES_PER_PASS = 1 << 24
 """Samples (pixels x spp) per ``mi.render`` call; larger requests are split into passes."""
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 """Bump when the way references are computed changes: invalidates every cached entry."""
+SENSOR = "perspective+independent"
+"""The sensor :meth:`Camera.to_sensor` builds (part of the cache key)."""
+PIXEL_FILTER = "box"
+"""The film's reconstruction filter: a box, so a pixel is the plain mean over its footprint, the
+expectation of a technique whose primary rays are jittered uniformly within the pixel (part of the key)."""
 _PASS_STREAM = 0x5EF
 
 
@@ -143,6 +157,9 @@ def reference_settings(scene, t: float, res, spp: int = DEFAULT_REF_SPP, max_dep
         "seed": int(seed),
         "integrator": "path",
         "mitsuba": mi.__version__,
+        "variant": mi.variant(),
+        "sensor": SENSOR,
+        "filter": PIXEL_FILTER,
     }
 
 
@@ -271,8 +288,44 @@ def reference_image(scene, t: float, res, spp: int = DEFAULT_REF_SPP, max_depth:
     return np.maximum(full - direct, 0.0).astype(np.float32)
 
 
+def half_spp(spp: int) -> tuple[int, int]:
+    """Sample counts of the two independent halves of a reference of ``spp`` samples."""
+    if not (isinstance(spp, numbers.Integral) and spp >= 2):
+        raise DyngiError(f"a reference with a noise estimate needs spp >= 2 (two halves), got {spp!r}")
+    return int(spp) // 2, int(spp) - int(spp) // 2
+
+
+def reference_halves(scene, t: float, res, spp: int = DEFAULT_REF_SPP, max_depth: int = DEFAULT_MAX_DEPTH,
+                     cache_dir=None) -> tuple[np.ndarray, dict]:
+    """The reference of ``spp`` samples as two independent cached halves, and its own noise.
+
+    Half a (n1 = spp // 2 samples, seed 0) and half b (n2 = spp - n1, seed 1)
+    are independent unbiased estimates; the reference is their sample-weighted
+    mean r = (n1 a + n2 b) / spp, unbiased with per-pixel variance
+    sigma^2 / spp. Since E(a - b)^2 = sigma^2 (1/n1 + 1/n2), the reference's
+    own MSE is estimated by ``mean((a - b)^2) * n1 n2 / spp^2`` (1/4 of it for
+    equal halves) and its relMSE likewise with the per-pixel relMSE weight
+    1 / (r^2 + eps) (r for the unknown truth: fine while the noise is small).
+    No extra samples are rendered for the estimate. Returns
+    ``(image, {'mse', 'relmse', 'spp', 'halves'})``.
+    """
+    from ..metrics import RELMSE_EPS
+
+    n1, n2 = half_spp(spp)
+    a, _ = cached_reference(scene, t, res, n1, max_depth, cache_dir, seed=0)
+    b, _ = cached_reference(scene, t, res, n2, max_depth, cache_dir, seed=1)
+    a64, b64 = a.astype(np.float64), b.astype(np.float64)
+    img = (n1 * a64 + n2 * b64) / (n1 + n2)
+    k = n1 * n2 / float(n1 + n2) ** 2
+    d2 = (a64 - b64) ** 2
+    noise = {"mse": float(np.mean(d2) * k), "relmse": float(np.mean(d2 / (img * img + RELMSE_EPS)) * k),
+             "spp": int(spp), "halves": [n1, n2]}
+    return img.astype(np.float32), noise
+
+
 def fill_reference_cache(scene, frames, res, spp: int = DEFAULT_REF_SPP, max_depth: int = DEFAULT_MAX_DEPTH,
-                         indirect: bool = False, cache_dir=None, seed: int = 0, progress=None) -> list[dict]:
+                         indirect: bool = False, cache_dir=None, seed: int = 0, progress=None,
+                         halves: bool = False) -> list[dict]:
     """Make sure the references of ``frames`` are cached; return one record per frame.
 
     ``frames``: a count N (frames 0..N-1) or an iterable of frame indices;
@@ -280,7 +333,9 @@ def fill_reference_cache(scene, frames, res, spp: int = DEFAULT_REF_SPP, max_dep
     ``progress(record)`` after each frame (e.g. a tqdm update). A record is
     ``{'frame', 'time', 'key', 'path', 'cached'}`` where ``cached`` is True
     when nothing had to be rendered. With ``indirect`` the direct
-    (``max_depth=2``) component is cached as well.
+    (``max_depth=2``) component is cached as well. ``halves``: cache the two
+    independent halves that :func:`reference_halves` (and ``dyngi compare``)
+    use instead of one render of ``spp`` samples (``key``/``path`` name the first half).
     """
     if indirect and isinstance(max_depth, numbers.Integral) and 1 <= max_depth <= DIRECT_DEPTH:
         raise DyngiError(f"an indirect-only reference needs max_depth > {DIRECT_DEPTH} or -1, got {max_depth}")
@@ -293,11 +348,18 @@ def fill_reference_cache(scene, frames, res, spp: int = DEFAULT_REF_SPP, max_dep
         if not (isinstance(i, numbers.Integral) and i >= 0):
             raise DyngiError(f"frame indices must be non-negative integers, got {i!r}")
         t = scene.frame_time(int(i))
-        _, hit = cached_reference(scene, t, res, spp, max_depth, cache_dir, seed)
+        if halves:
+            n1, n2 = half_spp(spp)
+            _, hit = cached_reference(scene, t, res, n1, max_depth, cache_dir, 0)
+            _, hit_b = cached_reference(scene, t, res, n2, max_depth, cache_dir, 1)
+            hit = hit and hit_b
+            settings = reference_settings(scene, t, res, n1, max_depth, 0)
+        else:
+            _, hit = cached_reference(scene, t, res, spp, max_depth, cache_dir, seed)
+            settings = reference_settings(scene, t, res, spp, max_depth, seed)
         if indirect:
             _, hit_d = cached_reference(scene, t, res, spp, DIRECT_DEPTH, cache_dir, seed)
             hit = hit and hit_d
-        settings = reference_settings(scene, t, res, spp, max_depth, seed)
         rec = {"frame": int(i), "time": float(t), "key": reference_key(settings),
                "path": str(reference_paths(scene, settings, cache_dir)[0]), "cached": hit}
         out.append(rec)
@@ -320,3 +382,21 @@ def estimate_reference_noise(scene, t: float, res, spp: int = DEFAULT_REF_SPP, m
     a = reference_image(scene, t, res, spp, max_depth, indirect, cache_dir, seed=0)
     b = reference_image(scene, t, res, spp, max_depth, indirect, cache_dir, seed=1)
     return {"relmse": relmse(a, b) / 2.0, "mse": mse(a, b) / 2.0, "spp": int(spp), "res": list(res)}
+
+
+_DEPTH_RE = re.compile(r"max_depth\s*=\s*(-?\d+)")
+
+
+def scene_max_depth(scene) -> int:
+    """The scene's own path depth: its file's integrator ``max_depth``, else :data:`DEFAULT_MAX_DEPTH`.
+
+    Read from the loaded integrator's description (Mitsuba resolves ``$max_depth``
+    defaults of the XML); built-in scenes have no integrator and get the default.
+    """
+    integ = scene.mi_scene.integrator() if hasattr(scene.mi_scene, "integrator") else None
+    m = _DEPTH_RE.search(str(integ)) if integ is not None else None
+    if m:
+        d = int(m.group(1))
+        if d >= 1 or d == -1:
+            return d
+    return DEFAULT_MAX_DEPTH

@@ -3,6 +3,9 @@
 Writes ``frame_NNNN.exr`` (linear) and ``frame_NNNN.png`` (sRGB), ``video.mp4``
 when more than one frame, and ``stats.json`` (per frame: per-stage ms and rays).
 Deterministic: the same seed gives bit-identical EXRs on the same backend.
+
+``technique`` is a spec ``NAME[:KEY=VALUE...]`` (``ddgi:hysteresis=0.9``); its settings win over
+``params``. ``res`` None: a scene file's own film resolution, else :data:`DEFAULT_RES`.
 """
 from __future__ import annotations
 
@@ -17,12 +20,27 @@ from ..techniques.base import create_technique
 from .io import atomic_output_dir, check_writable, tonemap_srgb, write_exr, write_json, write_mp4, write_png
 from .runner import run_sequence
 
+DEFAULT_RES = (320, 240)
+"""Resolution of built-in scenes (and of files without a film) when none is given."""
 
-def render_to_dir(scene_name: str, technique: str, out_dir: str, frames: int = 1, res=(320, 240), seed: int = 0,
+
+def default_res(scene) -> tuple[int, int]:
+    """A scene file's film resolution (its first sensor), else :data:`DEFAULT_RES`."""
+    if getattr(scene, "source", "builtin") != "builtin":
+        sensors = scene.mi_scene.sensors()
+        if sensors:
+            w, h = (int(v) for v in sensors[0].film().size())
+            if w >= 1 and h >= 1:
+                return (w, h)
+    return DEFAULT_RES
+
+
+def render_to_dir(scene_name: str, technique: str, out_dir: str, frames: int = 1, res=None, seed: int = 0,
                   params: dict | None = None, t0: float = 0.0, quiet: bool = False) -> dict:
     check_writable(out_dir)
     scene = load_scene(scene_name)
     tech = create_technique(technique, scene, params)
+    res = default_res(scene) if res is None else tuple(res)
     pngs = []
     with atomic_output_dir(out_dir) as tmp:
         bar = None
@@ -51,5 +69,5 @@ def render_to_dir(scene_name: str, technique: str, out_dir: str, frames: int = 1
         }
         write_json(os.path.join(tmp, "stats.json"), stats)
     steady, steady_ms = seq.steady()
-    return {"scene": scene.name, "frames": frames, "mean_ms": float(np.mean(steady_ms)),
+    return {"scene": scene.name, "frames": frames, "res": list(res), "mean_ms": float(np.mean(steady_ms)),
             "mean_rays": float(np.mean([s.get("total_rays", 0) for s in steady]))}

@@ -4,6 +4,15 @@ Parameters are declared per class as :class:`Param` entries; unknown names and
 invalid values raise :class:`~dyngi.errors.DyngiError` listing the valid
 choices (pbrt-v4's "unused parameter is fatal"). Values may be given as
 strings (``--set key=value`` on the command line) and are parsed by type.
+
+Technique specs
+---------------
+Wherever a technique is named (``dyngi compare --techniques``, ``dyngi render
+--technique``), a *spec* ``NAME[:KEY=VALUE...]`` names it together with
+settings: ``ddgi``, ``ddgi:hysteresis=0.9``, ``path:spp=4:max_depth=3``.
+:func:`parse_spec` is the one parser; the spec text as typed is the label of
+that run in tables, plots and output files, so two settings of one technique
+compare side by side.
 """
 from __future__ import annotations
 
@@ -51,7 +60,7 @@ class Param:
 
 
 def resolve_params(cls, params: dict | None) -> dict:
-    """Defaults of ``cls.PARAMS`` overridden by ``params`` (validated)."""
+    """Defaults of ``cls.PARAMS`` overridden by ``params`` (validated; errors name the technique)."""
     params = dict(params or {})
     spec = cls.PARAMS
     unknown = [k for k in params if k not in spec]
@@ -60,8 +69,73 @@ def resolve_params(cls, params: dict | None) -> dict:
                          + (", ".join(sorted(spec)) or "(none)"))
     out = {k: p.default for k, p in spec.items()}
     for k, v in params.items():
-        out[k] = spec[k].parse(k, v)
+        try:
+            out[k] = spec[k].parse(k, v)
+        except DyngiError as e:
+            raise DyngiError(f"technique '{cls.name}': {e}; valid parameters: {', '.join(sorted(spec))}") from None
     return out
+
+
+@dataclass(frozen=True)
+class TechniqueSpec:
+    """A technique with settings, as named by a spec ``NAME[:KEY=VALUE...]``.
+
+    ``label`` is the spec exactly as typed (the key in tables and files),
+    ``name`` the registered technique, ``params`` the spec's own settings
+    (already validated against the technique's :class:`Param` types).
+    """
+
+    label: str
+    name: str
+    params: dict = field(default_factory=dict)
+
+    def merged(self, base: dict | None) -> dict:
+        """``base`` settings (``--set``) overridden by the spec's own."""
+        return {**(base or {}), **self.params}
+
+
+def split_spec_list(text: str) -> list[str]:
+    """Split a comma-separated list of specs; a comma inside a value stays (``ddgi:probe_counts=4,4,4,path``).
+
+    A piece starts a new spec when its name part (before any ``:``) is a registered technique or the
+    previous piece set no value; otherwise it continues the previous piece's last value.
+    """
+    names = set(technique_names())
+    out: list[str] = []
+    for piece in str(text).split(","):
+        head = piece.split(":", 1)[0].strip()
+        if out and head not in names and "=" in out[-1] and "=" not in piece.split(":", 1)[0]:
+            out[-1] += "," + piece
+        else:
+            out.append(piece)
+    return [x.strip() for x in out if x.strip()]
+
+
+def parse_spec(text: str) -> TechniqueSpec:
+    """Parse ``NAME[:KEY=VALUE...]``; values are parsed by the technique's ``Param`` types.
+
+    Errors (one :class:`DyngiError`) name the technique, the key and the valid
+    keys: ``unknown technique``, ``unknown parameter 'x' for technique 'ddgi'``,
+    a malformed ``KEY=VALUE`` item, a key given twice, or a value of the wrong
+    type or out of range.
+    """
+    label = str(text).strip()
+    if not label:
+        raise DyngiError("empty technique spec; use NAME[:KEY=VALUE...], e.g. ddgi:hysteresis=0.9")
+    name, *items = label.split(":")
+    name = name.strip()
+    cls = get_technique(name)
+    raw = {}
+    for it in items:
+        if "=" not in it or not it.split("=", 1)[0].strip():
+            raise DyngiError(f"technique spec '{label}': '{it}' is not KEY=VALUE; valid keys for '{name}': "
+                             + (", ".join(sorted(cls.PARAMS)) or "(none)"))
+        k, v = (x.strip() for x in it.split("=", 1))
+        if k in raw:
+            raise DyngiError(f"technique spec '{label}' sets '{k}' twice")
+        raw[k] = v
+    resolved = resolve_params(cls, raw)
+    return TechniqueSpec(label, name, {k: resolved[k] for k in raw})
 
 
 @dataclass
@@ -93,6 +167,8 @@ class Technique:
     PARAMS: ClassVar[dict[str, Param]] = {}
     #: comparison budgets this technique adapts to ('equal-rays', 'equal-time'); others run their defaults
     BUDGETS: ClassVar[tuple] = ()
+    #: whether ``step`` fills ``FrameResult.indirect`` (``dyngi compare --indirect``); None: not declared
+    HAS_INDIRECT: ClassVar[bool | None] = None
 
     def __init__(self, scene, params: dict | None = None):
         self.scene = scene
@@ -125,6 +201,13 @@ def get_technique(name: str) -> type[Technique]:
 
 
 def create_technique(name: str, scene, params: dict | None = None) -> Technique:
+    """Instantiate technique ``name`` (a registered name or a spec ``NAME[:KEY=VALUE...]``).
+
+    With a spec, the spec's own settings override ``params``.
+    """
+    if ":" in name:
+        spec = parse_spec(name)
+        return get_technique(spec.name)(scene, spec.merged(params))
     return get_technique(name)(scene, params)
 
 

@@ -1,0 +1,190 @@
+"""Evaluation of rendered sequences against the ground truth: references, per-frame metrics, summaries.
+
+Used by ``dyngi compare`` (:mod:`dyngi.experiments.compare`) and ``dyngi reproduce``
+(:mod:`dyngi.experiments.reproduce`), so that both measure the same way.
+
+Images are measured *as returned*. A frame with NaN/Inf values is a failure of that technique: its
+pixels with a non-finite channel are counted (``nonfinite`` column of ``metrics.csv``), its metrics
+are NaN, and the summary, the report and the CLI say so; nothing is zeroed or clamped. MSE, relMSE and
+MAPE take negative values as they are. FLIP, SSIM and the temporal |E|, |E'| are defined on displayable
+(tone-mapped, non-negative) images: for those three only, negative values are shown as 0, as a display
+would, and the number of negative pixels is reported (``negative`` column).
+
+References (:func:`collect_references`): Mitsuba's ``path`` (:mod:`dyngi.experiments.reference`) at
+``ref_depth`` (default: the scene's own max depth), as two independent cached halves whose difference
+estimates the reference's own noise per frame (:func:`~dyngi.experiments.reference.reference_halves`).
+With ``indirect`` the indirect-only reference of :mod:`dyngi.experiments.indirect_reference`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import DyngiError
+
+METRIC_NAMES = ("mse", "relmse", "mape", "flip", "ssim")
+LABELS = {"mse": "MSE", "relmse": "relMSE", "mape": "MAPE", "flip": "FLIP", "ssim": "SSIM"}
+DISPLAY_METRICS = frozenset({"flip", "ssim"})
+"""Metrics of displayed images: negative values enter them as 0 (see the module docstring)."""
+NOISE_MARGIN = 10.0
+"""The reference's own relMSE should be at least this factor below the smallest technique relMSE."""
+
+
+def check_metric_names(names) -> list[str]:
+    from ..metrics import METRICS
+
+    names = list(names) if names else list(METRIC_NAMES)
+    for m in names:
+        if m not in METRICS:
+            raise DyngiError(f"unknown metric '{m}'; valid metrics: {', '.join(sorted(METRICS))}")
+    return names
+
+
+# -- references --------------------------------------------------------------------
+
+def indirect_reference_fn():
+    """``f(scene, t, res, spp, max_depth) -> (image, noise)``: the cached indirect-only reference of
+    :mod:`dyngi.experiments.indirect_reference` (dyngi's validated path tracer in its indirect-only mode:
+    unclamped, unbiased, noise from two independent halves), or a DyngiError when it is unavailable."""
+    try:
+        from .indirect_reference import cached_indirect_reference
+    except ImportError:
+        raise DyngiError("--indirect needs the indirect-only reference (dyngi.experiments.indirect_reference."
+                         "cached_indirect_reference), which this build does not have") from None
+
+    def fn(scene, t, res, spp, max_depth):
+        img, noise, _ = cached_indirect_reference(scene, t, res, spp, max_depth)
+        return img, noise
+    return fn
+
+
+def _noise_of(out) -> tuple[np.ndarray, dict]:
+    if isinstance(out, tuple):
+        img, noise = out[0], (out[1] if len(out) > 1 else None)
+    else:
+        img, noise = out, None
+    return np.asarray(img, np.float32), (dict(noise) if isinstance(noise, dict) else {})
+
+
+def collect_references(scene, frames: int, res, spp: int, ref_depth: int, indirect: bool = False,
+                       bar=None) -> tuple[list, list]:
+    """(images, noise dicts) of the references of frames 0..frames-1 (cached on disk)."""
+    from .reference import reference_halves
+
+    fn = indirect_reference_fn() if indirect else None
+    refs, noise = [], []
+    for i in range(frames):
+        t = scene.frame_time(i)
+        if fn is None:
+            img, nz = reference_halves(scene, t, res, spp, ref_depth)
+        else:
+            img, nz = _noise_of(fn(scene, t, res, spp, ref_depth))
+        refs.append(img)
+        noise.append(nz)
+        if bar is not None:
+            bar.update(1)
+    return refs, noise
+
+
+def summarize_noise(noise: list[dict]) -> dict:
+    """Mean of the per-frame noise estimates (relMSE, MSE); NaN where not estimated."""
+    out = {}
+    for k in ("relmse", "mse"):
+        vals = [n[k] for n in noise if isinstance(n.get(k), (int, float))]
+        out[k] = float(np.mean(vals)) if vals else float("nan")
+    out["per_frame_relmse"] = [n.get("relmse", float("nan")) for n in noise]
+    return out
+
+
+# -- metrics -----------------------------------------------------------------------
+
+def image_health(img: np.ndarray) -> tuple[int, int]:
+    """(pixels with a NaN/Inf channel, pixels with a negative channel) of an H x W x 3 image."""
+    a = np.asarray(img)
+    bad = ~np.isfinite(a)
+    nonfinite = int(np.count_nonzero(bad.any(axis=-1)))
+    with np.errstate(invalid="ignore"):
+        neg = int(np.count_nonzero((np.where(bad, 0.0, a) < 0).any(axis=-1)))
+    return nonfinite, neg
+
+
+def frame_metrics(img, ref, names) -> dict:
+    """Metrics of one frame as returned; all NaN when the image has NaN/Inf values."""
+    from ..metrics import METRICS
+
+    a = np.asarray(img, np.float64)
+    if not np.all(np.isfinite(a)):
+        return {k: float("nan") for k in names}
+    out = {}
+    for k in names:
+        x = np.maximum(a, 0.0) if k in DISPLAY_METRICS else a
+        out[k] = float(METRICS[k](x, ref))
+    return out
+
+
+def evaluate_sequence(label: str, seq, refs: list, names, images: list | None = None) -> tuple[list, dict]:
+    """(csv rows, summary) of one technique's run against ``refs``.
+
+    ``images``: what to measure (default ``seq.images``; ``seq.indirect`` for indirect-only comparisons).
+    Summary: ``mean`` per metric (NaN if any frame failed), ``E``/``E_prime`` (SMC-IR Sec. 5.2),
+    ``ms_per_frame`` and ``rays_per_frame`` over the steady frames, ``stage_ms``,
+    ``nonfinite_pixels``/``nonfinite_frames``/``failed``, ``negative_pixels``.
+    """
+    from ..metrics import temporal_errors
+
+    images = seq.images if images is None else images
+    rows, per_frame, nonfinite, negative = [], [], [], []
+    for i, img in enumerate(images):
+        nf, neg = image_health(img)
+        m = frame_metrics(img, refs[i], names)
+        st = seq.stats[i]
+        row = {"technique": label, "frame": i, "time": seq.times[i], **m, "nonfinite": nf, "negative": neg,
+               "wall_ms": seq.wall_ms[i], "rays": st.get("total_rays", 0)}
+        for stage, ms in st.get("ms", {}).items():
+            row[f"ms_{stage}"] = ms
+        rows.append(row)
+        per_frame.append(m)
+        nonfinite.append(nf)
+        negative.append(neg)
+    failed = any(nonfinite)
+    if failed:
+        tm = {"E": float("nan"), "E_prime": float("nan")}
+    else:
+        tm = temporal_errors(np.stack([np.maximum(x, 0.0) for x in images]), np.stack(refs))
+    steady, steady_ms = seq.steady()
+    stage_ms = {}
+    for st in steady:
+        for k, v in st.get("ms", {}).items():
+            stage_ms[k] = stage_ms.get(k, 0.0) + v / len(steady)
+    summary = {
+        "mean": {k: float(np.mean([f[k] for f in per_frame])) for k in names},
+        "E": float(tm["E"]), "E_prime": float(tm["E_prime"]),
+        "ms_per_frame": float(np.mean(steady_ms)),
+        "stage_ms": stage_ms,
+        "rays_per_frame": float(np.mean([s.get("total_rays", 0) for s in steady])),
+        "nonfinite_pixels": int(sum(nonfinite)),
+        "nonfinite_frames": int(sum(1 for n in nonfinite if n)),
+        "negative_pixels": int(sum(negative)),
+        "failed": bool(failed),
+    }
+    return rows, summary
+
+
+def noise_warning(summary: dict, ref_noise: dict, names) -> str | None:
+    """A warning when the reference's relMSE is not at least NOISE_MARGIN x below every technique's."""
+    if "relmse" not in names:
+        return None
+    errs = [s["mean"]["relmse"] for s in summary.values() if np.isfinite(s["mean"]["relmse"])]
+    rn = ref_noise.get("relmse", float("nan"))
+    if not errs or not np.isfinite(rn):
+        return None
+    smallest = min(errs)
+    if rn * NOISE_MARGIN > smallest:
+        return (f"the reference's own relMSE ({rn:.3g}) is not {NOISE_MARGIN:g}x below the smallest technique "
+                f"relMSE ({smallest:.3g}): differences at that level are reference noise; raise --ref-spp")
+    return None
+
+
+def failures(summary: dict) -> list[str]:
+    """One line per technique that returned NaN/Inf pixels."""
+    return [f"{t}: {s['nonfinite_pixels']} NaN/Inf pixel(s) in {s['nonfinite_frames']} frame(s)"
+            for t, s in summary.items() if s.get("failed")]
