@@ -419,17 +419,21 @@ def test_nee_light_cache_never_serves_a_freed_scene():
     from dyngi.probes import trace
     from dyngi.probes.trace import emitter_via_probes_host, nee_lights
     names = ("furnace", "cornell-static", "warehouse-lights")
+
+    def cache():    # the per-scene light-routing cache (named _NEE_CACHE before H1's routing rework)
+        return trace._ROUTING_CACHE if hasattr(trace, "_ROUTING_CACHE") else trace._NEE_CACHE
+
     for i in range(12):
         sc = load_scene(names[i % 3])
         ms = sc.mi_scene
         lights = nee_lights(ms, "sky")
         nee_lights(ms, "nee")
-        assert all(e[0] is ms for e in trace._NEE_CACHE.values())
+        assert all(e[0] is ms for e in cache().values())
         assert lights.count == sum(not emitter_via_probes_host(e, "sky") for e in ms.emitters())
         assert nee_lights(ms, "sky") is lights            # still a cache
         del sc, ms, lights
         gc.collect()
-    assert len(trace._NEE_CACHE) <= 2
+    assert len(cache()) <= 2
 
 
 def test_probes_carry_emitters_decides_whether_hits_read_emission():

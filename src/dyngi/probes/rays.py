@@ -1,11 +1,22 @@
-"""Ray-direction strategies for probe updates (replaceable piece #1).
+"""Ray planners for probe updates (replaceable piece #1) and the ray plan they return.
 
-A strategy decides, per frame, which rays each probe traces. Interface:
+A planner decides, per frame, which rays each probe traces. Interface:
 
-``plan(frame, seed, probe_ids) -> RayPlan`` where :class:`RayPlan` holds the
-probe index and world direction of every ray as Dr.Jit arrays, and -- when all
-probes share one direction set -- that set as an (N, 3) NumPy array, which lets
-the blend be a dense matrix product (see :mod:`dyngi.probes.blend`).
+``plan(frame, seed, probe_ids, previous=None) -> RayPlan``. ``previous`` is
+the :class:`~dyngi.probes.trace.ProbeRayResults` of the previous update (its
+per-ray radiance, distance and plan), or ``None`` on the first update; the
+:class:`~dyngi.probes.update.ProbeUpdater` passes it. ADGI's Metropolis
+chains (Datta et al. 2022, Algorithm 1-3) and IS-DDGI's allocation (its
+supplement: ray counts per probe and per direction set from the previous
+frame's change measure) consume it; the planners below ignore it.
+
+A :class:`RayPlan` is a **per-probe ragged list** in CSR form: the rays of
+traced probe ``i`` (``probe_ids[i]``) are ``offsets[i] .. offsets[i+1]``, each
+with its probe index, slot ``i``, world direction and weight (``1 / pdf``
+up to a constant; ``None`` = 1). The shared spherical-Fibonacci set of DDGI
+is its fast path: ``shared_directions`` set and a constant ``rays_per_probe``,
+which lets the estimator be one dense matrix product on the CPU (see
+:mod:`dyngi.probes.estimator`).
 
 * :class:`UniformSFDirections` -- DDGI (Majercik et al., JCGT 2019, Sec. 3.1):
   ``n`` spherical-Fibonacci directions under one fresh uniformly random
@@ -13,10 +24,8 @@ the blend be a dense matrix product (see :mod:`dyngi.probes.blend`).
 * :class:`FixedSFDirections` -- the same set without rotation (classification
   rays, Majercik et al. 2021 Sec. 5).
 * :class:`LobeDirections` -- per-texel lobes for the reference volume: ``k``
-  rays per texel drawn from a cosine-power lobe around the texel direction.
-
-Metropolis chains (ADGI) and importance allocation (IS-DDGI) implement the
-same ``plan`` interface with ``shared_directions = None``.
+  rays per texel drawn from a cosine-power lobe around the texel direction;
+  its plan names the texel of every ray (``texel``), which the estimator bins by.
 """
 from __future__ import annotations
 
@@ -25,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..backend import dr, mi
+from ..errors import DyngiError
 from ..sampling.fibonacci import coherent_order, rotation_for_frame, spherical_fibonacci_np
 from ..sampling.octahedral import texel_directions
 from ..sampling.rng import make_sampler
@@ -32,15 +42,79 @@ from ..sampling.rng import make_sampler
 
 @dataclass
 class RayPlan:
-    probe: "mi.UInt32"               # probe index per ray
-    direction: "mi.Vector3f"         # world direction per ray
-    rays_per_probe: int | None       # constant count per probe (rays of one probe are contiguous)
-    shared_directions: np.ndarray | None   # (N, 3) when every probe uses the same set
-    probe_ids: np.ndarray            # (P_traced,) probe indices, in ray order
+    """One frame's probe rays as a per-probe ragged list (CSR). Dr.Jit arrays are per ray.
+
+    probe : UInt32              probe index per ray
+    direction : Vector3f        world direction per ray
+    rays_per_probe : int | None constant count per probe, or ``None`` (ragged)
+    shared_directions : (N, 3) ndarray | None   the one set every probe traces (fast path)
+    probe_ids : (P_traced,) ndarray   traced probes, in ray order
+    offsets : (P_traced + 1,) int64 ndarray   CSR: rays of slot ``i`` are ``offsets[i]:offsets[i+1]``
+    slot : UInt32               index into ``probe_ids`` per ray
+    weight : Float | None       per-ray sample weight (``1 / pdf``, any constant factor); ``None`` = 1
+    texel : UInt32 | None       interior texel (row-major in the ``(T-2)^2`` interior) each ray belongs
+                                to, for plans that sample per texel (``texel_res`` = that ``T``)
+    """
+
+    probe: "mi.UInt32"
+    direction: "mi.Vector3f"
+    rays_per_probe: int | None
+    shared_directions: np.ndarray | None
+    probe_ids: np.ndarray
+    offsets: np.ndarray | None = None
+    slot: "mi.UInt32" = None
+    weight: "mi.Float" = None
+    texel: "mi.UInt32" = None
+    texel_res: int | None = None
+
+    def __post_init__(self):
+        self.probe_ids = np.asarray(self.probe_ids)
+        P = len(self.probe_ids)
+        if self.offsets is None:
+            if self.rays_per_probe is None:
+                raise DyngiError("a ragged RayPlan needs its per-probe offsets (use RayPlan.ragged)")
+            self.offsets = np.arange(P + 1, dtype=np.int64) * int(self.rays_per_probe)
+        self.offsets = np.asarray(self.offsets, np.int64)
+        if self.slot is None:
+            if self.rays_per_probe:
+                self.slot = dr.arange(mi.UInt32, P * self.rays_per_probe) // self.rays_per_probe
+            else:
+                self.slot = upload(np.repeat(np.arange(P, dtype=np.uint32), self.counts), mi.UInt32)
+
+    @property
+    def counts(self) -> np.ndarray:
+        """(P_traced,) rays per traced probe."""
+        return np.diff(self.offsets)
 
     @property
     def n_rays(self) -> int:
-        return int(len(self.probe_ids) * self.rays_per_probe) if self.rays_per_probe else dr.width(self.probe)
+        return int(self.offsets[-1])
+
+    @staticmethod
+    def ragged(probe_ids, counts, direction, weight=None, pdf=None, texel=None, texel_res=None) -> "RayPlan":
+        """A plan with ``counts[i]`` rays (possibly 0) for probe ``probe_ids[i]``, directions in slot order.
+
+        ``pdf`` (per solid angle) gives ``weight = 1 / pdf``; give at most one of the two.
+        """
+        if weight is not None and pdf is not None:
+            raise DyngiError("RayPlan.ragged: give either 'weight' or 'pdf', not both")
+        pids = np.asarray(probe_ids, np.uint32)
+        counts = np.asarray(counts, np.int64)
+        if counts.shape != pids.shape or np.any(counts < 0):
+            raise DyngiError(f"RayPlan.ragged: 'counts' must be {len(pids)} non-negative integers")
+        offsets = np.concatenate([[0], np.cumsum(counts)])
+        # uploaded copies: an aliased NumPy buffer's alignment decides the gather kernel (see volume.upload)
+        slot = upload(np.repeat(np.arange(len(pids), dtype=np.uint32), counts), mi.UInt32)
+        probe = dr.gather(mi.UInt32, upload(pids, mi.UInt32), slot) if len(pids) else mi.UInt32()
+        if pdf is not None:
+            weight = dr.rcp(mi.Float(pdf))
+        constant = int(counts[0]) if len(counts) and np.all(counts == counts[0]) and counts[0] > 0 else None
+        return RayPlan(probe, direction, constant, None, pids, offsets, slot, weight, texel, texel_res)
+
+
+def upload(array: np.ndarray, cls):
+    from .volume import upload as _upload      # volume imports nothing from here; keep the import local
+    return _upload(array, cls) if np.size(array) else cls()
 
 
 def _shared_plan(probe_ids: np.ndarray, dirs: np.ndarray) -> RayPlan:
@@ -48,11 +122,12 @@ def _shared_plan(probe_ids: np.ndarray, dirs: np.ndarray) -> RayPlan:
     pids = mi.UInt32(np.asarray(probe_ids, np.uint32))
     m = len(probe_ids) * n
     idx = dr.arange(mi.UInt32, m)
-    local = idx % n
-    probe = dr.gather(mi.UInt32, pids, idx // n)
+    slot = idx // n
+    local = idx - slot * n
+    probe = dr.gather(mi.UInt32, pids, slot)
     dset = mi.Float(np.asarray(dirs, np.float32).ravel())
     d = dr.gather(mi.Vector3f, dset, local)
-    return RayPlan(probe, d, n, np.asarray(dirs, np.float64), np.asarray(probe_ids))
+    return RayPlan(probe, d, n, np.asarray(dirs, np.float64), np.asarray(probe_ids), slot=slot)
 
 
 class UniformSFDirections:
@@ -75,7 +150,7 @@ class UniformSFDirections:
         R = rotation_for_frame(seed, frame, self.stream)
         return self.base @ R.T
 
-    def plan(self, frame: int, seed: int, probe_ids) -> RayPlan:
+    def plan(self, frame: int, seed: int, probe_ids, previous=None) -> RayPlan:
         return _shared_plan(probe_ids, self.directions(frame, seed))
 
 
@@ -107,13 +182,14 @@ class LobeDirections:
         self.texel_dirs = mi.Float(inner.astype(np.float32).ravel())
         self.n_texels = len(inner)
 
-    def plan(self, frame: int, seed: int, probe_ids) -> RayPlan:
+    def plan(self, frame: int, seed: int, probe_ids, previous=None) -> RayPlan:
         n = self.n_texels * self.k
         pids = mi.UInt32(np.asarray(probe_ids, np.uint32))
         m = len(probe_ids) * n
         idx = dr.arange(mi.UInt32, m)
-        probe = dr.gather(mi.UInt32, pids, idx // n)
-        texel = (idx % n) // self.k
+        slot = idx // n
+        probe = dr.gather(mi.UInt32, pids, slot)
+        texel = (idx - slot * n) // self.k
         axis = dr.gather(mi.Vector3f, self.texel_dirs, texel)
         sampler = make_sampler(m, seed, frame, self.stream)
         u = sampler.next_2d()
@@ -123,4 +199,4 @@ class LobeDirections:
         sp, cp = dr.sincos(2.0 * dr.pi * u.y)
         local = mi.Vector3f(cp * sin_t, sp * sin_t, cos_t)
         d = mi.Frame3f(axis).to_world(local)
-        return RayPlan(probe, d, n, None, np.asarray(probe_ids))
+        return RayPlan(probe, d, n, None, np.asarray(probe_ids), slot=slot, texel=texel, texel_res=self.texels)

@@ -2,18 +2,22 @@
 
 ``ProbeUpdater(volume, directions, shader, blender, states, query)``:
 
-1. choose rays (``directions.plan``) for the active probes, optionally masked
-   (e.g. Q-DDGI's camera-frustum culling);
+1. choose rays (``directions.plan(frame, seed, ids, previous=last_results)``)
+   for the active probes, optionally masked (e.g. Q-DDGI's camera-frustum
+   culling); the planner sees the previous update's per-ray results
+   (:attr:`ProbeUpdater.last_results`: radiance, distance and their plan);
 2. trace them in one batch and shade the hits (``shader``), reading the
    previous frame's probes through ``query`` for multi-bounce;
-3. blend into the texels (``blender``);
-4. relocate / classify from the same rays (``states``); every
+3. blend into the texels (``blender``: an estimator + a temporal accumulator);
+4. relocate / classify from the same rays (``states``; the probes of a plan
+   without a shared set are handed over grouped by their ray count); every
    ``reclassify_interval`` frames the inactive probes trace ``classify_rays``
    fixed directions so that they can wake up when the scene changes.
 
-Any piece can be swapped: ADGI replaces 1 and 3 (Metropolis chains, atomic
-moving average), IS-DDGI replaces 1, DDGI Resampling consumes the volume
-through another ``query`` call site.
+Any piece can be swapped: ADGI replaces 1 and 3 (a Metropolis-chain planner
+returning a ragged plan, :class:`~dyngi.probes.blend.MovingAverageBlend` with the
+binned scatter estimator), IS-DDGI replaces 1 (ragged counts per probe),
+DDGI Resampling consumes the volume through another ``query`` call site.
 """
 from __future__ import annotations
 
@@ -63,23 +67,25 @@ class ProbeUpdater:
         vol = self.volume
         ids = self.probes_to_trace(probe_mask)
         info = {"probes_traced": int(len(ids)), "moved": 0, "deactivated": 0, "activated": 0}
-        if len(ids):
-            plan = self.directions.plan(frame, seed, ids)
+        plan = self.directions.plan(frame, seed, ids, previous=self.last_results) if len(ids) else None
+        if plan is not None and plan.n_rays:      # (a planner may give every probe 0 rays)
             res = trace_probe_rays(scene, vol, plan, self.shader, self.query, seed, frame, timer=timer)
             self.last_results = res
-            with maybe_stage(timer, "blend"):
-                res.host()      # the blend's host copies, pulled before anything else is queued
+            matrix = getattr(self.blender, "estimator_for", None)
+            if matrix is None or matrix(plan).name == "matrix":
+                with maybe_stage(timer, "blend"):
+                    res.host()      # the blend's host copies, pulled before anything else is queued
+            info["rays"] = plan.n_rays
             finish_states = None
             if self.states is not None:
                 # the state summaries' kernels run on Dr.Jit's pool beside the blend's host products
                 with maybe_stage(timer, "states", sync=False):
                     dirs = plan.shared_directions
                     if dirs is None:
-                        dirs = vector_to_numpy(plan.direction).T.reshape(len(ids), -1, 3)
-                        dist = res.host()[1].reshape(len(ids), -1)
+                        finish_states = _states_by_count(self.states, vol, plan, res)
                     else:
                         dist = res.distance    # device array: per-ray work stays in Dr.Jit
-                    finish_states = self.states.begin(vol, ids, dirs, dist)
+                        finish_states = self.states.begin(vol, ids, dirs, dist)
             with maybe_stage(timer, "blend"):
                 self.blender.update(vol, res)
             if finish_states is not None:
@@ -98,8 +104,33 @@ class ProbeUpdater:
                     info[k] += c[k]
             if timer is not None:
                 timer.add_rays("states", len(dead) * self.classify_dirs.n)
-        info["rays"] = int(len(ids)) * int(getattr(self.directions, "n", 0) or 0)
+        info.setdefault("rays", 0)
         return info
+
+
+def _states_by_count(states: ProbeStates, volume: ProbeVolume, plan, res):
+    """Relocation/classification for a plan without a shared set: ``ProbeStates`` takes a constant ray
+    count per call, so the probes are grouped by their count (one call per distinct count, not per
+    probe; probes without rays keep their state). Host arrays (the per-ray directions come back)."""
+    counts = plan.counts
+    groups = [c for c in np.unique(counts) if c > 0]
+    if not groups:
+        return None
+    dirs = vector_to_numpy(plan.direction).T          # (R, 3)
+    dist = res.host()[1]
+    pending = []
+    for c in groups:
+        slots = np.flatnonzero(counts == c)
+        rows = plan.offsets[slots][:, None] + np.arange(c)[None, :]
+        pending.append(states.begin(volume, plan.probe_ids[slots], dirs[rows], dist[rows]))
+
+    def finish():
+        total = {"moved": 0, "deactivated": 0, "activated": 0}
+        for f in pending:
+            for k, v in f().items():
+                total[k] += v
+        return total
+    return finish
 
 
 

@@ -11,6 +11,11 @@ A volume is a :class:`~dyngi.probes.grid.ProbeGrid` plus, per probe ``p``:
 * ``distance[p]`` -- ``T_d x T_d x 2`` texels: mean and mean squared distance
   to the nearest surface in a sharp cosine-power lobe around the texel
   direction (DDGI Sec. 3.2; the moments of the Chebyshev visibility test).
+* ``irradiance_count[p]`` / ``distance_count[p]`` -- ``T x T`` uint32 sample
+  counts per texel (samples the temporal accumulator has merged, capped by the
+  encoding; ADGI's moving average divides by them, Algorithm 3). They are
+  device state like the atlases (``device.irradiance_count`` /
+  ``device.distance_count``).
 * ``offsets[p]`` -- relocation offset (world units, |component| bounded by a
   fraction of the spacing); ``states[p]`` -- 1 active, 0 inactive.
 
@@ -57,13 +62,18 @@ class ProbeVolumeState:
     """
 
     def __init__(self, irradiance: np.ndarray, distance: np.ndarray, offsets: np.ndarray, states: np.ndarray,
-                 updates: np.ndarray, extra: dict | None = None):
+                 updates: np.ndarray, extra: dict | None = None, irradiance_count: np.ndarray | None = None,
+                 distance_count: np.ndarray | None = None):
         self._irradiance = irradiance   # (P, Ti, Ti, 3) float32, stores E/pi
         self._distance = distance       # (P, Td, Td, 2) float32, (mean, mean of squares)
         self.offsets = offsets          # (P, 3) float32 relocation offsets
         self.states = states            # (P,) uint8, 1 active / 0 inactive
         self.updates = updates          # (P,) int32, number of blends received (0: no history yet)
-        self.extra = extra if extra is not None else {}  # encoding-specific arrays (e.g. packed words)
+        self.extra = extra if extra is not None else {}  # technique-specific arrays
+        self._irradiance_count = (irradiance_count if irradiance_count is not None
+                                  else np.zeros(irradiance.shape[:3], np.uint32))   # (P, Ti, Ti)
+        self._distance_count = (distance_count if distance_count is not None
+                                else np.zeros(distance.shape[:3], np.uint32))       # (P, Td, Td)
         self._pull = None
 
     def device_is_newer(self, pull) -> None:
@@ -73,11 +83,13 @@ class ProbeVolumeState:
     def _refresh(self) -> None:
         if self._pull is not None:
             pull, self._pull = self._pull, None
-            pull("irradiance", self._irradiance)
-            pull("distance", self._distance)
+            for name in ("irradiance", "distance", "irradiance_count", "distance_count"):
+                pull(name, getattr(self, "_" + name))
 
     irradiance = _DeviceBacked()
     distance = _DeviceBacked()
+    irradiance_count = _DeviceBacked()
+    distance_count = _DeviceBacked()
 
     @staticmethod
     def zeros(n_probes: int, irradiance_texels: int, distance_texels: int) -> "ProbeVolumeState":
@@ -104,12 +116,30 @@ def upload(array: np.ndarray, cls=None):
     aligned, Dr.Jit silently falls back from packet gathers to one gather per
     component -- a different kernel, i.e. a recompile, depending on where NumPy
     happened to allocate. Scattering into a Dr.Jit allocation avoids both.
+    The copy kernel itself reads the NumPy memory, and its code depends on
+    that memory's alignment too (a recompile for small arrays that NumPy put
+    at a 16- rather than 64-byte boundary): the data is first staged in a
+    64-byte aligned host buffer.
     """
     cls = cls or mi.Float
-    a = np.ascontiguousarray(array).ravel()
+    a = _aligned(np.ascontiguousarray(array).ravel())
     out = dr.empty(cls, a.size)
     dr.scatter(out, cls(a), dr.arange(mi.UInt32, a.size))
     dr.eval(out)
+    return out
+
+
+HOST_ALIGNMENT = 64   # bytes: the alignment Dr.Jit's LLVM kernels assume for their widest loads
+
+
+def _aligned(a: np.ndarray) -> np.ndarray:
+    """``a`` itself if its data is ``HOST_ALIGNMENT``-aligned, else an aligned copy."""
+    if a.ctypes.data % HOST_ALIGNMENT == 0:
+        return a
+    buf = np.empty(a.nbytes + HOST_ALIGNMENT, np.uint8)
+    off = (-buf.ctypes.data) % HOST_ALIGNMENT
+    out = buf[off:off + a.nbytes].view(a.dtype)
+    out[...] = a
     return out
 
 
@@ -122,6 +152,8 @@ class DeviceAtlas:
     positions: "mi.Float"       # P*3 (lattice + offsets)
     states: "mi.UInt32"         # P
     probe_data: "mi.Float" = None   # P*4: position xyz and 1.0 (active) / 0.0 -- one packet gather per probe
+    irradiance_count: "mi.UInt32" = None   # P*Ti*Ti samples merged per texel
+    distance_count: "mi.UInt32" = None     # P*Td*Td
 
 
 class ProbeVolume:
@@ -132,7 +164,8 @@ class ProbeVolume:
     grid : ProbeGrid
     irradiance_texels : int = 8   texels per side incl. the 1-texel border (DDGI default 8)
     distance_texels : int = 16    texels per side incl. border (DDGI default 16)
-    max_distance : float | None   distances are clamped to this (default 1.5 x the largest spacing)
+    max_distance : float | None   distances are clamped to this (default 1.5 x the largest spacing, at
+                                  least the cell diagonal: a probe must see across its cell, issue 11 item 2)
     """
 
     def __init__(self, grid: ProbeGrid, irradiance_texels: int = 8, distance_texels: int = 16,
@@ -143,7 +176,8 @@ class ProbeVolume:
         self.grid = grid
         self.irradiance_texels = int(irradiance_texels)
         self.distance_texels = int(distance_texels)
-        self.max_distance = float(max_distance) if max_distance is not None else 1.5 * grid.max_spacing
+        self.max_distance = (float(max_distance) if max_distance is not None
+                             else max(1.5 * grid.max_spacing, grid.cell_diagonal))
         self.state = ProbeVolumeState.zeros(grid.n_probes, self.irradiance_texels, self.distance_texels)
         self.device: DeviceAtlas | None = None
         self.sync()
@@ -164,12 +198,17 @@ class ProbeVolume:
         self.state.irradiance[:] = 0
         self.state.distance[:] = 0
         self.state.updates[:] = 0
+        self.state.irradiance_count[:] = 0
+        self.state.distance_count[:] = 0
         self.state.extra.clear()
         self.state.extra["n_probes"] = self.n_probes
         self.sync()
 
     def sync(self, what: tuple = ("irradiance", "distance", "positions", "states")) -> None:
-        """Upload host arrays to the device mirror (only the named parts once it exists)."""
+        """Upload host arrays to the device mirror (only the named parts once it exists).
+
+        'irradiance' and 'distance' upload their texel counts too.
+        """
         s = self.state
         if self.device is None:
             what = ("irradiance", "distance", "positions", "states")
@@ -177,8 +216,10 @@ class ProbeVolume:
         d = self.device
         if "irradiance" in what:
             d.irradiance = upload(s.irradiance.astype(np.float32))
+            d.irradiance_count = upload(s.irradiance_count.astype(np.uint32), mi.UInt32)
         if "distance" in what:
             d.distance = upload(s.distance.astype(np.float32))
+            d.distance_count = upload(s.distance_count.astype(np.uint32), mi.UInt32)
         if "positions" in what:
             d.positions = upload(self.positions().astype(np.float32))
         if "states" in what:
@@ -186,9 +227,11 @@ class ProbeVolume:
         if "positions" in what or "states" in what:
             pd = np.concatenate([self.positions(), (s.states != 0)[:, None]], axis=1)
             d.probe_data = upload(pd.astype(np.float32))
-        dr.eval(d.irradiance, d.distance, d.positions, d.states, d.probe_data)
+        dr.eval(d.irradiance, d.distance, d.positions, d.states, d.probe_data, d.irradiance_count,
+                d.distance_count)
 
     def copy_state(self) -> ProbeVolumeState:
         s = self.state
         return ProbeVolumeState(s.irradiance.copy(), s.distance.copy(), s.offsets.copy(), s.states.copy(),
-                                s.updates.copy(), {k: np.copy(v) for k, v in s.extra.items()})
+                                s.updates.copy(), {k: np.copy(v) for k, v in s.extra.items()},
+                                s.irradiance_count.copy(), s.distance_count.copy())
