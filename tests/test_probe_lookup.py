@@ -142,3 +142,102 @@ def test_stochastic_lookup_loop_matches_unrolled(cornell_volume):
     b = _lookup(ProbeQuery(vol, unroll=True), pts, nrm, wo, 4, make_sampler(n * 4, 2, 0, 3))
     assert a.max() > 0.0
     assert np.allclose(a, b, rtol=1e-5, atol=1e-7)
+
+
+# -- fallback when the 8 probes of a cell carry no weight (issue 11, item 1) --------------------------------
+
+def _dead_cell_volume(values=None, seed=0):
+    """A 4x4x4 unit grid whose centre cell (probes (1..2)^3) is all inactive; the other probes hold
+    ``values`` (default: random per probe and texel) as stored E/pi."""
+    vol = ProbeVolume(ProbeGrid.from_box((0.0, 0.0, 0.0), (3.0, 3.0, 3.0), (4, 4, 4)))
+    rng = np.random.default_rng(seed)
+    if values is None:
+        vol.state.irradiance[...] = rng.uniform(0.5, 2.0, vol.state.irradiance.shape).astype(np.float32)
+    else:
+        vol.state.irradiance[...] = values
+    c = vol.grid.probe_coords()
+    dead = np.all((c >= 1) & (c <= 2), axis=1)
+    vol.state.states[dead] = 0
+    vol.sync()
+    return vol, dead
+
+
+def _points_in_centre_cell(n, seed=1):
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(1.05, 1.95, (n, 3))
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return pts, nrm, nrm.copy()
+
+
+@pytest.mark.parametrize("visibility", [True, False])
+def test_cell_of_inactive_probes_reads_the_nearest_active_ones(visibility):
+    """All 8 probes of the cell inactive: the lookup returns the neighbours' irradiance, not black
+    (before the fallback it returned exactly 0 here)."""
+    vol, _ = _dead_cell_volume(values=0.75)
+    pts, nrm, wo = _points_in_centre_cell(200)
+    q = ProbeQuery(vol, normal_bias=0.0, view_bias=0.0, visibility=visibility)
+    for sampler in (None, make_sampler(len(pts), 3, 0, 3)):
+        E = _lookup(q, pts, nrm, wo, sampler=sampler)[:, 0]
+        assert np.allclose(E, 0.75 * np.pi, rtol=1e-5), E.min()
+    # the candidates are active probes next to the cell
+    table = np.asarray(q.fallback_table()).reshape(-1, 4)
+    cell = 1 + 3 * (1 + 3 * 1)
+    cand = vol.positions()[table[cell]]
+    assert np.all(vol.state.states[table[cell]] == 1)
+    assert np.all(np.linalg.norm(cand - 1.5, axis=1) < 1.7)
+
+
+def test_fallback_is_a_weighted_mean_of_the_candidates_and_only_where_needed():
+    """The fallback blends the candidates' values (within their range); cells with a live corner are untouched."""
+    vol, dead = _dead_cell_volume(seed=4)
+    pts, nrm, wo = _points_in_centre_cell(300)
+    q = ProbeQuery(vol, normal_bias=0.0, view_bias=0.0)
+    E = _lookup(q, pts, nrm, wo)[:, 0]
+    table = np.asarray(q.fallback_table()).reshape(-1, 4)[1 + 3 * (1 + 3 * 1)]
+    vals = vol.state.irradiance[table] * np.pi
+    assert np.all(E > vals.min(axis=(0, 1, 2)) - 1e-4) and np.all(E < vals.max(axis=(0, 1, 2)) + 1e-4)
+    # a neighbouring cell with 4 live corners gives the DDGI blend, identical with and without a dead centre
+    rng = np.random.default_rng(2)
+    p2 = rng.uniform([0.05, 1.05, 1.05], [0.95, 1.95, 1.95], (300, 3))
+    a = _lookup(q, p2, nrm, wo)[:, 0]
+    vol.state.states[:] = 1
+    vol.sync(("states",))
+    b = _lookup(q, p2, nrm, wo)[:, 0]
+    # with the centre probes alive the cell's blend changes (4 more corners); all it must not do is go black
+    assert np.all(a > 0.1) and np.all(b > 0.1)
+    assert q.fallback_table() is q.fallback_table()        # cached until the states change
+
+
+def test_stochastic_fallback_has_the_filtered_expectation():
+    """z-test as above on lanes that take the fallback: one stochastic texel of one candidate probe."""
+    vol, _ = _dead_cell_volume(seed=5)
+    pts, nrm, wo = _points_in_centre_cell(200, seed=6)
+    q = ProbeQuery(vol, normal_bias=0.0, view_bias=0.0)
+    K = 512
+    exact = _lookup(q, pts, nrm, wo)[:, 0]
+    sto = _lookup(q, pts, nrm, wo, K, make_sampler(len(pts) * K, 8, 0, 3))
+    mean, sd = sto.mean(1), sto.std(1, ddof=1)
+    assert np.all(np.isfinite(sto)) and exact.min() > 0.0
+    random = sd > 1e-5 * exact.max()
+    assert np.mean(random) > 0.9
+    z = (mean[random] - exact[random]) / (sd[random] / np.sqrt(K))
+    assert abs(np.sum(z * z) - z.size) < 5.0 * np.sqrt(2.0 * z.size), (np.sum(z * z), z.size)
+    assert np.max(np.abs(z)) < 5.5
+
+
+def test_fallback_follows_state_changes_and_an_empty_volume_reads_zero():
+    vol, dead = _dead_cell_volume(values=1.0)
+    q = ProbeQuery(vol, normal_bias=0.0, view_bias=0.0)
+    pts, nrm, wo = _points_in_centre_cell(50)
+    t0 = q.fallback_table()
+    vol.state.irradiance[dead] = 3.0
+    vol.state.states[:] = 0
+    vol.sync()
+    assert q.fallback_table() is not t0
+    for sampler in (None, make_sampler(len(pts), 3, 0, 3)):
+        E = _lookup(q, pts, nrm, wo, sampler=sampler)
+        assert np.all(E == 0.0)
+    vol.state.states[dead] = 1            # the cell's own probes wake up: the normal blend again
+    vol.sync(("states",))
+    assert np.allclose(_lookup(q, pts, nrm, wo)[:, 0], 3.0 * np.pi, rtol=1e-5)

@@ -13,6 +13,19 @@ reference GLSL; biases as in Majercik et al., JCGT 2021, Sec. 4):
 4. the irradiance texels are read bilinearly in the lookup direction (the
    normal, or any direction for glossy lookups) and blended by the weights.
 
+5. **fallback** (our choice; the DDGI papers and the RTXGI SDK return the
+   zero-weight blend, i.e. black): when the 8 weights sum to (nearly) zero --
+   all 8 probes inactive, as behind a thin wall whose probes were all
+   classified away -- the lookup reads the ``FALLBACK_PROBES`` active probes
+   nearest to the cell's centre instead, weighted by the wrap weight times
+   the inverse squared distance to ``x'``, *without* the visibility test
+   (the nearest active probes may lie outside the cell, where the Chebyshev
+   test of the cell's geometry means nothing). The candidate table (per cell,
+   built on the host with a k-d tree) is rebuilt only when the probe states
+   change (:meth:`ProbeQuery.fallback_table`); in the kernel it is
+   a second symbolic loop that only the lanes needing it enter. Only a volume
+   without any active probe returns 0.
+
 The result is the irradiance ``E`` (W/m^2); the stored texels hold ``E / pi``
 (see :mod:`dyngi.probes.volume`). Interpolation is linear in ``E`` (DDGI's
 optional perceptual "gamma" interpolation is not used: it biases the mean).
@@ -28,19 +41,25 @@ the same weights (which are still computed from the bilinearly filtered
 distance moments), so a consumer that averages many lookups -- the probe
 update, whose texels average hundreds of ray hits and ~1/(1-hysteresis)
 frames -- converges to the same probes while reading 1 instead of 32
-irradiance texels per lookup.
+irradiance texels per lookup. The fallback of step 5 draws its probe the same
+way, so the stochastic lookup keeps the filtered value as its expectation.
 """
 from __future__ import annotations
 
+import numpy as np
+
 from ..backend import dr, mi
 from ..sampling.octahedral import direction_to_texel_coords
-from .volume import ProbeVolume
+from .volume import ProbeVolume, upload
 
 WRAP_OFFSET = 0.2          # constant added to the wrap weight so back-side probes still count a little
 CHEBYSHEV_FLOOR = 0.05     # lower bound of the Chebyshev visibility factor
 CRUSH_THRESHOLD = 0.2      # weights below this are crushed towards zero
 MIN_WEIGHT = 1e-6
 ONE_MINUS_EPS = 0.99999994   # largest float32 below 1
+FALLBACK_WEIGHT = 1e-20      # a cell whose 8 weights sum to at most this falls back to the nearest active probes
+FALLBACK_PROBES = 4          # active probes per cell that the fallback reads
+FALLBACK_MIN_DISTANCE = 0.01  # floor of the fallback's inverse-distance weight, in units of the smallest spacing
 
 
 def bilinear_gather(atlas, probe, coords, texels: int, channels: int):
@@ -93,6 +112,59 @@ class ProbeQuery:
         self.visibility = bool(visibility)
         self.wrap = bool(wrap)
         self.unroll = bool(unroll)
+        self._fb_key = None      # the probe states the fallback table was built for
+        self._fb_table = None
+        self.fallback_table()    # built here, outside any kernel being recorded
+
+    def fallback_table(self):
+        """Per grid cell, the ``FALLBACK_PROBES`` active probes nearest to the cell's centre (flat UInt32,
+        ``cell * FALLBACK_PROBES + j``, cells numbered like probes with ``counts - 1``) for the cells whose
+        8 corners are all inactive; for the others their own live corners (used only where all of them
+        have zero trilinear weight).
+
+        Built on the host (k-d tree over the active probes' positions) and cached
+        until the probe states change; relocation alone (offsets under half a
+        cell) does not rebuild it, the kernel weighs the candidates at their
+        current positions. Same size every time, so kernels reading it do not
+        recompile. Fewer active probes than ``FALLBACK_PROBES``: the nearest one
+        repeats; none: every entry is probe 0, which is inactive and carries no
+        weight.
+        """
+        vol = self.volume
+        states = vol.state.states
+        if self._fb_table is not None and np.array_equal(self._fb_key, states):
+            return self._fb_table
+        key = states.copy()
+        g = vol.grid
+        cx, cy, cz = (int(c) - 1 for c in g.counts)
+        K = FALLBACK_PROBES
+        cell = np.arange(cx * cy * cz)
+        cc = np.stack([cell % cx, (cell // cx) % cy, cell // (cx * cy)], -1)
+        table = np.zeros((len(cell), K), np.uint32)
+        # cells with a live corner reach the fallback only when all live corners have zero trilinear
+        # weight (the point on a face of the cell): their candidates are those live corners themselves
+        corners = np.stack([g.probe_index(cc + [(c & 1), (c >> 1) & 1, (c >> 2) & 1]) for c in range(8)], 1)
+        live = states[corners] != 0
+        some = live.any(1)
+        rank = np.argsort(~live, axis=1, kind="stable")[:, :K]          # live corners first, in corner order
+        n_live = np.minimum(live.sum(1), K)
+        pick = np.where(np.arange(K)[None, :] < n_live[:, None], rank, rank[:, :1])   # repeat the first live one
+        table[some] = np.take_along_axis(corners, pick, 1)[some]
+        # cells without one: the active probes nearest to the cell's centre
+        act = np.flatnonzero(states != 0)
+        dead = np.flatnonzero(~some)
+        if len(act) and len(dead):
+            from scipy.spatial import cKDTree
+
+            centres = np.asarray(g.origin) + (cc[dead] + 0.5) * g.spacing_np
+            k = min(K, len(act))
+            _, nn = cKDTree(vol.positions()[act]).query(centres, k)
+            nn = np.asarray(nn).reshape(len(dead), k)
+            table[dead, :k] = act[nn]
+            table[dead, k:] = act[nn[:, :1]]
+        self._fb_table = upload(table, mi.UInt32)
+        self._fb_key = key
+        return self._fb_table
 
     def irradiance(self, pos, normal, wo, direction=None, active=True, sampler=None):
         """Irradiance ``E`` (Color3f) at ``pos`` for a surface with ``normal`` seen from ``wo`` (towards viewer).
@@ -168,12 +240,29 @@ class ProbeQuery:
         def corner(c):
             return corner_weight(c & 1, (c >> 1) & 1, (c >> 2) & 1)
 
+        # -- fallback (step 5): the active probes nearest to the cell, no visibility test --
+        table = self.fallback_table()
+        cell = base.x + (nx - 1) * (base.y + (ny - 1) * base.z)
+
+        def fallback_weight(j, need):
+            """Index and weight of fallback candidate ``j`` of the cell (lanes in ``need`` only)."""
+            probe = dr.gather(mi.UInt32, table, cell * FALLBACK_PROBES + j, need)
+            pdata = dr.gather(mi.Vector4f, dev.probe_data, probe, need)
+            ppos = mi.Point3f(pdata.x, pdata.y, pdata.z)
+            # inverse squared distance in units of the spacing
+            w = (scale * scale) / dr.maximum(dr.squared_norm(ppos - bpos), (FALLBACK_MIN_DISTANCE * scale) ** 2)
+            if self.wrap:
+                to_probe = ppos - pos
+                cos = dr.dot(to_probe, normal) * dr.rsqrt(dr.maximum(dr.squared_norm(to_probe), 1e-20))
+                w *= dr.square((cos + 1.0) * 0.5) + WRAP_OFFSET
+            return probe, dr.select(need & (pdata.w > 0.0), w, 0.0)
+
         def irradiance_of(probe, w):
             probe = dr.select(w > 0.0, probe, 0)      # zero-weight corners read a cached line
             return bilinear_gather(dev.irradiance, probe, irr_coords, vol.irradiance_texels, 3)
 
         if sampler is not None:
-            return self._stochastic(corner, irr_coords, active, sampler)
+            return self._stochastic(corner, fallback_weight, irr_coords, active, sampler)
         if self.unroll:
             E = mi.Color3f(0.0)
             wsum = mi.Float(0.0)
@@ -188,23 +277,41 @@ class ProbeQuery:
                 return c + 1, dr.fma(irradiance_of(probe, w), w, E), wsum + w
             _, E, wsum = dr.while_loop((mi.UInt32(0), mi.Color3f(0.0), mi.Float(0.0)),
                                        lambda c, E, wsum: c < 8, body, labels=("corner", "E", "wsum"))
-        return dr.select(wsum > 0.0, E * (dr.pi / dr.maximum(wsum, 1e-20)), mi.Color3f(0.0))
+        # lanes whose 8 corners carry no weight replace the blend by the fallback's (only they loop)
+        need = active & (wsum <= FALLBACK_WEIGHT)
 
-    def _stochastic(self, corner, irr_coords, active, sampler):
-        """One texel of one probe: the corner by weighted reservoir sampling, the texel by its bilinear weight."""
+        def fb_body(j, E, wsum):
+            probe, w = fallback_weight(j, need)
+            return j + 1, dr.fma(irradiance_of(probe, w), w, E), wsum + w
+        _, E_fb, wsum_fb = dr.while_loop((mi.UInt32(0), mi.Color3f(0.0), mi.Float(0.0)),
+                                         lambda j, E, wsum: need & (j < FALLBACK_PROBES), fb_body,
+                                         labels=("fallback", "E", "wsum"))
+        E = dr.select(need, E_fb, E)
+        wsum = dr.select(need, wsum_fb, wsum)
+        return dr.select(wsum > 0.0, E * (dr.pi / dr.maximum(wsum, 1e-30)), mi.Color3f(0.0))
+
+    def _stochastic(self, corner, fallback_weight, irr_coords, active, sampler):
+        """One texel of one probe: the corner by weighted reservoir sampling, the texel by its bilinear weight.
+
+        Lanes whose corners carry no weight run the same reservoir over the
+        fallback candidates, from the same uniform number (a fresh one for them).
+        """
         vol = self.volume
         u_probe = sampler.next_1d(active)
         u_texel = sampler.next_2d(active)
 
-        def body(c, wsum, chosen, u):
-            probe, w = corner(c)
+        def reservoir_step(probe, w, wsum, chosen, u):
             wsum = wsum + w
             p = dr.select(wsum > 0.0, w / dr.maximum(wsum, 1e-30), 0.0)   # P(replace the choice so far)
             take = u < p
             chosen = dr.select(take, probe, chosen)
             # rescale u to a fresh uniform number on the branch taken (one uniform serves all 8 draws)
             u = dr.select(take, u / dr.maximum(p, 1e-30), (u - p) / dr.maximum(1.0 - p, 1e-30))
-            return c + 1, wsum, chosen, dr.clip(u, 0.0, ONE_MINUS_EPS)
+            return wsum, chosen, dr.clip(u, 0.0, ONE_MINUS_EPS)
+
+        def body(c, wsum, chosen, u):
+            probe, w = corner(c)
+            return (c + 1, *reservoir_step(probe, w, wsum, chosen, u))
 
         if self.unroll:
             state = (mi.UInt32(0), mi.Float(0.0), mi.UInt32(0), mi.Float(u_probe))
@@ -215,6 +322,18 @@ class ProbeQuery:
             _, wsum, chosen, _ = dr.while_loop(
                 (mi.UInt32(0), mi.Float(0.0), mi.UInt32(0), mi.Float(u_probe)),
                 lambda c, wsum, chosen, u: c < 8, body, labels=("corner", "wsum", "chosen", "u"))
+        # -- fallback (step 5 of the module docstring), only for the lanes that need it --
+        need = active & (wsum <= FALLBACK_WEIGHT)
+
+        def fb_body(j, wsum, chosen, u):
+            probe, w = fallback_weight(j, need)
+            return (j + 1, *reservoir_step(probe, w, wsum, chosen, u))
+        _, wsum_fb, chosen_fb, _ = dr.while_loop(
+            (mi.UInt32(0), mi.Float(0.0), mi.UInt32(0), mi.Float(u_probe)),
+            lambda j, wsum, chosen, u: need & (j < FALLBACK_PROBES), fb_body,
+            labels=("fallback", "wsum", "chosen", "u"))
+        wsum = dr.select(need, wsum_fb, wsum)
+        chosen = dr.select(need, chosen_fb, chosen)
         t = vol.irradiance_texels
         x = irr_coords.x - 0.5
         y = irr_coords.y - 0.5
