@@ -170,15 +170,18 @@ def test_steady_state_frame_compiles_no_kernels(backend):
 
     sc = load_scene("cornell-moving-light")
     tech = create_technique("path", sc, {"spp": 1})
-    run_sequence(sc, tech, 3, (16, 12), seed=1, keep_images=False)  # warm-up
     dr.set_flag(dr.JitFlag.KernelHistory, True)
-    dr.kernel_history()  # clears
-    run_sequence(sc, tech, 3, (16, 12), seed=1, t0=0.5, keep_images=False)
-    hist = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
-    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    try:
+        dr.kernel_history()  # clears
+        run_sequence(sc, tech, 3, (16, 12), seed=1, keep_images=False)  # warm-up
+        seen = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+        run_sequence(sc, tech, 3, (16, 12), seed=2, t0=0.5, keep_images=False)
+        hist = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
     assert hist, "no kernels ran?"
-    misses = [k for k in hist if not k.get("cache_hit", False)]
-    assert not misses, f"{len(misses)} kernels compiled in steady state"
+    # by hash, not `cache_hit`: the on-disk kernel cache turns a per-frame recompile into a "hit"
+    assert hist <= seen, f"{len(hist - seen)} kernels compiled in steady state"
 
 
 def test_rays_counted(backend):
@@ -320,3 +323,61 @@ def test_emitter_subset_shadow_mask_and_receiver_cull(backend, single):
     _, w_c, traced_c = sample_traced(lights, sc.mi_scene, si, u, active)
     assert np.array_equal(np.asarray(traced_c), np.asarray(active) & pdf_ok)
     assert np.allclose(np.asarray(w_c), wa, rtol=1e-5, atol=1e-7)
+
+
+def test_split_render_is_bitwise_the_full_and_the_indirect_only_render(backend):
+    """One path loop gives both images: the full one bit-identical to the plain render, the indirect one to
+    the ``indirect_only`` render (same random numbers), and indirect <= full per pixel."""
+    from dyngi.scene import load_scene
+    from dyngi.techniques.base import to_image
+    from dyngi.techniques.path import render_paths, render_paths_split
+
+    sc = load_scene("glossy-floor")
+    sc.at(0.3)
+    cam, res = sc.camera(0.3), (24, 18)
+    L, L_ind, rays = render_paths_split(sc, cam, res, 4, 9, 2, 8, 5)
+    full, rays_a = render_paths(sc, cam, res, 4, 9, 2, 8, 5)
+    ind, rays_b = render_paths(sc, cam, res, 4, 9, 2, 8, 5, indirect_only=True)
+    a, ai = to_image(L, res), to_image(L_ind, res)
+    assert np.array_equal(a, to_image(full, res)) and np.array_equal(ai, to_image(ind, res))
+    assert int(rays[0]) == int(rays_a[0]) == int(rays_b[0])
+    assert np.all(ai <= a * (1 + 1e-5) + 1e-7)
+    assert 0.05 * a.mean() < ai.mean() < 0.9 * a.mean()
+
+
+def test_technique_returns_indirect_and_accumulates_it(backend):
+    """``path`` returns FrameResult.indirect (on by default), accumulated like the image; off: None."""
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+
+    sc = load_scene("cornell-static")
+    res = (24, 18)
+    off = create_technique("path", sc, {"indirect": False}).step(Frame(0, 0.0, sc.camera(0.0), res, seed=1))
+    assert off.indirect is None
+    tech = create_technique("path", sc, {"spp": 4, "max_depth": 8})
+    for i in range(8):
+        r = tech.step(Frame(i, 0.0, sc.camera(0.0), res, seed=1, static=i > 0))
+    assert r.stats["accumulated_frames"] == 8 and r.indirect is not None
+    assert np.all(r.indirect <= r.image * (1 + 1e-5) + 1e-6)
+    # 32 spp accumulated vs 16 x 16 spp of the indirect-only estimator: same mean image (z-test)
+    ours = np.stack([_ours(sc, res, 16, i, 8, seed0=910, indirect_only=True) for i in range(16)])
+    acc = []
+    for k in range(8):
+        tk = create_technique("path", sc, {"spp": 16, "max_depth": 8})
+        acc.append(tk.step(Frame(0, 0.0, sc.camera(0.0), res, seed=500 + k)).indirect)
+    ok, info = z_test_images(np.stack(acc), ours)
+    assert ok, info
+
+
+def test_budgeted_first_frame_returns_indirect(backend):
+    """With a ray budget, frame 0 mixes a pilot and the trace: the indirect image is mixed the same way."""
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+
+    sc = load_scene("cornell-static")
+    res = (16, 12)
+    tech = create_technique("path", sc, {"max_depth": 6})
+    r = tech.step(Frame(0, 0.0, sc.camera(0.0), res, seed=2, ray_budget=16 * 12 * 40))
+    assert r.stats["spp"] > 1 and r.indirect is not None
+    assert np.all(np.isfinite(r.indirect)) and np.all(r.indirect <= r.image * (1 + 1e-5) + 1e-6)
+    assert 0.0 < r.indirect.mean() < r.image.mean()

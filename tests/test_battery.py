@@ -1,0 +1,552 @@
+"""Test battery over the technique registry (issue 11, item 8).
+
+Every technique in :func:`dyngi.techniques.technique_names` -- present and
+future -- gets, with no per-technique test code:
+
+* ``test_furnace``: closed diffuse enclosures (a sphere and an ellipsoid) with
+  albedo ``a`` and emission ``e``; the exact radiance everywhere is
+  ``e / (1 - a)`` for an estimator of unbounded depth, and the geometric
+  series ``e * (1 - a^D) / (1 - a)`` when the technique's resolved parameters
+  carry ``max_depth = D`` (Mitsuba's vertex count: D = 1 is emission only);
+* ``test_finite_fast`` / ``test_finite_slow``: no NaN/Inf in ``image`` or
+  ``indirect`` over 200 frames at 32x24 on three varied built-in scenes
+  (fast suite) and on every built-in scene (``@pytest.mark.slow``);
+* ``test_steady_state_compiles_nothing``: after a warm-up, frames of an
+  animated scene compile no new Dr.Jit kernel (``dr.kernel_history()``);
+* ``test_unknown_parameter`` / ``test_bad_values``: one ``DyngiError`` naming
+  the offending parameter (and, for an unknown name, every valid one); bad
+  values are generated from each :class:`~dyngi.techniques.Param` (wrong
+  type, non-finite, outside ``min``/``max``, not one of ``choices``);
+* ``test_bit_identical_reruns``: two fresh instances, same seed, same frames
+  on the CPU give bit-identical images (and indirect images);
+* ``test_indirect_of_a_directly_lit_plane_is_zero``: ``FrameResult.indirect``
+  means light that reflected at least once before the primary vertex (the
+  indirect reference's definition): ~0 on a single plane under an area light,
+  a sun, a point light and a sky. The furnace checks the indirect image too
+  (its value: the full one minus ``e`` and ``a e``).
+
+Convention: class attributes a technique may declare (read with ``getattr``;
+none is required)
+-------------------------------------------------------------------------------
+``BATTERY_PARAMS: dict``   cheap settings (small probe grids, few rays, low
+                           spp) used by every battery test; default ``{}``.
+``FURNACE: bool``          False when the furnace test does not apply to the
+                           technique's estimator; default True.
+``FURNACE_REASON: str``    required (non-empty) when ``FURNACE`` is False; it
+                           is the skip message. The battery fails otherwise.
+``FURNACE_PARAMS: dict``   settings for the analytic tests (furnace, lit plane) on
+                           top of BATTERY_PARAMS (e.g. a low hysteresis so probes
+                           converge in ``FURNACE_FRAMES``); default ``{}``.
+``FURNACE_FRAMES: int``    frames rendered before the image is checked
+                           (static scene); default 32.
+``FURNACE_TOL: float``     relative tolerance on the image mean; default 0.02
+                           (a technique with a known, documented bias, such
+                           as a quantised encoding, declares a larger one).
+``DETERMINISTIC: bool``    True when the output does not depend on the seed
+                           (the rerun test then skips its "another seed
+                           differs" check); default False.
+``HAS_INDIRECT``           (base class, for ``compare --indirect``) checked
+                           too: True -> every frame has ``indirect``, False -> none.
+
+Until a technique module declares these itself, ``_FALLBACK`` below gives the
+values for the techniques registered when this battery was written; a class
+attribute always wins over it.
+
+Measured (2-core box shared with other jobs, load average 3-4, 2026-12-01, 4
+techniques registered): the fast part of this module 25-40 s wall
+(``pytest -q tests/test_battery.py``), ~6-9 s per technique, most of it the
+3 x 200 frames at 32x24 (1-2.3 s per scene); the slow part (the 10 other
+built-in scenes) 7 min 17 s (``-m slow``).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dyngi.backend import dr
+from dyngi.errors import DyngiError
+from dyngi.scene import builtin_names, load_scene
+from dyngi.techniques import Frame, create_technique, get_technique, technique_names
+
+NAMES = technique_names()
+RES = (32, 24)
+N_FRAMES = 200
+FAST_SCENES = ("sky-pit", "maze", "glossy-floor")
+"""Varied: sun + sky (directional + constant environment); point + area lights with a walking camera and
+heavy occlusion; glossy (rough plastic, GGX alpha 0.04) floor under sky + area light, moving object."""
+
+_FALLBACK = {
+    "path": {"BATTERY_PARAMS": {"spp": 1, "max_depth": 4},
+             "FURNACE_PARAMS": {"spp": 4, "max_depth": -1}},
+    "ddgi": {"BATTERY_PARAMS": {"probe_counts": "3", "rays_per_probe": 16, "warmup": 1},
+             "FURNACE_PARAMS": {"probe_counts": "4", "rays_per_probe": 64, "hysteresis": 0.5,
+                                "irradiance_gamma": 1.0, "direct_samples": 4}},
+    "qddgi": {"BATTERY_PARAMS": {"probe_counts": "3", "rays_per_probe": 16, "warmup": 1},
+              "FURNACE_PARAMS": {"probe_counts": "4", "rays_per_probe": 64, "hysteresis": 0.5,
+                                 "update_offscreen": True, "direct_samples": 4},
+              "FURNACE_TOL": 0.03},     # round-to-lowest quantised storage biases low (ddgi.py: Bias)
+    "probes-reference": {"BATTERY_PARAMS": {"probe_counts": "3", "texels": 4, "rays_per_texel": 2},
+                         "FURNACE_PARAMS": {"probe_counts": "4", "texels": 8, "rays_per_texel": 8,
+                                            "direct_samples": 4}},
+}
+_DEFAULTS = {"BATTERY_PARAMS": {}, "FURNACE": True, "FURNACE_REASON": "", "FURNACE_PARAMS": {},
+             "FURNACE_FRAMES": 32, "FURNACE_TOL": 0.02, "DETERMINISTIC": False}
+
+
+def attr(name: str, key: str):
+    """Battery attribute ``key`` of technique ``name``: class attribute, else the fallback, else the default."""
+    from dyngi.techniques import Technique
+
+    for c in get_technique(name).__mro__:      # declared by the technique or a parent, not the base class
+        if c is Technique:
+            break
+        if key in vars(c):
+            return vars(c)[key]
+    return _FALLBACK.get(name, {}).get(key, _DEFAULTS[key])
+
+
+def make(name: str, scene, **extra):
+    return create_technique(name, scene, {**attr(name, "BATTERY_PARAMS"), **extra})
+
+
+def run_frames(tech, scene, frames, res=RES, seed=0, start=0, check=None):
+    """Step ``tech`` over frames ``start .. start+frames-1`` of the animated ``scene``; ``check(i, result)``."""
+    prev = None
+    r = None
+    for i in range(start, start + frames):
+        t = scene.frame_time(i)
+        scene.at(t)
+        sig = scene.signature(t)
+        r = tech.step(Frame(i, t, scene.camera(t), res, seed=seed, static=(sig == prev)))
+        prev = sig
+        if check is not None:
+            check(i, r)
+    return r
+
+
+# -- furnace ---------------------------------------------------------------------------
+
+FURNACES = {
+    # name: (albedo, emission); expected e / (1 - a)
+    "sphere": (0.6, 0.3),      # 0.75
+    "ellipsoid": (0.45, 0.55),  # 1.0
+}
+"""Smooth enclosures on purpose: in a box, NEE at the primary hit without MIS (the DDGI family's direct
+light) samples the wall next to a corner with a 1/r^2 weight of near-infinite variance, so the image
+mean is too noisy to test at a few frames (measured: 10-15% per-pixel spread after 32 frames)."""
+
+
+def furnace_scene(kind: str):
+    """A closed diffuse enclosure of uniform albedo a and emission e, camera and probe box inside."""
+    from dyngi.scene.builder import SceneBuilder
+    from dyngi.scene.camera import Camera
+    from dyngi.scene.geometry import diffuse, uv_sphere
+
+    a, e = FURNACES[kind]
+    b = SceneBuilder(f"battery-furnace-{kind}")
+    V, F = uv_sphere((0, 0, 0), 1.0, 24, 48, inward=True)
+    if kind == "sphere":
+        cam = Camera((0.0, 0.0, 0.5), (0.0, 0.0, -1.0), (0, 1, 0), 60.0)
+    else:
+        V = V * np.array([1.6, 0.8, 1.1])
+        cam = Camera((0.4, 0.1, 0.5), (-1.0, -0.3, -0.8), (0, 1, 0), 70.0)
+    b.mesh("shell", (V, F), diffuse((a, a, a)), (e, e, e))
+    return b.build(cam, f"battery furnace ({kind})", duration=1.0,
+                   probe_box=((-0.5, -0.35, -0.45), (0.5, 0.35, 0.45)), probe_counts=(4, 4, 4))
+
+
+FURNACE_AVERAGE = 8
+"""The furnace checks the mean of the last this many frames (at most FURNACE_FRAMES)."""
+
+
+def furnace_expected(a: float, e: float, max_depth) -> float:
+    """e * sum_{k < D} a^k (D = max_depth, vertices as in Mitsuba); e / (1 - a) for D = -1 / absent."""
+    if max_depth is None or max_depth < 0:
+        return e / (1.0 - a)
+    return e * (1.0 - a ** max_depth) / (1.0 - a)
+
+
+def furnace_indirect_expected(a: float, e: float, max_depth) -> float:
+    """The indirect part (vertices >= 3): the full value minus e (emission) and a e (direct light)."""
+    direct_depth = 2 if max_depth is None or max_depth < 0 else min(max_depth, 2)
+    return furnace_expected(a, e, max_depth) - furnace_expected(a, e, direct_depth)
+
+
+@pytest.mark.parametrize("kind", sorted(FURNACES))
+@pytest.mark.parametrize("name", NAMES)
+def test_furnace(backend, name, kind):
+    if not attr(name, "FURNACE"):
+        reason = attr(name, "FURNACE_REASON")
+        assert isinstance(reason, str) and reason.strip(), \
+            f"technique '{name}' sets FURNACE = False without a FURNACE_REASON"
+        pytest.skip(f"furnace does not apply to '{name}': {reason}")
+    sc = furnace_scene(kind)
+    tech = make(name, sc, **attr(name, "FURNACE_PARAMS"))
+    a, e = FURNACES[kind]
+    want = furnace_expected(a, e, tech.params.get("max_depth"))
+    frames = attr(name, "FURNACE_FRAMES")
+    last = []
+    for i in range(frames):      # static scene: progressive techniques accumulate
+        sc.at(0.0)
+        r = tech.step(Frame(i, 0.0, sc.camera(0.0), (24, 16), seed=5, static=i > 0))
+        assert np.all(np.isfinite(r.image)), f"{name} furnace-{kind}: non-finite values in frame {i}"
+        last = (last + [(r.image, r.indirect)])[-FURNACE_AVERAGE:]
+    img = np.mean([x for x, _ in last], axis=0)  # the mean of the last frames: less per-frame noise
+    tol = attr(name, "FURNACE_TOL")
+    assert abs(img.mean() / want - 1.0) < tol, f"{name} furnace-{kind}: mean {img.mean():.4f}, expected {want:.4f}"
+    if last[-1][1] is not None:   # indirect (vertices >= 3): the full value minus emission and direct light
+        ind = np.mean([y for _, y in last], axis=0)
+        want_ind = furnace_indirect_expected(a, e, tech.params.get("max_depth"))
+        assert abs(ind.mean() / want_ind - 1.0) < tol, \
+            f"{name} furnace-{kind}: indirect mean {ind.mean():.4f}, expected {want_ind:.4f}"
+    # spatially: every 6x4-pixel block's mean within the tolerance plus 4 sigma of its pixel noise
+    blocks = img.mean(-1).reshape(4, 4, 4, 6).mean(axis=(1, 3))
+    slack = tol * want + 4.0 * img.mean(-1).std() / np.sqrt(24)
+    worst = float(np.max(np.abs(blocks - want)))
+    assert worst < slack, f"{name} furnace-{kind}: a block mean is off by {worst:.4f} (allowed {slack:.4f})"
+
+
+@pytest.mark.parametrize("depth", [2, 3])
+@pytest.mark.parametrize("name", NAMES)
+def test_furnace_depth_limited(backend, name, depth):
+    """Techniques with a ``max_depth`` parameter: the furnace gives the truncated geometric series."""
+    if "max_depth" not in get_technique(name).PARAMS:
+        pytest.skip(f"'{name}' has no max_depth parameter")
+    if not attr(name, "FURNACE"):
+        pytest.skip(f"furnace does not apply to '{name}': {attr(name, 'FURNACE_REASON')}")
+    sc = furnace_scene("sphere")
+    tech = make(name, sc, **{**attr(name, "FURNACE_PARAMS"), "max_depth": depth})
+    a, e = FURNACES["sphere"]
+    want = furnace_expected(a, e, depth)
+    frames = []
+    for i in range(attr(name, "FURNACE_FRAMES")):
+        sc.at(0.0)
+        frames.append(tech.step(Frame(i, 0.0, sc.camera(0.0), (24, 16), seed=5, static=i > 0)))
+    img = np.mean([r.image for r in frames[-FURNACE_AVERAGE:]], axis=0)
+    assert abs(img.mean() / want - 1.0) < attr(name, "FURNACE_TOL"), (name, depth, img.mean(), want)
+    if frames[-1].indirect is not None:
+        ind = np.mean([r.indirect for r in frames[-FURNACE_AVERAGE:]], axis=0)
+        want_ind = furnace_indirect_expected(a, e, depth)
+        assert abs(ind.mean() - want_ind) < attr(name, "FURNACE_TOL") * want, (name, depth, ind.mean(), want_ind)
+    # and it is not the unbounded value (the depth is honoured)
+    assert abs(img.mean() - furnace_expected(a, e, None)) > 0.5 * (furnace_expected(a, e, None) - want)
+
+
+# -- indirect light of a directly lit plane ------------------------------------------------------
+
+PLANE_LIGHTS = ("area", "sun", "point", "sky")
+PLANE_INDIRECT_TOL = 0.05
+"""``FrameResult.indirect`` of a single plane may be at most this fraction of the image mean (exactly 0 in
+truth; probe techniques at coarse texels leak a little over the horizon: probes-reference at 8 texels,
+measured 1-2.4%, at 4 texels 11%)."""
+
+_KNOWN_FAILURES = {
+    ("ddgi", "sky"): "direct='sky' (default) sends the environment through the probes, so FrameResult.indirect "
+                     "contains direct skylight (plane: 75% of the image; sky-pit: +27%, glossy-floor: 2.6x the "
+                     "indirect reference). Reported to the lead (H5); delete this entry once fixed.",
+}
+_KNOWN_FAILURES[("qddgi", "sky")] = _KNOWN_FAILURES[("ddgi", "sky")]
+_KNOWN_FAILURES[("probes-reference", "sky")] = _KNOWN_FAILURES[("ddgi", "sky")]
+
+
+def plane_scene(light: str):
+    """One diffuse plane under one kind of light: no point of the plane sees another, so no light reaches
+    the camera after more than one reflection: the indirect image (vertices >= 3) is exactly 0."""
+    from dyngi.scene.builder import SceneBuilder
+    from dyngi.scene.camera import Camera
+    from dyngi.scene.geometry import diffuse, quad
+
+    b = SceneBuilder(f"battery-plane-{light}")
+    b.mesh("floor", quad((0, 0, 0), (0, 0, 2), (2, 0, 0)), diffuse((0.8, 0.7, 0.6)))
+    if light == "area":      # black emitter: it reflects nothing back
+        b.mesh("light", quad((0.3, 1.2, 0.0), (0.3, 0, 0), (0, 0, 0.3)), diffuse((0, 0, 0)), (8.0, 8.0, 8.0))
+    elif light == "sun":
+        b.add("sun", {"type": "directional", "direction": [0.3, -1.0, 0.2],
+                      "irradiance": {"type": "rgb", "value": [3.0, 3.0, 3.0]}})
+    elif light == "point":
+        b.add("lamp", {"type": "point", "position": [0.2, 0.8, 0.1],
+                       "intensity": {"type": "rgb", "value": [2.0, 2.0, 2.0]}})
+    else:
+        b.add("sky", {"type": "constant", "radiance": {"type": "rgb", "value": [0.4, 0.5, 0.7]}})
+    return b.build(Camera((0, 1.5, 2.5), (0, 0, 0), (0, 1, 0), 50.0), f"plane under {light} light", duration=1.0,
+                   probe_box=((-1.5, 0.1, -1.5), (1.5, 1.0, 1.5)), probe_counts=(4, 3, 4))
+
+
+def _plane_cases():
+    for name in NAMES:
+        for light in PLANE_LIGHTS:
+            reason = _KNOWN_FAILURES.get((name, light))
+            marks = [pytest.mark.xfail(reason=reason, strict=True)] if reason else []
+            yield pytest.param(name, light, marks=marks, id=f"{name}-{light}")
+
+
+@pytest.mark.parametrize("name, light", list(_plane_cases()))
+def test_indirect_of_a_directly_lit_plane_is_zero(backend, name, light):
+    """What a technique returns as ``FrameResult.indirect`` is light that reflected at least once before the
+    primary vertex (the indirect reference's definition, ``compare --indirect``): 0 on a single plane."""
+    sc = plane_scene(light)
+    tech = make(name, sc, **attr(name, "FURNACE_PARAMS"))
+    r = None
+    for i in range(16):
+        sc.at(0.0)
+        r = tech.step(Frame(i, 0.0, sc.camera(0.0), RES, seed=5, static=i > 0))
+    if r.indirect is None:
+        pytest.skip(f"'{name}' returns no indirect image")
+    assert r.image.mean() > 0.05, "the plane is not lit?"
+    ratio = float(r.indirect.mean() / r.image.mean())
+    assert np.all(r.indirect >= -1e-6) and ratio < PLANE_INDIRECT_TOL, \
+        f"{name} under {light} light: indirect is {ratio:.1%} of the image (truth: 0)"
+
+
+def test_furnace_expected_values():
+    assert furnace_expected(0.5, 0.5, None) == 1.0
+    assert furnace_expected(0.5, 0.5, 3) == pytest.approx(1 - 0.5 ** 3)
+    assert furnace_expected(0.6, 0.3, 1) == pytest.approx(0.3)
+    assert furnace_indirect_expected(0.5, 0.5, None) == pytest.approx(0.25)
+    assert furnace_indirect_expected(0.5, 0.5, 3) == pytest.approx(0.125)
+    assert furnace_indirect_expected(0.5, 0.5, 2) == 0.0 and furnace_indirect_expected(0.5, 0.5, 1) == 0.0
+
+
+# -- no NaN / Inf --------------------------------------------------------------------------
+
+def _finite_run(name: str, scene_name: str):
+    sc = load_scene(scene_name)
+    tech = make(name, sc)
+    bad = []
+
+    def check(i, r):
+        if r.image.shape != (RES[1], RES[0], 3):
+            bad.append((i, f"image shape {r.image.shape}"))
+        if not np.all(np.isfinite(r.image)):
+            bad.append((i, f"{int(np.sum(~np.isfinite(r.image)))} non-finite image values"))
+        if r.indirect is not None and not np.all(np.isfinite(r.indirect)):
+            bad.append((i, f"{int(np.sum(~np.isfinite(r.indirect)))} non-finite indirect values"))
+
+    has = getattr(type(tech), "HAS_INDIRECT", None)
+
+    def check_indirect(i, r):
+        check(i, r)
+        if has is not None and (r.indirect is not None) != has:
+            bad.append((i, f"HAS_INDIRECT = {has} but FrameResult.indirect is {type(r.indirect).__name__}"))
+        if r.indirect is not None and r.indirect.shape != r.image.shape:
+            bad.append((i, f"indirect shape {r.indirect.shape}"))
+
+    run_frames(tech, sc, N_FRAMES, check=check_indirect)
+    assert not bad, f"{name} on {scene_name}: first bad frames {bad[:5]}"
+
+
+@pytest.mark.parametrize("scene_name", FAST_SCENES)
+@pytest.mark.parametrize("name", NAMES)
+def test_finite_fast(backend, name, scene_name):
+    _finite_run(name, scene_name)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene_name", [s for s in builtin_names() if s not in FAST_SCENES])
+@pytest.mark.parametrize("name", NAMES)
+def test_finite_slow(backend, name, scene_name):
+    _finite_run(name, scene_name)
+
+
+# -- no recompiles in steady state ------------------------------------------------------------
+
+WARMUP_FRAMES = 12     # covers one periodic event at frame 8 (e.g. probe re-classification)
+CHECK_FRAMES = 8       # ... and the next one at frame 16
+
+
+def jit_hashes() -> set:
+    """Hashes of the JIT kernels launched since the last call (clears the history)."""
+    return {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_steady_state_compiles_nothing(backend, name):
+    """An animated scene (moving light), a new frame index each frame: after the warm-up every kernel a
+    frame launches is one launched before. Kernels are compared by hash, not by ``cache_hit``: Dr.Jit's
+    on-disk kernel cache makes a kernel recompiled every frame a "cache hit" from the second test run on."""
+    sc = load_scene("cornell-moving-light")
+    tech = make(name, sc)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        seen, new, ran = set(), [], 0
+
+        def check(i, r):
+            nonlocal ran
+            h = jit_hashes()
+            ran += len(h)
+            if i >= WARMUP_FRAMES:
+                new.extend((i, k) for k in sorted(h - seen))
+            seen.update(h)
+
+        jit_hashes()   # clears
+        run_frames(tech, sc, WARMUP_FRAMES + CHECK_FRAMES, check=check)
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert ran > 0, "no kernels ran?"
+    assert not new, f"{name}: {len(new)} kernels compiled in steady state (frame, hash): {new[:4]}"
+
+
+# -- parameter errors --------------------------------------------------------------------------
+
+def test_registry_entries_are_well_formed():
+    for name in NAMES:
+        cls = get_technique(name)
+        assert cls.name == name and cls.description, name
+        assert isinstance(cls.PARAMS, dict)
+        for key in ("BATTERY_PARAMS", "FURNACE_PARAMS"):
+            unknown = set(attr(name, key)) - set(cls.PARAMS)
+            assert not unknown, f"{name}.{key} names unknown parameters {sorted(unknown)}"
+    with pytest.raises(DyngiError, match="no-such-technique"):
+        get_technique("no-such-technique")
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_unknown_parameter(backend, name):
+    sc = load_scene("furnace")
+    with pytest.raises(DyngiError) as ei:
+        create_technique(name, sc, {"no_such_param_xyz": 1})
+    msg = str(ei.value)
+    assert "no_such_param_xyz" in msg
+    missing = [k for k in get_technique(name).PARAMS if k not in msg]
+    assert not missing, f"the error does not list the valid parameters {missing}: {msg}"
+
+
+def bad_values(param) -> list:
+    """Values ``param`` must reject: wrong type, non-finite, out of range, not a choice (strings as from --set)."""
+    d = param.default
+    out = []
+    if isinstance(d, bool):
+        out += ["maybe", "2"]
+    elif isinstance(d, int):
+        out += ["many", "1.5", 1.5]
+    elif isinstance(d, float):
+        out += ["lots", "nan", float("inf")]
+    if param.choices is not None:
+        out.append("no-such-choice" if isinstance(d, str) else object())
+    if param.min is not None and not isinstance(d, bool):
+        out += [type(d)(param.min - 1), str(type(d)(param.min - 1))]
+    if param.max is not None and not isinstance(d, bool):
+        out += [type(d)(param.max + 1), str(type(d)(param.max + 1))]
+    return out
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_bad_values(backend, name):
+    sc = load_scene("furnace")
+    cls = get_technique(name)
+    tried = 0
+    for key, param in cls.PARAMS.items():
+        for v in bad_values(param):
+            with pytest.raises(DyngiError) as ei:
+                create_technique(name, sc, {key: v})
+            assert key in str(ei.value), f"{name}: error for {key}={v!r} does not name the parameter: {ei.value}"
+            tried += 1
+    assert tried > 0 or not cls.PARAMS
+
+
+# -- bit-identical reruns -------------------------------------------------------------------
+
+RERUN_RES = (160, 120)
+"""Large enough for per-pixel kernels to run on both threads. An order-dependent float atomic sum shows
+at any size: measured (llvm, 2 threads), ``dr.scatter_reduce(Add)`` of 4k-1M float32 values into 4 slots
+gave 2-16 different results in 30 identical runs."""
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_bit_identical_reruns(backend, name):
+    """Two fresh instances with the same seed over the same frames of an animated scene: identical output;
+    a third with another seed differs (unless the class declares ``DETERMINISTIC = True``)."""
+    sc = load_scene("cornell-moving-box")
+    outs = []
+    for seed in (11, 11, 12):
+        tech = make(name, sc)
+        frames = []
+        run_frames(tech, sc, 4, res=RERUN_RES, seed=seed,
+                   check=lambda i, r: frames.append((r.image.copy(), r.indirect)))
+        outs.append(frames)
+    other = outs.pop()
+    if not attr(name, "DETERMINISTIC"):
+        assert any(not np.array_equal(a, b) for (a, _), (b, _) in zip(outs[0], other)), \
+            f"{name}: another seed gives the same images (is the seed used?); declare DETERMINISTIC = True if so"
+    for i, ((a, ai), (b, bi)) in enumerate(zip(*outs)):
+        diff = int(np.sum(a != b))
+        assert diff == 0, f"{name} frame {i}: {diff} values differ between two runs with the same seed"
+        assert (ai is None) == (bi is None)
+        if ai is not None:
+            assert np.array_equal(ai, bi), f"{name} frame {i}: indirect differs between two runs"
+
+
+# -- the battery can fail: deliberately broken techniques ----------------------------------------
+
+def _broken_technique(mode: str, **attrs):
+    from dyngi.backend import mi
+    from dyngi.techniques import FrameResult, Param, Technique
+    from dyngi.techniques.base import to_image
+
+    class Broken(Technique):
+        name = "battery-selftest"
+        description = f"deliberately broken ({mode})"
+        PARAMS = {"level": Param(1.0, "image value", min=0.0)}
+
+        def step(self, frame):
+            n = frame.res[0] * frame.res[1]
+            level = self.params["level"]
+            if mode == "literal":      # a frame-varying Python scalar baked into the kernel
+                level *= 1.0 + 1e-6 * frame.index
+            x = dr.fma(dr.arange(mi.Float, n), 1e-30, level)     # == level in float32, not a literal
+            v = mi.Color3f(x, x, x)
+            dr.eval(v)
+            img = to_image(v, frame.res)
+            if mode == "nan" and frame.index == N_FRAMES - 7:
+                img[3, 5, 1] = np.nan
+            if mode == "random":
+                img = img + np.random.default_rng().random(img.shape, dtype=np.float32) * 1e-3
+            return FrameResult(image=img)
+
+    for k, v in attrs.items():
+        setattr(Broken, k, v)
+    return Broken
+
+
+@pytest.mark.parametrize("mode, test, message", [
+    ("nan", lambda: test_finite_fast(None, "battery-selftest", "sky-pit"), "non-finite image values"),
+    ("literal", lambda: test_steady_state_compiles_nothing(None, "battery-selftest"), "compiled in steady state"),
+    ("random", lambda: test_bit_identical_reruns(None, "battery-selftest"), "differ between two runs"),
+    ("ok", lambda: test_furnace(None, "battery-selftest", "sphere"), "expected 0.75"),   # 1.0 is not 0.75
+])
+def test_battery_catches_broken_technique(backend, monkeypatch, mode, test, message):
+    from dyngi.techniques.base import REGISTRY
+
+    monkeypatch.setitem(REGISTRY, "battery-selftest", _broken_technique(mode))
+    with pytest.raises(AssertionError, match=message):
+        test()
+
+
+def test_battery_furnace_opt_out_needs_a_reason(backend, monkeypatch):
+    from dyngi.techniques.base import REGISTRY
+
+    monkeypatch.setitem(REGISTRY, "battery-selftest", _broken_technique("ok", FURNACE=False))
+    with pytest.raises(AssertionError, match="FURNACE_REASON"):
+        test_furnace(None, "battery-selftest", "sphere")
+    monkeypatch.setitem(REGISTRY, "battery-selftest",
+                        _broken_technique("ok", FURNACE=False, FURNACE_REASON="not an estimator of radiance"))
+    with pytest.raises(pytest.skip.Exception, match="not an estimator"):
+        test_furnace(None, "battery-selftest", "sphere")
+    # and a correct constant passes the furnace
+    monkeypatch.setitem(REGISTRY, "battery-selftest", _broken_technique("ok", FURNACE_PARAMS={"level": 0.75},
+                                                                         FURNACE_FRAMES=1))
+    test_furnace(None, "battery-selftest", "sphere")
+    with pytest.raises(AssertionError, match="another seed gives the same images"):
+        test_bit_identical_reruns(None, "battery-selftest")     # a stochastic technique must use its seed
+    monkeypatch.setitem(REGISTRY, "battery-selftest", _broken_technique("ok", DETERMINISTIC=True))
+    # the passing modes pass the other checks too (the self-tests above fail for the broken part only)
+    test_steady_state_compiles_nothing(None, "battery-selftest")
+    test_bit_identical_reruns(None, "battery-selftest")
+
+
+def test_battery_checks_has_indirect(backend, monkeypatch):
+    from dyngi.techniques.base import REGISTRY
+
+    monkeypatch.setitem(REGISTRY, "battery-selftest", _broken_technique("ok", HAS_INDIRECT=True))
+    with pytest.raises(AssertionError, match="HAS_INDIRECT = True but"):
+        test_finite_fast(None, "battery-selftest", "sky-pit")
