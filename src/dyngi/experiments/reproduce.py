@@ -54,11 +54,24 @@ def register_experiment(name: str, description: str, paper: str):
     return deco
 
 
+def _load_reproductions() -> None:
+    """Import every module of :mod:`dyngi.experiments.reproductions`: each technique's experiments live in
+    a module of their own there (``reproductions/<technique>.py``) and register themselves on import."""
+    import importlib
+    import pkgutil
+
+    from . import reproductions
+    for m in pkgutil.iter_modules(reproductions.__path__):
+        importlib.import_module(f"{reproductions.__name__}.{m.name}")
+
+
 def experiment_names() -> list[str]:
+    _load_reproductions()
     return sorted(EXPERIMENTS)
 
 
 def get_experiment(name: str) -> Experiment:
+    _load_reproductions()
     if name not in EXPERIMENTS:
         raise unknown_choice("experiment", name, EXPERIMENTS)
     return EXPERIMENTS[name]
