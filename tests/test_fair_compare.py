@@ -345,7 +345,7 @@ def test_equal_rays_overspend_within_5_percent(env, tmp_path):
 
     """Steady frames' rays over the budget <= 1.05. ``path:max_depth=3`` traces shorter paths than the
     budget's ``path``: its budget is ~1.6 of its samples per pixel, which it can only spend in whole
-    samples (it rounds); the carried balance keeps the run's total within the budget."""
+    samples (it rounds down); the carried balance keeps the run's total within the budget."""
     out = tmp_path / "rays"
     _compare(out, ["path", "path:spp=4", "path:spp=2:max_depth=3"], frames=7, budget="equal-rays",
              scene="cornell-static")

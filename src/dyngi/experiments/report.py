@@ -98,11 +98,14 @@ def summary_md(scene, techniques, specs, summary, ctx, names, title: str | None 
     """The summary.md text: table per technique, reference noise, budget accounting, failures, verdict."""
     info = backend.device_info()
     frames, res, budget, seed = ctx["frames"], ctx["res"], ctx["budget"], ctx["seed"]
-    what = "indirect-only images" if ctx.get("indirect") else "images"
+    if ctx.get("indirect"):
+        what, truth = "indirect-only images", "dyngi's `path` tracer in its indirect-only mode (validated against Mitsuba)"
+    else:
+        what, truth = "images", "Mitsuba's `path` integrator"
     lines = [f"# {title or scene.name}: {', '.join(techniques)}", "",
              f"{frames} frames at {res[0]}x{res[1]}, budget {budget}, seed {seed}, "
-             f"{info['variant']} (Mitsuba {info['mitsuba']}). Errors of the {what} against Mitsuba's `path` "
-             f"integrator at {ctx.get('ref_spp')} spp, max depth {ctx.get('ref_depth')} "
+             f"{info['variant']} (Mitsuba {info['mitsuba']}). Errors of the {what} against {truth} "
+             f"at {ctx.get('ref_spp')} spp, max depth {ctx.get('ref_depth')} "
              "(cached ground truth); lower is better except SSIM. |E| and |E'|: SMC-IR Sec. 5.2 temporal "
              "error and its frame-to-frame change (flicker) after Reinhard tone mapping. ms/frame and "
              "Mrays/frame: means over the frames after the first (its kernel compilation and probe warm-up "

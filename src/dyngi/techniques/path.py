@@ -34,6 +34,8 @@ and both are averaged by sample count, so frame 0 honours the budget too.
 """
 from __future__ import annotations
 
+import math
+
 from ..backend import dr, mi
 from ..sampling.lights import EmitterSampling, sample_traced
 from ..sampling.rng import make_sampler, mix_seed
@@ -218,7 +220,8 @@ class PathTechnique(Technique):
             spp = frame.ray_budget / (npix * self._rays_per_sample)
         elif frame.time_budget_ms is not None and self._ms_per_sample:
             spp = frame.time_budget_ms / self._ms_per_sample
-        return int(max(1, min(4096, round(spp))))
+        # rounded down: a budget is an upper bound (rounding to nearest overspent single frames by up to 26%)
+        return int(max(1, min(4096, math.floor(spp + 1e-9))))
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
