@@ -432,3 +432,18 @@ def test_ddgi_jitter_removes_the_aliasing_part_of_its_edge_error(env):
         seq = run_sequence(sc, create_technique(f"ddgi:jitter={j}:direct_samples=4", sc), 16, RES)
         err[j] = _relmse_map(np.mean(seq.images[2:], axis=0), ref)[edges].mean()
     assert err[True] < 0.7 * err[False], err
+
+
+def test_indirect_warns_when_probes_carry_the_sky(env, tmp_path, capsys):
+    """``--indirect`` on a sky-lit scene: a probe technique whose probes carry the sky is flagged (its
+    indirect image includes direct skylight), the same technique with ``direct=nee`` is not, and on a
+    scene without an environment nothing is flagged."""
+    from dyngi.experiments.compare import prepare
+
+    run = prepare("sky-pit", ["ddgi", "ddgi:direct=nee", "path"], str(tmp_path / "a"), 2, "equal-frames",
+                  None, {}, None, None, True)
+    assert len(run["warnings"]) == 1 and run["warnings"][0].startswith("ddgi:")
+    assert "ddgi:direct=nee" in run["warnings"][0]
+    assert "warning" in capsys.readouterr().err
+    run = prepare("cornell-static", ["ddgi"], str(tmp_path / "b"), 2, "equal-frames", None, {}, None, None, True)
+    assert run["warnings"] == []

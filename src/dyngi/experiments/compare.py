@@ -125,20 +125,37 @@ def prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, me
     per_tech = split_params(specs, params or {})
     scene = scene if scene is not None else load_scene(scene_name)
     techs = {s.label: create_technique(s.name, scene, per_tech[s.label]) for s in specs}
-    if indirect:
-        _check_indirect(scene, techs, specs)
+    warnings = _check_indirect(scene, techs, specs) if indirect else []
     return {"scene": scene, "specs": {s.label: s for s in specs}, "labels": [s.label for s in specs],
             "techs": techs, "names": names, "budget": budget, "frames": frames, "ref_spp": spp,
             "ref_depth": scene_max_depth(scene) if ref_depth is None else ref_depth, "indirect": indirect,
-            "out_dir": os.path.abspath(out_dir)}
+            "out_dir": os.path.abspath(out_dir), "warnings": warnings}
 
 
-def _check_indirect(scene, techs, specs):
+def _check_indirect(scene, techs, specs) -> list[str]:
     """Every technique must return ``FrameResult.indirect``: those that declare ``HAS_INDIRECT = False``
-    fail here, before any work; undeclared ones are checked on their first frame."""
+    fail here, before any work; undeclared ones are checked on their first frame.
+
+    Returns warnings: a probe technique that declares ``INDIRECT_INCLUDES_PROBE_SKY`` counts the sky its
+    probes carry as indirect light (no bounced-only probe channel), which the indirect-only reference does
+    not; on a scene with an environment emitter its ``--indirect`` error is then inflated."""
     lack = [s.label for s in specs if getattr(type(techs[s.label]), "HAS_INDIRECT", None) is False]
     if lack:
         raise _no_indirect(lack)
+    from ..backend import mi
+
+    has_env = any(mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) and
+                  not mi.has_flag(e.flags(), mi.EmitterFlags.DeltaDirection) for e in scene.mi_scene.emitters())
+    warn = []
+    for s in specs:
+        t = techs[s.label]
+        if has_env and getattr(type(t), "INDIRECT_INCLUDES_PROBE_SKY", False) and \
+                t.params.get("direct", "nee") != "nee":
+            warn.append(f"{s.label}: its probes carry the sky, which its indirect image then includes "
+                        f"(the reference's does not); use {s.name}:direct=nee for a true indirect image")
+    for w in warn:
+        print(f"dyngi: warning: {w}", file=sys.stderr)
+    return warn
 
 
 def _no_indirect(labels) -> DyngiError:
@@ -182,5 +199,5 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
             accounting[label] = budget_accounting(seq, first, budget)
     ctx = {"frames": frames, "res": tuple(res), "budget": budget, "seed": seed, "ref_spp": run["ref_spp"],
            "ref_depth": run["ref_depth"], "indirect": run["indirect"], "ref_noise": summarize_noise(noise),
-           "accounting": accounting}
+           "accounting": accounting, "warnings": run.get("warnings", [])}
     return {"results": results, "refs": refs, "rows": rows, "summary": summary, "ctx": ctx}

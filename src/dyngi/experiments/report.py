@@ -107,12 +107,15 @@ def summary_md(scene, techniques, specs, summary, ctx, names, title: str | None 
              f"{info['variant']} (Mitsuba {info['mitsuba']}). Errors of the {what} against {truth} "
              f"at {ctx.get('ref_spp')} spp, max depth {ctx.get('ref_depth')} "
              "(cached ground truth); lower is better except SSIM. |E| and |E'|: SMC-IR Sec. 5.2 temporal "
-             "error and its frame-to-frame change (flicker) after Reinhard tone mapping. ms/frame and "
+             "error and its frame-to-frame change (flicker) after Reinhard tone mapping, over every pixel "
+             "against the image reference, and (8px) over the 8 tracked pixels against their own per-pixel "
+             "reference of more samples (summary.json: E_tracked, E_prime_tracked, tracked_pixels, tracked_spp; "
+             "one pixel per cell of a 4x2 grid, the cell's median lit pixel of frame 0's reference). ms/frame and "
              "Mrays/frame: means over the frames after the first (its kernel compilation and probe warm-up "
              "excluded).", "",
              "| technique | " + " | ".join(LABELS.get(k, k) for k in names) +
-             " | abs(E) | abs(E') | ms/frame | Mrays/frame | NaN/Inf px |",
-             "|---|" + "---|" * (len(names) + 5)]
+             " | abs(E) | abs(E') | abs(E) 8px | abs(E') 8px | ms/frame | Mrays/frame | NaN/Inf px |",
+             "|---|" + "---|" * (len(names) + 7)]
     ok = [t for t in techniques if not summary[t].get("failed")]
     best = {k: min(summary[t]["mean"][k] for t in ok) for k in names if k != "ssim"} if ok else {}
     for t in techniques:
@@ -123,7 +126,8 @@ def summary_md(scene, techniques, specs, summary, ctx, names, title: str | None 
             cells.append(f"**{v}**" if k in best and len(techniques) > 1 and s["mean"][k] == best[k] else v)
         bad = f"**FAILED: {s['nonfinite_pixels']}**" if s.get("failed") else "0"
         lines.append(f"| {t} | " + " | ".join(cells) +
-                     f" | {s['E']:.4g} | {s['E_prime']:.4g} | {s['ms_per_frame']:.1f} | "
+                     f" | {s['E']:.4g} | {s['E_prime']:.4g} | {s.get('E_tracked', float('nan')):.4g} | "
+                     f"{s.get('E_prime_tracked', float('nan')):.4g} | {s['ms_per_frame']:.1f} | "
                      f"{s['rays_per_frame'] / 1e6:.3g} | {bad} |")
     fails = failures(summary)
     if fails:
@@ -133,6 +137,8 @@ def summary_md(scene, techniques, specs, summary, ctx, names, title: str | None 
     if neg:
         lines += ["", "Negative pixels (enter MSE/relMSE/MAPE as they are, FLIP/SSIM/|E| as 0): "
                   + ", ".join(neg) + "."]
+    for w in ctx.get("warnings", []):
+        lines += ["", f"**Warning:** {w}."]
     rn = ctx.get("ref_noise") or {}
     if rn:
         lines += ["", f"Reference noise (two independent halves): relMSE {rn.get('relmse', float('nan')):.3g}, "
