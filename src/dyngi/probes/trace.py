@@ -9,21 +9,40 @@ estimated as in DDGI (Majercik et al., JCGT 2019, Sec. 3.1):
 with ``E_direct`` from next-event estimation (one light sample; its shadow ray is skipped when the
 sample lies below the shading normal, where it adds nothing) and
 ``E_probes`` read from the *previous* frame's probes (multi-bounce through
-the cache). Surfaces are treated as diffuse with ``bsdf.eval_diffuse_reflectance``.
-Back-face hits return radiance 0 and a negative distance ``-0.2 t`` (the
-DDGI/RTXGI convention used for classification and relocation); misses return
-distance ``+inf`` (clamped when blending).
+the cache). ``albedo`` is the diffuse lobe's reflectance only
+(:func:`dyngi.sampling.diffuse.diffuse_albedo`: 0 for metals and glass).
+Back-face hits return a negative distance ``-0.2 t`` (the DDGI/RTXGI
+convention used for classification and relocation) and radiance 0; the back of
+a two-sided surface is no back face: it is shaded like its front
+(:func:`shading_side`, :data:`TWO_SIDED_FRONT_DISTANCE`). Misses return
+distance ``+inf`` (clamped when blending). Probe rays and shadow rays pass
+straight through clear surfaces (``dielectric``, ``thindielectric``,
+``null``), attenuated by their transmittance, up to
+:data:`~dyngi.sampling.passthrough.MAX_GLASS_LAYERS` of them: a deliberate
+bias, as real-time engines treat glass for GI (:mod:`dyngi.sampling.passthrough`).
 
-Routing of emitters (parameter ``direct``) -- light must enter the cache or
-NEE, never both:
+Routing of emitters (parameter ``direct``; validated by :func:`check_direct_mode`
+only) -- every emitter's light enters the image through exactly one of NEE
+(at the primary hit and at probe-ray hits) or the probes, never both:
 
+* ``'sun'`` (default): NEE samples every area, point, spot and directional
+  emitter and the *sun* of a ``sunsky`` emitter (its ``sky_scale = 0`` part,
+  :mod:`dyngi.sampling.sunsky`); the *sky* of a ``sunsky`` (its ``sun_scale = 0``
+  part) and plain ``envmap``/``constant`` emitters reach the image only through
+  the probes' miss rays, which evaluate exactly that sky part;
+* ``'sky'``: the whole environment (infinite, non-delta emitters, a
+  ``sunsky``'s sun included) through the probes' miss rays, all others by NEE
+  (the split before issue 11; a sun in a ``sunsky`` is then carried only by
+  the probes, which blur it);
 * ``'nee'``: every emitter by NEE; the probes store light reflected at least once;
-* ``'sky'`` (default): environment emitters (infinite, non-delta) are read by
-  probe rays on a miss, all others by NEE (DDGI's sky + analytic lights);
 * ``'emissive'``: only delta lights (point, spot, directional) by NEE;
   emissive surfaces and the environment enter through the probes (DDGI's
   original split; the probes then hold the total irradiance, e.g. ``pi L`` in
   a furnace of radiance ``L``).
+
+In every mode the camera seeing an emitter or the environment directly
+evaluates the full emitter (the primary hit's ``Le``), since neither NEE nor
+the probes carry light the camera sees without a bounce.
 """
 from __future__ import annotations
 
@@ -33,13 +52,31 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import unknown_choice
+from ..sampling.diffuse import diffuse_albedo
 from ..sampling.lights import EmitterSubsetSampling, sample_traced
+from ..sampling.passthrough import intersect_through_glass, scene_has_glass
 from ..sampling.rng import make_sampler
+from ..sampling.sunsky import is_sunsky, split_sunsky
 from ..timing import maybe_stage
 from .rays import RayPlan
 
-DIRECT_MODES = ("nee", "sky", "emissive")
+DIRECT_MODES = ("sun", "sky", "nee", "emissive")
+DEFAULT_DIRECT = "sun"
 BACKFACE_DISTANCE_SCALE = 0.2
+# Does the back of a two-sided surface count as a *front* face for the probe-ray distance sign
+# (classification, relocation, visibility) too, not only for shading? Measured (160x90, frames 20-29,
+# ddgi defaults, mean vs Mitsuba path at 1024 spp / max frame-to-frame change of the mean):
+#   True:  cornell-box 1.02 / 0.6%, veach-bidir 0.79 / 1.5-4%, staircase2 0.93 / 5-17%, veach-ajar 0.78 / 5%
+#   False: cornell-box 0.89 / 1.1%, veach-bidir 0.34 / 8.6%, staircase2 0.99 / 14%,  veach-ajar 0.75 / 0.3%
+# (walls modelled as single outward-facing two-sided planes vs closed two-sided solids). Our choice: True.
+TWO_SIDED_FRONT_DISTANCE = True
+
+
+def check_direct_mode(mode: str) -> str:
+    """The one validation of the ``direct`` routing parameter: returns it, or raises a DyngiError."""
+    if mode not in DIRECT_MODES:
+        raise unknown_choice("direct-light mode", mode, DIRECT_MODES)
+    return mode
 
 
 def vector_to_numpy(v) -> np.ndarray:
@@ -52,33 +89,120 @@ def vector_to_numpy(v) -> np.ndarray:
     return np.stack([np.asarray(v[i], np.float32) for i in range(len(v))])
 
 
-def emitter_via_probes(emitter, mode: str, active=True):
-    """Mask: is light of ``emitter`` (an EmitterPtr) carried by the probes rather than NEE under ``mode``?"""
+def _is_delta(f) -> bool:
+    return bool(mi.has_flag(f, mi.EmitterFlags.DeltaPosition) or mi.has_flag(f, mi.EmitterFlags.DeltaDirection))
+
+
+def _is_environment(emitter) -> bool:
+    f = emitter.flags()
+    return bool(mi.has_flag(f, mi.EmitterFlags.Infinite)) and not _is_delta(f)
+
+
+def emitter_split_host(emitter, mode: str) -> bool:
+    """Is ``emitter`` shared between NEE (its sun) and the probes (its sky) under ``mode``?"""
+    return mode == "sun" and is_sunsky(emitter)
+
+
+def emitter_via_probes_host(emitter, mode: str) -> bool:
+    """Is *all* the light of ``emitter`` (one Python emitter object) carried by the probes under ``mode``?"""
+    check_direct_mode(mode)
+    if mode == "nee":
+        return False
+    if mode == "emissive":
+        return not _is_delta(emitter.flags())
+    return _is_environment(emitter) and not emitter_split_host(emitter, mode)
+
+
+def emitter_via_probes(emitter, mode: str, active=True, split_ids=()):
+    """Per lane: is *all* the light of ``emitter`` (an EmitterPtr) carried by the probes under ``mode``?
+    ``split_ids``: registry ids of the ``sunsky`` emitters that are split under ``'sun'`` (not wholly the
+    probes'; :attr:`LightRouting.split_ids`, see :meth:`LightRouting.nee_weight`)."""
+    check_direct_mode(mode)
     if mode == "nee":
         return mi.Bool(False)
     flags = emitter.flags()
     delta = mi.has_flag(flags, mi.EmitterFlags.DeltaPosition) | mi.has_flag(flags, mi.EmitterFlags.DeltaDirection)
-    if mode == "sky":
-        return mi.has_flag(flags, mi.EmitterFlags.Infinite) & ~delta & (emitter != None)  # noqa: E711
-    return ~delta & (emitter != None)  # noqa: E711
+    valid = emitter != None  # noqa: E711
+    if mode == "emissive":
+        return ~delta & valid
+    env = mi.has_flag(flags, mi.EmitterFlags.Infinite) & ~delta & valid
+    if mode == "sun":
+        for sid in split_ids:
+            env &= dr.reinterpret_array(mi.UInt32, emitter) != sid
+    return env
 
 
-def emitter_via_probes_host(emitter, mode: str) -> bool:
-    """Host-side twin of :func:`emitter_via_probes` for one Python emitter object."""
-    if mode == "nee":
-        return False
-    f = emitter.flags()
-    delta = mi.has_flag(f, mi.EmitterFlags.DeltaPosition) or mi.has_flag(f, mi.EmitterFlags.DeltaDirection)
-    if mode == "sky":
-        return bool(mi.has_flag(f, mi.EmitterFlags.Infinite)) and not delta
-    return not delta
+class LightRouting:
+    """Which light NEE samples and which the probes carry, for one scene and one ``direct`` mode.
+
+    * ``nee``: an :class:`~dyngi.sampling.lights.EmitterSubsetSampling` over the
+      emitters NEE owns (plus the standalone sun part of a ``sunsky`` under ``'sun'``);
+    * ``probe_env``: the emitter a probe ray's miss evaluates (the scene's
+      environment, its sky part, or ``None``);
+    * ``probe_hits``: do probe rays that hit an emitting surface record its emission (``'emissive'``)?
+    """
+
+    def __init__(self, mi_scene, mode: str):
+        self.mode = check_direct_mode(mode)
+        emitters = list(mi_scene.emitters())
+        self.splits = []          # (sunsky emitter, its registry id, sun part, sky part)
+        if mode == "sun":
+            for e in emitters:
+                if is_sunsky(e):
+                    sun, sky = split_sunsky(e, mi_scene)
+                    rid = int(np.asarray(dr.reinterpret_array(mi.UInt32, mi.EmitterPtr([e])))[0])
+                    self.splits.append((e, rid, sun, sky))
+        self.split_ids = tuple(s[1] for s in self.splits)
+        suns = [s[2] for s in self.splits]
+        self.nee = EmitterSubsetSampling(mi_scene, lambda e: not emitter_via_probes_host(e, mode)
+                                         and not emitter_split_host(e, mode), extra=suns)
+        env = mi_scene.environment()
+        self.probe_env = None
+        if env is not None and mode != "nee" and _is_environment(env):
+            self.probe_env = env
+            for e, _, _, sky in self.splits:
+                if e is env:
+                    self.probe_env = sky       # None when the sky scale is 0
+        self.probe_hits = mode == "emissive" and any(not _is_delta(e.flags()) and not _is_environment(e)
+                                                     for e in emitters)
+
+    @property
+    def probes_carry_emitters(self) -> bool:
+        return self.probe_env is not None or self.probe_hits
+
+    def probe_emission(self, scene, si, hit, front, active):
+        """Emission a probe ray records: the environment part the probes carry on a miss, and (only
+        under ``'emissive'``) the emission of a front-facing emitter it hits."""
+        L = mi.Color3f(0.0)
+        if self.probe_env is not None:
+            miss = active & ~hit
+            L += dr.select(miss, mi.Color3f(self.probe_env.eval(si, miss)), 0.0)
+        if self.probe_hits:
+            em = si.emitter(scene, active & front)
+            on = active & front & emitter_via_probes(em, self.mode, active & front, self.split_ids)
+            L += dr.select(on, mi.Color3f(em.eval(si, on)), 0.0)
+        return L
+
+    def nee_weight(self, ds, w, active):
+        """The share of a light sample ``(ds, w)`` drawn by a *general* strategy (one that may pick any
+        emitter) that NEE owns: 0 for emitters the probes carry, and for a split ``sunsky`` its sun's
+        part ``w * L_sun(d) / L(d)``; unchanged otherwise."""
+        w = dr.select(emitter_via_probes(ds.emitter, self.mode, active, self.split_ids), 0.0, mi.Color3f(w))
+        for e, rid, sun, _ in self.splits:
+            mine = active & (dr.reinterpret_array(mi.UInt32, ds.emitter) == rid)
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            si.wi = -ds.d
+            full = mi.Color3f(e.eval(si, mine))
+            part = mi.Color3f(sun.eval(si, mine)) if sun is not None else mi.Color3f(0.0)
+            w = dr.select(mine, w * dr.select(full > 0.0, part / full, 0.0), w)
+        return w
 
 
-_NEE_CACHE: dict = {}    # mode -> (mi_scene, sampler), for the most recent scene only
+_ROUTING_CACHE: dict = {}    # mode -> (mi_scene, LightRouting), for the most recent scene only
 
 
-def nee_lights(mi_scene, mode: str) -> EmitterSubsetSampling:
-    """NEE over exactly the emitters that the probes do not carry under ``mode`` (cached per scene).
+def light_routing(mi_scene, mode: str) -> LightRouting:
+    """The :class:`LightRouting` of ``mi_scene`` under ``mode`` (cached per scene).
 
     The cache holds the one scene it serves and checks identity (Mitsuba scenes
     take no weak references). Keyed by ``id`` alone, a freed scene's entry --
@@ -88,26 +212,41 @@ def nee_lights(mi_scene, mode: str) -> EmitterSubsetSampling:
     calls, so keeping old scenes alive made every kernel bigger (the slow test
     suite ran 3x longer with 8 cached scenes).
     """
-    if any(scene is not mi_scene for scene, _ in _NEE_CACHE.values()):
-        _NEE_CACHE.clear()                      # a new scene: drop the old one
-    if mode not in _NEE_CACHE:
-        _NEE_CACHE[mode] = (mi_scene, EmitterSubsetSampling(mi_scene, lambda e: not emitter_via_probes_host(e, mode)))
-    return _NEE_CACHE[mode][1]
+    if any(scene is not mi_scene for scene, _ in _ROUTING_CACHE.values()):
+        _ROUTING_CACHE.clear()                  # a new scene: drop the old one
+    if mode not in _ROUTING_CACHE:
+        _ROUTING_CACHE[mode] = (mi_scene, LightRouting(mi_scene, mode))
+    return _ROUTING_CACHE[mode][1]
+
+
+def nee_lights(mi_scene, mode: str) -> EmitterSubsetSampling:
+    """NEE over exactly the light that the probes do not carry under ``mode`` (cached per scene)."""
+    return light_routing(mi_scene, mode).nee
 
 
 def probes_carry_emitters(mi_scene, mode: str) -> bool:
     """Does any emitter of the scene reach the probes directly (a probe ray that sees it records its
     emission) under ``mode``? When none does, probe-ray shading skips the emitter lookup altogether."""
-    return nee_lights(mi_scene, mode).count < len(mi_scene.emitters())
-
-
-def check_direct_mode(mode: str) -> str:
-    if mode not in DIRECT_MODES:
-        raise unknown_choice("direct-light mode", mode, DIRECT_MODES)
-    return mode
+    return light_routing(mi_scene, mode).probes_carry_emitters
 
 
 HIT_LOOKUPS = ("stochastic", "filtered")
+
+
+def shading_side(si, ray, bsdf, hit):
+    """(facing, n): the lanes whose surface is shaded from the ray's side, and the shading normal on it.
+
+    A surface faces the ray where its geometric normal does (``dot(n, d) < 0``) or, seen from behind,
+    where its BSDF reflects on both sides (``BSDFFlags.BackSide``: ``twosided``, as real scenes model
+    single walls); there the shading normal is flipped to the ray's side. Our choice: Mitsuba shades
+    the back of a two-sided surface like its front, so must the probes and the primary shading. The
+    probe-ray distance sign follows it where :data:`TWO_SIDED_FRONT_DISTANCE` (measured trade-off there).
+    """
+    geo_front = dr.dot(si.n, ray.d) < 0.0
+    two_sided = mi.has_flag(bsdf.flags(), mi.BSDFFlags.BackSide) & (bsdf != None)   # noqa: E711
+    facing = hit & (geo_front | two_sided)
+    n = dr.select(geo_front, si.sh_frame.n, -si.sh_frame.n)
+    return facing, n
 
 
 class DiffuseHitShader:
@@ -124,35 +263,34 @@ class DiffuseHitShader:
     away; the ``ddgi`` technique's default).
     """
 
-    def __init__(self, direct: str = "sky", lights=None, lookup: str = "filtered"):
+    def __init__(self, direct: str = DEFAULT_DIRECT, lights=None, lookup: str = "filtered"):
         self.direct = check_direct_mode(direct)
-        self.lights = lights   # None: NEE over the emitters the probes do not carry (nee_lights)
+        self.lights = lights   # None: NEE over the light the probes do not carry (nee_lights)
         if lookup not in HIT_LOOKUPS:
             raise unknown_choice("probe lookup at hits", lookup, HIT_LOOKUPS)
         self.lookup = lookup
 
     def shade(self, scene, ray, si, sampler, query, active):
         hit = active & si.is_valid()
-        front = hit & (dr.dot(si.n, ray.d) < 0.0)
-        # -- emission seen by the ray (hit emitter or environment on a miss), if the probes carry any --
-        L = mi.Color3f(0.0)
-        if probes_carry_emitters(scene, self.direct):
-            em = si.emitter(scene, active)
-            Le = em.eval(si, active & (front | ~hit))
-            L = mi.Color3f(dr.select(emitter_via_probes(em, self.direct, active), Le, 0.0))
-        # -- diffuse albedo --
         bsdf = si.bsdf(ray)
-        albedo = bsdf.eval_diffuse_reflectance(si, front)
+        front, n = shading_side(si, ray, bsdf, hit)       # two-sided surfaces face the ray from both sides
+        routing = light_routing(scene, self.direct)
+        # -- emission the probes carry (the sky part on a miss; emitting surfaces under 'emissive') --
+        L = mi.Color3f(0.0)
+        if routing.probes_carry_emitters:
+            L = routing.probe_emission(scene, si, hit, front, active)
+        # -- diffuse albedo (the diffuse lobe only: 0 for metals and glass) --
+        albedo = diffuse_albedo(bsdf, si, front)
         # -- direct light by NEE (one light sample; no shadow ray below the shading normal) --
-        lights = self.lights if self.lights is not None else nee_lights(scene, self.direct)
-        ds, w, shadow = sample_traced(lights, scene, si, sampler.next_2d(), front, receiver=si.sh_frame.n)
-        cos = dr.maximum(dr.dot(si.sh_frame.n, ds.d), 0.0)
-        if self.lights is not None:   # a general strategy may pick emitters the probes carry
-            w = dr.select(emitter_via_probes(ds.emitter, self.direct, front), 0.0, w)
+        lights = self.lights if self.lights is not None else routing.nee
+        ds, w, shadow = sample_traced(lights, scene, si, sampler.next_2d(), front, receiver=n)
+        cos = dr.maximum(dr.dot(n, ds.d), 0.0)
+        if self.lights is not None:   # a general strategy may pick light the probes carry
+            w = routing.nee_weight(ds, w, front)
         E = w * cos
         # -- multi-bounce from the previous frame's probes --
         if query is not None:
-            E += query.irradiance(si.p, si.sh_frame.n, -ray.d, active=front,
+            E += query.irradiance(si.p, n, -ray.d, active=front,
                                   sampler=sampler if self.lookup == "stochastic" else None)
         L += dr.select(front, albedo * dr.inv_pi * E, 0.0)
         return L, hit, front, shadow
@@ -179,6 +317,10 @@ class ProbeRayResults:
     def to_numpy(self):
         """(radiance (P, N, 3) float32, distance (P, N) float32) for plans with a constant count per probe."""
         n = self.plan.rays_per_probe
+        if not n:
+            from ..errors import DyngiError
+            raise DyngiError("ProbeRayResults.to_numpy needs a constant ray count per probe; for a ragged "
+                             "plan use host() with plan.offsets")
         P = len(self.plan.probe_ids)
         rad, dist = self.host()
         return rad.reshape(3, P, n).transpose(1, 2, 0), dist.reshape(P, n)
@@ -198,15 +340,23 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
     with maybe_stage(timer, "trace probes"):
         origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
         ray = mi.Ray3f(origin, plan.direction)
-        pi = mscene.ray_intersect_preliminary(ray, coherent=False)
-        # only the hits are stored: the shade kernel recomputes the rays (two gathers) instead of
-        # reading back 6 floats per ray
-        dr.eval(pi)
-        # -- the shade kernel, traced while the intersection kernel runs --
-        si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
+        glass = scene_has_glass(mscene)
+        if glass:   # clear surfaces pass the ray (attenuated); one kernel with the shading
+            si, throughput, t_hit, _ = intersect_through_glass(mscene, ray, mi.Bool(True))
+        else:
+            pi = mscene.ray_intersect_preliminary(ray, coherent=False)
+            # only the hits are stored: the shade kernel recomputes the rays (two gathers) instead of
+            # reading back 6 floats per ray
+            dr.eval(pi)
+            # -- the shade kernel, traced while the intersection kernel runs --
+            si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
+            t_hit = si.t
         sampler = make_sampler(n, seed, frame, stream)
         L, hit, front, shadow = shader.shade(mscene, ray, si, sampler, query, mi.Bool(True))
-        dist = dr.select(hit, dr.select(front, si.t, -BACKFACE_DISTANCE_SCALE * si.t), dr.inf)
+        if glass:
+            L = L * throughput
+        signed_front = front if TWO_SIDED_FRONT_DISTANCE else hit & (dr.dot(si.n, ray.d) < 0.0)
+        dist = dr.select(hit, dr.select(signed_front, t_hit, -BACKFACE_DISTANCE_SCALE * t_hit), dr.inf)
         L = dr.select(dr.isfinite(L), L, 0.0)   # guard: a NaN/Inf sample must never enter the cache
     if timer is not None:
         timer.add_rays("trace probes", n)
@@ -222,9 +372,16 @@ def trace_probe_distances(scene, volume, plan: RayPlan) -> "mi.Float":
     mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
     origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
     ray = mi.Ray3f(origin, plan.direction)
-    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=False)
+    if scene_has_glass(mscene):     # clear surfaces are no geometry for classification either
+        si, _, t_hit, _ = intersect_through_glass(mscene, ray, mi.Bool(True))
+    else:
+        si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=False)
+        t_hit = si.t
     hit = si.is_valid()
-    front = dr.dot(si.n, ray.d) < 0.0
-    dist = dr.select(hit, dr.select(front, si.t, -BACKFACE_DISTANCE_SCALE * si.t), dr.inf)
+    if TWO_SIDED_FRONT_DISTANCE:
+        front, _ = shading_side(si, ray, si.bsdf(ray), hit)
+    else:
+        front = dr.dot(si.n, ray.d) < 0.0
+    dist = dr.select(hit, dr.select(front, t_hit, -BACKFACE_DISTANCE_SCALE * t_hit), dr.inf)
     dr.eval(dist)
     return dist

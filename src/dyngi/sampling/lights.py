@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from .passthrough import scene_has_glass, shadow_transmittance
 
 
 class EmitterSampling:
@@ -45,7 +46,11 @@ class EmitterSubsetSampling:
     and discarding part of the samples (same expectation, less noise). A scene
     lit only by a sun and a sky thus gets noise-free direct sunlight.
 
-    ``keep(emitter) -> bool`` selects the emitters (host side, once per scene).
+    ``keep(emitter) -> bool`` selects the emitters (host side, once per scene);
+    ``extra`` adds emitters that are not the scene's own (the sun part of a
+    ``sunsky``, :mod:`dyngi.sampling.sunsky`). Shadow rays pass through clear
+    surfaces (glass) attenuated by their transmittance where the scene has any
+    (:mod:`dyngi.sampling.passthrough`; a deliberate bias).
     With a single emitter in the subset (a Cornell box, a sun) the emitter's
     own ``sample_direction`` is traced into the kernel directly instead of
     through a virtual call on a gathered emitter pointer (about 2 ms less per
@@ -54,21 +59,23 @@ class EmitterSubsetSampling:
 
     name = "emitter-subset"
 
-    def __init__(self, mi_scene, keep):
+    def __init__(self, mi_scene, keep, extra=()):
         emitters = list(mi_scene.emitters())
-        idx = [i for i, e in enumerate(emitters) if keep(e)]
-        self.count = len(idx)
-        self.single = emitters[idx[0]] if self.count == 1 else None   # sampled without dispatch
+        chosen = [e for e in emitters if keep(e)] + [e for e in extra if e is not None]
+        self.count = len(chosen)
+        self.emitters = chosen          # keeps ``extra`` emitters (not owned by the scene) alive
+        self.single = chosen[0] if self.count == 1 else None   # sampled without dispatch
+        self.glass = scene_has_glass(mi_scene)
         if self.count:
-            w = [float(emitters[i].sampling_weight()) for i in idx]
+            w = [float(e.sampling_weight()) for e in chosen]
             if sum(w) <= 0:
-                w = [1.0] * len(idx)
+                w = [1.0] * len(chosen)
             self.table = mi.DiscreteDistribution(w)
-            self.ptrs = dr.gather(mi.EmitterPtr, mi_scene.emitters_dr(), mi.UInt32(idx))
+            self.ptrs = mi.EmitterPtr(chosen)
             # selection pmf by emitter registry id (what an EmitterPtr holds), for pdf()
-            ids = np.asarray(dr.reinterpret_array(mi.UInt32, mi_scene.emitters_dr()), np.int64)
+            ids = np.asarray(dr.reinterpret_array(mi.UInt32, self.ptrs), np.int64)
             table = np.zeros(int(ids.max()) + 1, np.float32)
-            table[ids[idx]] = np.asarray(w, np.float64) / sum(w)
+            table[ids] = np.asarray(w, np.float64) / sum(w)
             self.pmf_by_id = mi.Float(table)
 
     def sample(self, scene, si, u2, active):
@@ -97,8 +104,11 @@ class EmitterSubsetSampling:
         active &= ds.pdf != 0.0
         if receiver is not None:
             active &= dr.dot(receiver, ds.d) > 0.0
-        occluded = scene.ray_test(si.spawn_ray_to(ds.p), active)
-        spec = dr.select(active & ~occluded, spec, 0.0)
+        shadow = si.spawn_ray_to(ds.p)
+        if self.glass:      # clear surfaces pass light, attenuated (dyngi.sampling.passthrough)
+            spec = mi.Color3f(spec) * shadow_transmittance(scene, shadow, active)
+        else:
+            spec = dr.select(active & ~scene.ray_test(shadow, active), spec, 0.0)
         return ds, mi.Color3f(spec), active
 
     def pdf(self, scene, ref_si, ds, active):

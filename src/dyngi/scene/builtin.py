@@ -18,6 +18,10 @@ warehouse-lights            VLC/CDQ scene (a): 128 lights in 8 halls
 sky-pit                     VLC/CDQ scene (b): mine open to the sky, sun
 covered-lights              VLC/CDQ scene (c): 10 lights behind a cover
 rotating-hidden-light       VLC/CDQ Sec. 7.3 CDQ adaptation (floor, wall, hidden light)
+room-sun-blinds             issue 11: interior lit by Mitsuba's sunsky through blinds
+room-sky-only               issue 11: the same room lit by the sky part only
+light-behind-glass          issue 11: area light inside a thindielectric lamp box
+room-metal-furniture        issue 11: conductor/roughconductor furniture, one light
 ==========================  =====================================================
 
 Radiances are set so that a path-traced frame has a mean pixel value of
@@ -28,6 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import mi
 from .animation import ParamTrack, RigidMotion, SunMotion, Track
 from .builder import SceneBuilder
 from .camera import Camera, CameraPath
@@ -597,3 +602,156 @@ def rotating_hidden_light():
     cam = Camera((0.0, 5.2, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, -1.0), 55.0)
     return b.build(cam, "Floor lit via a wall by a hidden, turning light", duration=4.0,
                    probe_box=((-1.4, 0.1, -1.4), (1.4, 2.3, 1.4)), probe_counts=(8, 6, 8))
+
+
+# ---------------------------------------------------------------------------
+# real-interior analogs (issue 11): sun through blinds, sky only, light behind glass, metal furniture
+# ---------------------------------------------------------------------------
+ROOM_X, ROOM_H, ROOM_Z = 2.0, 2.5, 2.0     # the analog rooms: [-2, 2] x [0, 2.5] x [-2, 2]
+ROOM_PROBES = (((-1.85, 0.15, -1.85), (1.85, 2.35, 1.85)), (6, 4, 6))
+SUN_TRAVEL = _sun_dir(32.0, 15.0)           # the sun stands beyond the +x wall; its light falls towards -x
+
+
+def _sunsky(sun_scale: float, sky_scale: float, direction=SUN_TRAVEL) -> dict:
+    """Mitsuba's ``sunsky`` emitter (Hosek-Wilkie sky + sun disk); ``direction`` is the way sunlight travels."""
+    d = -np.asarray(direction, np.float64)
+    # Mitsuba's sky is z-up in its local frame: to_world turns local +z into our +y; sun_direction is
+    # in world space
+    return {"type": "sunsky", "sun_direction": (d / np.linalg.norm(d)).tolist(), "turbidity": 3.0,
+            "to_world": mi.ScalarTransform4f().rotate([1.0, 0.0, 0.0], -90.0),
+            "albedo": {"type": "rgb", "value": [0.3, 0.3, 0.3]},
+            "sun_scale": float(sun_scale), "sky_scale": float(sky_scale)}
+
+
+def _room_shell(b: SceneBuilder, window: bool):
+    """Closed diffuse room (walls 0.1 m thick boxes); with ``window`` an opening in the +x wall,
+    z in [-0.8, 0.8], y in [0.8, 2.0]."""
+    X, H, Z = ROOM_X, ROOM_H, ROOM_Z
+    b.mesh("floor", box((-X - 0.1, -0.1, -Z - 0.1), (X + 0.1, 0.0, Z + 0.1)), diffuse((0.55, 0.5, 0.42)))
+    b.mesh("ceiling", box((-X - 0.1, H, -Z - 0.1), (X + 0.1, H + 0.1, Z + 0.1)), diffuse(PLASTER))
+    walls = [box((-X - 0.1, 0.0, -Z - 0.1), (-X, H, Z + 0.1)), box((-X, 0.0, -Z - 0.1), (X, H, -Z)),
+             box((-X, 0.0, Z), (X, H, Z + 0.1))]
+    if window:
+        walls += [box((X, 0.0, -Z - 0.1), (X + 0.1, 0.8, Z + 0.1)), box((X, 2.0, -Z - 0.1), (X + 0.1, H, Z + 0.1)),
+                  box((X, 0.8, -Z - 0.1), (X + 0.1, 2.0, -0.8)), box((X, 0.8, 0.8), (X + 0.1, 2.0, Z + 0.1))]
+    else:
+        walls.append(box((X, 0.0, -Z - 0.1), (X + 0.1, H, Z + 0.1)))
+    b.mesh("walls", merge(walls), diffuse((0.68, 0.66, 0.62)))
+
+
+SUNSKY_EXPOSURE = 8.0    # both scales of the rooms' sunsky: a frame mean of ~0.1-0.3 (Mitsuba's units are dim)
+ROOM_CAMERA = Camera((-1.7, 1.4, 1.7), (0.6, 0.7, -0.9), (0, 1, 0), 70.0)
+SUN_ROOM_CAMERA = Camera((1.75, 1.6, 1.75), (-0.9, 0.5, -0.9), (0, 1, 0), 65.0)   # back to the window
+
+
+def _slide(dx: float, dz: float) -> Track:
+    """There and back again in 4 s (the analog rooms' one simple animation; their tests hold t = 0)."""
+    return Track([0.0, 2.0, 4.0], [[0.0, 0.0, 0.0], [dx, 0.0, dz], [0.0, 0.0, 0.0]], interp="smooth", loop=True)
+
+
+def _room_sun(name: str, sun_scale: float, sky_scale: float, description: str):
+    b = SceneBuilder(name)
+    _room_shell(b, window=True)
+    # horizontal blind slats across the window: 0.02 m thick, 0.08 m deep, every 0.12 m
+    slats = [box((ROOM_X - 0.04, y, -0.8), (ROOM_X + 0.04, y + 0.02, 0.8)) for y in np.arange(0.86, 2.0, 0.12)]
+    b.mesh("blinds", merge(slats), diffuse((0.7, 0.7, 0.68)))
+    b.mesh("table", merge([box((-0.9, 0.7, -0.8), (0.5, 0.76, 0.4))] +
+                          [box((x, 0.0, z), (x + 0.06, 0.7, z + 0.06)) for x in (-0.85, 0.39) for z in (-0.75, 0.29)]),
+           diffuse((0.45, 0.3, 0.2)))
+    b.add("sunsky", _sunsky(SUNSKY_EXPOSURE * sun_scale, SUNSKY_EXPOSURE * sky_scale))
+    b.animate(RigidMotion("table", translate=_slide(0.0, 0.6)))
+    return b.build(SUN_ROOM_CAMERA, description, duration=4.0, probe_box=ROOM_PROBES[0], probe_counts=ROOM_PROBES[1])
+
+
+@builtin("room-sun-blinds", "Room lit only by a sunsky (sun + sky) through a window with horizontal blinds",
+         "issue 11: a dining room lit only by Mitsuba's sunsky through window blinds")
+def room_sun_blinds(sun_scale: float = 1.0, sky_scale: float = 1.0):
+    """A 4 x 2.5 x 4 m room with a table, lit only by Mitsuba's ``sunsky`` through a 1.6 x 1.2 m window
+    with horizontal blinds (slats 0.02 m thick, 0.08 m deep, every 0.12 m).
+
+    Stands for the sunlit interiors of issue 11 (a dining room with window
+    blinds, a classroom): the sun (elevation 32 degrees) draws a striped patch on
+    the floor and the table; that patch's bounce and the sky through the window
+    light the rest. The sun must be sampled by NEE (``direct='sun'``), the sky
+    through the probes. ``sun_scale``/``sky_scale`` build the sun-only and
+    sky-only variants of the tests (the sky-only one is ``room-sky-only``). The
+    table slides 0.6 m and back over 4 s (the tests hold t = 0: static).
+    """
+    return _room_sun("room-sun-blinds", sun_scale, sky_scale, "Room lit by a sunsky through window blinds")
+
+
+@builtin("room-sky-only", "The room-sun-blinds room lit only by the sky of a sunsky (sun_scale = 0)",
+         "issue 11: the sky part of a sunsky reaching an interior through a window")
+def room_sky_only():
+    """:func:`room_sun_blinds` with ``sun_scale = 0``: only the Hosek-Wilkie sky lights the room, through the
+    window. All its light reaches the image through the probes' miss rays under ``direct='sun'``. The table
+    slides as in ``room-sun-blinds``."""
+    return _room_sun("room-sky-only", 0.0, 1.0, "Room lit by the sky of a sunsky through window blinds")
+
+
+@builtin("light-behind-glass", "Room lit by one ceiling area light inside a glass (thindielectric) lamp box",
+         "issue 11: lamps with glass shades, window panes (veach-bidir's covered lamp)")
+def light_behind_glass():
+    """A closed 4 x 2.5 x 4 m room lit by one 0.6 x 0.6 m ceiling light enclosed in a box of
+    ``thindielectric`` glass (a 1 x 1 m pane 0.3 m below the ceiling and four side panes).
+
+    Every light path leaves the lamp through glass: NEE shadow rays and probe
+    rays must pass it (attenuated by its transmittance, :mod:`dyngi.sampling.passthrough`)
+    or the room is dark (a small uncovered light adds ~10% of the power). Mitsuba's ``path`` blocks NEE
+    at the glass but reaches
+    the light through it by BSDF sampling (a thin slab does not refract), so its
+    reference is exact, only noisier. The cabinet slides 0.8 m and back over 4 s.
+    """
+    b = SceneBuilder("light-behind-glass")
+    _room_shell(b, window=False)
+    H = ROOM_H
+    b.mesh("cabinet", box((-1.9, 0.0, -1.9), (-1.2, 1.2, -0.9)), diffuse((0.3, 0.4, 0.6)))
+    b.mesh("light", _ceiling_light(0.3, H - 0.01, 0.2, half=0.3), diffuse(DARK), (30.0, 27.0, 22.0))
+    glass = {"type": "thindielectric", "int_ior": 1.5, "ext_ior": 1.0}
+    panes = merge([quad((0.3, H - 0.3, 0.2), (0.5, 0, 0), (0, 0, 0.5)),            # bottom, then 4 sides
+                   quad((0.8, H - 0.15, 0.2), (0, 0.15, 0), (0, 0, 0.5)),
+                   quad((-0.2, H - 0.15, 0.2), (0, 0, 0.5), (0, 0.15, 0)),
+                   quad((0.3, H - 0.15, 0.7), (0.5, 0, 0), (0, 0.15, 0)),
+                   quad((0.3, H - 0.15, -0.3), (0, 0.15, 0), (0.5, 0, 0))])
+    b.mesh("lamp_glass", panes, glass)
+    # a small uncovered light (~10% of the lamp's power), so that path tracers with NEE see more than
+    # BSDF-sampled speckles at a few samples per pixel
+    b.mesh("night_light", _ceiling_light(-1.5, H - 0.01, 1.5, half=0.1), diffuse(DARK), (27.0, 24.0, 20.0))
+    b.animate(RigidMotion("cabinet", translate=_slide(0.0, 0.8)))
+    cam = Camera((-1.7, 1.5, 1.75), (0.9, 0.3, -1.0), (0, 1, 0), 60.0)     # the lamp just out of view
+    return b.build(cam, "Room lit by an area light in a glass lamp box", duration=4.0,
+                   probe_box=ROOM_PROBES[0], probe_counts=ROOM_PROBES[1])
+
+
+@builtin("room-metal-furniture", "Diffuse room with metal (conductor, roughconductor) furniture, a roughplastic "
+         "table and one ceiling area light", "issue 11: a classroom with metal chair frames")
+def room_metal_furniture():
+    """A closed 4 x 2.5 x 4 m diffuse room with one 0.5 x 0.5 m ceiling light, a ``roughconductor``
+    (aluminium, alpha 0.1) cabinet and chair frames, a ``conductor`` (mirror chrome) ball and a
+    ``roughplastic`` table top.
+
+    Metals have no diffuse lobe: probe rays that hit them must return (almost) no
+    light, not Mitsuba's ``eval_diffuse_reflectance`` of a rough conductor
+    (``pi f``, 20x a diffuse surface head-on), which made rare probe rays inject
+    fireflies into the cache and the image flicker (issue 11). The chrome ball rolls 0.8 m
+    and back over 4 s.
+    """
+    b = SceneBuilder("room-metal-furniture")
+    _room_shell(b, window=False)
+    H = ROOM_H
+    alu = {"type": "roughconductor", "material": "Al", "distribution": "ggx", "alpha": 0.1}
+    b.mesh("cabinet", box((-1.95, 0.0, -1.95), (-1.45, 1.1, -1.55)), alu)
+    frames = [box((x, 0.0, z), (x + 0.04, 0.9, z + 0.04)) for x in (0.6, 1.0) for z in (0.6, 1.0)]
+    frames.append(box((0.6, 0.45, 0.6), (1.04, 0.49, 1.04)))
+    b.mesh("chair_frames", merge(frames), alu)
+    b.mesh("ball", uv_sphere((1.2, 0.2, -1.2), 0.2, 10, 20), {"type": "conductor", "material": "Cr"})
+    b.mesh("table", merge([box((-0.8, 0.0, -0.3), (-0.72, 0.7, -0.22)), box((0.2, 0.0, -0.3), (0.28, 0.7, -0.22)),
+                           box((-0.8, 0.0, 0.5), (-0.72, 0.7, 0.58)), box((0.2, 0.0, 0.5), (0.28, 0.7, 0.58))]),
+           diffuse((0.4, 0.3, 0.2)))
+    b.mesh("table_top", box((-0.85, 0.7, -0.35), (0.33, 0.75, 0.63)),
+           {"type": "roughplastic", "distribution": "ggx", "alpha": 0.15, "int_ior": 1.5,
+            "diffuse_reflectance": {"type": "rgb", "value": [0.5, 0.35, 0.2]}})
+    b.mesh("light", _ceiling_light(0.0, H - 0.01, 0.0, half=0.25), diffuse(DARK), (25.0, 23.0, 20.0))
+    b.animate(RigidMotion("ball", translate=_slide(-0.8, 0.0)))
+    return b.build(ROOM_CAMERA, "Room with metal furniture and one area light", duration=4.0,
+                   probe_box=ROOM_PROBES[0], probe_counts=ROOM_PROBES[1])

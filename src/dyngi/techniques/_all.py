@@ -1,3 +1,5 @@
 """Imports every technique module so that each registers itself."""
 from . import path  # noqa: F401
 from . import ddgi  # noqa: F401
+from .adgi import technique as _adgi  # noqa: F401
+from . import isddgi  # noqa: F401

@@ -29,12 +29,14 @@ distance_power : float = 50
 irradiance_gamma : float = 5    perceptual blending space (1: linear)
 normal_bias, view_bias : float  in units of the smallest probe spacing
 encoding : str = 'fp32'         'fp32' | 'qddgi' | 'adgi'
+estimator : str = 'auto'        'matrix' (BLAS) | 'scatter' (Dr.Jit, bit-identical) | 'auto' (matrix on CPU)
 hit_lookup : str = 'stochastic' multi-bounce read at probe-ray hits: one stochastically chosen texel
                                 (same expectation as the filter) or 'filtered' (8 probes x 4 texels)
-direct : str = 'sky'            which emitters NEE handles (see :mod:`dyngi.probes.trace`)
+direct : str = 'sun'            which light NEE handles, the rest the probes (see :mod:`dyngi.probes.trace`)
 update_offscreen : bool = True  False: only probes in the extended camera frustum are updated
 relocate, classify : bool = True
-jitter : bool = False           jitter primary rays inside the pixel (else pixel centres)
+jitter : bool = True            jitter primary rays inside the pixel (else pixel centres); True matches
+                                the reference's box pixel filter, so edge aliasing is not counted as GI error
 
 Budgets (``dyngi compare --budget equal-rays|equal-time``): ``ddgi`` and
 ``qddgi`` spend what the frame's budget leaves after primary shading on
@@ -54,10 +56,10 @@ from ..backend import dr, mi
 from ..errors import DyngiError
 from ..probes import (DiffuseHitShader, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
                       ProbeUpdater, ProbeVolume, TrueAverage, UniformSFDirections, probes_in_frustum)
-from ..probes.trace import DIRECT_MODES, HIT_LOOKUPS, emitter_via_probes, nee_lights, trace_probe_rays
+from ..probes.debug import render_probe_view  # noqa: F401  (re-exported: the probe view lives in probes)
+from ..probes.primary import shade_primary  # noqa: F401  (re-exported: primary shading lives in probes)
+from ..probes.trace import DEFAULT_DIRECT, DIRECT_MODES, HIT_LOOKUPS, check_direct_mode, trace_probe_rays
 from ..probes.update import UPDATE_STAGES
-from ..sampling.lights import sample_traced
-from ..sampling.rng import make_sampler
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
 
@@ -77,68 +79,26 @@ def parse_probe_counts(text: str, scene) -> tuple:
     return tuple(parts)
 
 
-def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direct: str, jitter: bool,
-                  lights=None, direct_samples: int = 1):
-    """Primary-vertex shading (the consumer): emission + NEE direct + albedo/pi * probe irradiance.
-
-    Direct light: ``direct_samples`` NEE samples per pixel over the emitters the
-    probes do not carry (:func:`dyngi.probes.trace.nee_lights`), unless a
-    ``lights`` strategy is given. DDGI itself shades direct light with shadow
-    maps (noise-free); here it is Monte Carlo, so a many-light scene needs more
-    samples (or a better light sampler) to look clean.
-
-    Returns (image Color3f, indirect Color3f, rays cast: the camera rays plus the shadow rays
-    actually traced, as a lazily read Dr.Jit count for :meth:`~dyngi.timing.StageTimer.add_rays`).
-    """
-    mscene = scene.mi_scene
-    custom = lights is not None
-    lights = lights if custom else nee_lights(mscene, direct)
-    w, h = res
-    n = w * h
-    sampler = make_sampler(n, seed, frame, 101)
-    idx = dr.arange(mi.UInt32, n)
-    u = sampler.next_2d() if jitter else mi.Point2f(0.5, 0.5)
-    ray = camera.sample_rays(res, idx, u)
-    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
-    hit = si.is_valid()
-    front = hit & (dr.dot(si.n, ray.d) < 0.0)
-    # -- emission seen directly (always: the camera sees every emitter) --
-    em = si.emitter(mscene)
-    L = mi.Color3f(em.eval(si, front | ~hit))
-    # -- direct light by NEE for the emitters NEE owns --
-    bsdf = si.bsdf(ray)
-    ctx = mi.BSDFContext()
-    k = max(int(direct_samples), 1)
-    shadow_rays = mi.UInt32(0)
-    for _ in range(k):
-        ds, wl, traced = sample_traced(lights, mscene, si, sampler.next_2d(), front)
-        shadow_rays += mi.UInt32(traced)
-        if custom:
-            wl = dr.select(emitter_via_probes(ds.emitter, direct, front), 0.0, wl)
-        f = bsdf.eval(ctx, si, si.to_local(ds.d), front)
-        L += dr.select(front, f * wl * (1.0 / k), 0.0)
-    # -- indirect light from the probes --
-    albedo = bsdf.eval_diffuse_reflectance(si, front)
-    E = volume_query.irradiance(si.p, si.sh_frame.n, -ray.d, active=front)
-    ind = dr.select(front, albedo * dr.inv_pi * E, 0.0)
-    L += ind
-    L = dr.select(dr.isfinite(L), L, 0.0)
-    dr.eval(L, ind, shadow_rays)
-    return L, ind, dr.sum(shadow_rays) + n
-
-
 class _ProbeTechniqueBase(Technique):
     """Shared set-up: grid, volume, query and primary shading."""
 
+    HAS_INDIRECT = True   # FrameResult.indirect: albedo/pi * probe irradiance at the primary hit
+    # Known limitation: under direct='sun'|'sky'|'emissive' the light the probes carry directly (the sky on
+    # a probe ray's miss) is part of the probe irradiance, hence of FrameResult.indirect: the volume has
+    # no bounced-only channel. ``compare --indirect`` warns; direct='nee' gives a true indirect image.
+    INDIRECT_INCLUDES_PROBE_SKY = True
+
     def _setup_volume(self, irradiance_texels: int, distance_texels: int):
         p = self.params
-        if p["direct"] not in DIRECT_MODES:
-            raise DyngiError(f"parameter 'direct' = '{p['direct']}' is invalid; valid values: "
-                             + ", ".join(DIRECT_MODES))
+        check_direct_mode(p["direct"])
         counts = parse_probe_counts(p["probe_counts"], self.scene)
         self.grid = ProbeGrid.from_scene(self.scene, counts)
+        # the clamp never goes below the cell diagonal (issue 11, item 2): a shorter one caps the stored
+        # mean distance below the distance from a probe to points of its own cell, and the Chebyshev test
+        # then rejects probes that see the point
         self.volume = ProbeVolume(self.grid, irradiance_texels, distance_texels,
-                                  max_distance=p["max_distance"] * self.grid.max_spacing)
+                                  max_distance=max(p["max_distance"] * self.grid.max_spacing,
+                                                   self.grid.cell_diagonal))
         self.query = ProbeQuery(self.volume, p["normal_bias"], p["view_bias"], visibility=p["visibility"])
 
     def _primary(self, frame: Frame, t: StageTimer):
@@ -160,10 +120,13 @@ COMMON_PARAMS = {
     "normal_bias": Param(0.05, "query offset along the normal, in units of the smallest probe spacing", min=0.0),
     "view_bias": Param(0.2, "query offset towards the viewer, in units of the smallest probe spacing", min=0.0),
     "visibility": Param(True, "Chebyshev visibility test at query time"),
-    "max_distance": Param(1.5, "distance clamp, in units of the largest probe spacing", min=0.1),
-    "direct": Param("sky", "emitters handled by NEE: 'nee' all, 'sky' all but the environment, "
-                    "'emissive' delta lights only", choices=DIRECT_MODES),
-    "jitter": Param(False, "jitter primary rays inside the pixel (default: pixel centres)"),
+    "max_distance": Param(1.5, "distance clamp, in units of the largest probe spacing; never below the "
+                          "cell diagonal", min=0.1),
+    "direct": Param(DEFAULT_DIRECT, "light handled by NEE (the rest by the probes, see dyngi.probes.trace): "
+                    "'sun' all emitters and a sunsky's sun, not the sky; 'sky' all but the environment; "
+                    "'nee' all; 'emissive' delta lights only", choices=DIRECT_MODES),
+    "jitter": Param(True, "jitter primary rays uniformly inside the pixel, as the box-filtered reference "
+                    "integrates (False: pixel centres, which counts aliasing at edges as error)"),
     "direct_samples": Param(1, "NEE samples per pixel for direct light at the primary hit", min=1, max=64),
 }
 
@@ -193,6 +156,9 @@ class DDGITechnique(_ProbeTechniqueBase):
                                       "has no such damping and it slows the reaction to new light ~4x)",
                                       min=0.0),
         "encoding": Param("fp32", "texel storage encoding", choices=("fp32", "qddgi", "adgi")),
+        "estimator": Param("auto", "per-texel estimate of the frame's rays: 'matrix' (BLAS, CPU), 'scatter' "
+                           "(Dr.Jit scatter-reduce, deterministic), 'auto' (matrix on the CPU backend)",
+                           choices=("auto", "matrix", "scatter")),
         "hit_lookup": Param("stochastic", "how probe-ray hits read the previous probes (multi-bounce): "
                             "'stochastic' one texel of one probe with the filtered value as expectation "
                             "(Pharr et al. 2024), 'filtered' DDGI's 8 probes x bilinear texels",
@@ -210,7 +176,8 @@ class DDGITechnique(_ProbeTechniqueBase):
         self.directions = UniformSFDirections(p["rays_per_probe"])
         self.shader = DiffuseHitShader(p["direct"], lookup=p["hit_lookup"])
         self.blender = HysteresisBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
-                                       p["change_threshold"], p["brightness_threshold"], p["encoding"])
+                                       p["change_threshold"], p["brightness_threshold"], p["encoding"],
+                                       p["estimator"])
         self.states = ProbeStates(p["relocate"], p["classify"])
         self.updater = ProbeUpdater(self.volume, self.directions, self.shader, self.blender, self.states,
                                     self.query, reclassify_interval=p["reclassify_interval"])
@@ -388,49 +355,3 @@ class ProbesReferenceTechnique(_ProbeTechniqueBase):
             self.blender.update(self.volume, r_irr, r_dist, p["rays_per_texel"], p["rays_per_texel"])
         img, ind = self._primary(frame, t)
         return FrameResult(image=img, indirect=ind, stats=t.as_dict())
-
-
-# -- debug view ---------------------------------------------------------------
-
-def render_probe_view(scene, volume: ProbeVolume, camera, res, radius: float = 0.15,
-                      show_scene: bool = True) -> np.ndarray:
-    """Render the probes as spheres shaded by their stored irradiance (``E/pi`` in the sphere normal's direction).
-
-    ``radius`` is a fraction of the smallest probe spacing. Inactive probes are
-    drawn dark red; with ``show_scene`` the scene is drawn in grey (albedo) behind.
-    Returns an H x W x 3 float32 image.
-    """
-    from ..sampling.octahedral import direction_to_texel_coords
-    from ..probes.query import bilinear_gather
-    w, h = res
-    n = w * h
-    r = float(radius) * volume.grid.min_spacing
-    # one mesh of low-poly spheres, one per probe: prim_index // tris -> probe
-    from ..scene.geometry import uv_sphere
-    V0, F0 = uv_sphere((0.0, 0.0, 0.0), r, 6, 12)
-    pos = volume.positions()
-    P = len(pos)
-    V = (V0[None] + pos[:, None]).reshape(-1, 3)
-    F = (F0[None] + (np.arange(P) * len(V0))[:, None, None]).reshape(-1, 3)
-    from ..scene.geometry import diffuse, make_mesh
-    probes_scene = mi.load_dict({"type": "scene", "probes": make_mesh("probes", V, F, diffuse((1, 1, 1)))})
-    idx = dr.arange(mi.UInt32, n)
-    ray = camera.sample_rays(res, idx, mi.Point2f(0.5, 0.5))
-    si_p = probes_scene.ray_intersect(ray)
-    si_s = scene.mi_scene.ray_intersect(ray)
-    probe = si_p.prim_index // len(F0)
-    center = dr.gather(mi.Point3f, volume.device.positions, probe, si_p.is_valid())
-    nrm = dr.normalize(si_p.p - center)
-    coords = direction_to_texel_coords(nrm, volume.irradiance_texels)
-    irr = bilinear_gather(volume.device.irradiance, probe, coords, volume.irradiance_texels, 3)
-    live = dr.gather(mi.UInt32, volume.device.states, probe, si_p.is_valid()) != 0
-    col = dr.select(live, irr, mi.Color3f(0.3, 0.0, 0.0))
-    bg = mi.Color3f(0.0)
-    if show_scene:
-        bsdf = si_s.bsdf(ray)
-        alb = bsdf.eval_diffuse_reflectance(si_s, si_s.is_valid())
-        shade = dr.abs(dr.dot(si_s.sh_frame.n, ray.d))
-        bg = dr.select(si_s.is_valid(), alb * (0.2 + 0.3 * shade), 0.0)
-    use_probe = si_p.is_valid() & (~si_s.is_valid() | (si_p.t <= si_s.t))
-    out = dr.select(use_probe, col, bg)
-    return to_image(out, res)

@@ -1,0 +1,92 @@
+"""Primary-vertex shading with a probe volume (the DDGI consumer, Majercik et al. 2019, Sec. 4).
+
+``L = T * (Le + sum_NEE f * Le_light / pdf + albedo / pi * E_probes(x, n))`` at
+the first opaque surface the camera ray meets: emission seen directly (the full
+emitter, environment included, in every ``direct`` mode), direct light by NEE
+over the light the probes do not carry (:mod:`dyngi.probes.trace`, routing),
+and the probes' irradiance times the diffuse lobe's albedo
+(:func:`dyngi.sampling.diffuse.diffuse_albedo`; glossy indirect light is not
+part of DDGI). NEE evaluates the full BSDF (``bsdf.eval``): direct light on a
+metal is its true glossy reflection.
+
+Surfaces face the camera by :func:`~dyngi.probes.trace.shading_side` (the back of a
+``twosided`` surface is shaded like its front, as Mitsuba shades it).
+
+Camera rays pass straight through clear surfaces (``dielectric``,
+``thindielectric``, ``null``) with their transmittance ``T``, as real-time
+engines draw glass (a transparent pass without refraction;
+:mod:`dyngi.sampling.passthrough`): a deliberate bias -- the glass's own
+reflection (~4-8%) is dropped and a solid glass object is not refracted (a
+flat pane does not shift the image, a glass ball would).
+"""
+from __future__ import annotations
+
+from ..backend import dr, mi
+from ..sampling.diffuse import diffuse_albedo
+from ..sampling.lights import sample_traced
+from ..sampling.passthrough import intersect_through_glass, scene_has_glass
+from ..sampling.rng import make_sampler
+from .trace import light_routing, shading_side
+
+
+def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direct: str, jitter: bool,
+                  lights=None, direct_samples: int = 1):
+    """Primary-vertex shading (the consumer): emission + NEE direct + albedo/pi * probe irradiance.
+
+    Direct light: ``direct_samples`` NEE samples per pixel over the light the
+    probes do not carry (:func:`dyngi.probes.trace.nee_lights`), unless a
+    ``lights`` strategy is given (its samples are then weighted by
+    :meth:`~dyngi.probes.trace.LightRouting.nee_weight`). DDGI itself shades
+    direct light with shadow maps (noise-free); here it is Monte Carlo, so a
+    many-light scene needs more samples (or a better light sampler) to look clean.
+
+    Returns (image Color3f, indirect Color3f, rays cast: the camera rays (with their pass-through
+    continuations) plus the shadow rays actually traced, as a lazily read Dr.Jit count for
+    :meth:`~dyngi.timing.StageTimer.add_rays`).
+    """
+    mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
+    routing = light_routing(mscene, direct)
+    custom = lights is not None
+    lights = lights if custom else routing.nee
+    w, h = res
+    n = w * h
+    sampler = make_sampler(n, seed, frame, 101)
+    idx = dr.arange(mi.UInt32, n)
+    u = sampler.next_2d() if jitter else mi.Point2f(0.5, 0.5)
+    ray = camera.sample_rays(res, idx, u)
+    glass = scene_has_glass(mscene)
+    passes = mi.UInt32(0)
+    if glass:
+        si, throughput, _, passes = intersect_through_glass(mscene, ray, mi.Bool(True))
+    else:
+        si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
+    hit = si.is_valid()
+    bsdf = si.bsdf(ray)
+    front, n_side = shading_side(si, ray, bsdf, hit)    # two-sided surfaces face the camera from both sides
+    # -- emission seen directly (always: the camera sees every emitter in full). The emitter decides which
+    # side emits (Mitsuba: the shading normal's side); the geometric ``front`` disagrees with it on shapes
+    # with a mirroring to_world, and used as the mask it blacked out such lights (the staircase2 doorway) --
+    em = si.emitter(mscene)
+    L = mi.Color3f(em.eval(si))
+    # -- direct light by NEE for the light NEE owns --
+    ctx = mi.BSDFContext()
+    k = max(int(direct_samples), 1)
+    shadow_rays = mi.UInt32(0)
+    for _ in range(k):
+        ds, wl, traced = sample_traced(lights, mscene, si, sampler.next_2d(), front)
+        shadow_rays += mi.UInt32(traced)
+        if custom:
+            wl = routing.nee_weight(ds, wl, front)
+        f = bsdf.eval(ctx, si, si.to_local(ds.d), front)
+        L += dr.select(front, f * wl * (1.0 / k), 0.0)
+    # -- indirect light from the probes (diffuse lobe only) --
+    albedo = diffuse_albedo(bsdf, si, front)
+    E = volume_query.irradiance(si.p, n_side, -ray.d, active=front)
+    ind = dr.select(front, albedo * dr.inv_pi * E, 0.0)
+    L += ind
+    if glass:
+        L *= throughput
+        ind *= throughput
+    L = dr.select(dr.isfinite(L), L, 0.0)
+    dr.eval(L, ind, shadow_rays)
+    return L, ind, dr.sum(shadow_rays) + n + dr.sum(passes)

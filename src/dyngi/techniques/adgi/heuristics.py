@@ -1,0 +1,280 @@
+"""ADGI heuristics: frusta, pilot rays and the per-octant heuristic tables (Datta et al. 2022, Sec. 4.1-4.4).
+
+Every probe has 8 octant entries (Fig. 5a), stored as flat Dr.Jit arrays of
+``P * 8`` floats, entry ``probe * 8 + o``. Octant ``o`` has bit 0 set for
+``x < 0``, bit 1 for ``y < 0``, bit 2 for ``z < 0``; the opposite octant is
+``o ^ 7``.
+
+Frusta (Fig. 6b)
+----------------
+``V_in``: ``|clip xy| <= 1.2`` and ``f_c >= 0.75``; ``V_out``: ``|clip xy| <= 1.4``
+and ``f_c >= 0.5`` (:func:`frusta`; the clip test is
+:func:`~dyngi.probes.update.probes_in_frustum`, which also keeps probes within
+one cell diagonal of the camera).
+
+Pilot rays (Sec. 4.4)
+---------------------
+One ray per octant per probe of ``V_out`` (:class:`PilotRays`): uniformly
+random inside its octant, keyed on (seed, frame // 2, probe, octant), so
+frames ``2j`` and ``2j + 1`` trace identical rays (the AABBCCDD pattern) and
+the time differences of Eqs. 13 and 16 are taken between them, i.e. on odd
+frames only, and only for probes that were also traced the frame before.
+
+Heuristics
+----------
+* ``f_c`` (Eq. 10): 1 if ``|p - c| < k``, else ``exp(-(|p - c| - k))``
+  (world units, as the paper). ``k`` is the user's threshold; our default is
+  the probe box diagonal (ours: every built-in scene is room-sized).
+* ``f_v`` (Eq. 11): ``exp(-2 t / s)``, ``t = trace(p, -w)``, ``s`` the cell
+  diagonal. The pilot ray of octant ``o`` along ``w_o`` measures ``t`` for the
+  opposite octant ``o ^ 7`` (ours: no extra ray). A miss gives ``f_v = 0``; a
+  back-face hit uses its true distance (``|d| / 0.2``, the tracer's convention).
+* ``f_r`` (Eq. 12): ``min(r, beta) / beta``, ``beta = 5``, ``r`` the luminance
+  of the radiance the pilot hit reflects from *direct* light (the caller's
+  shading with no probe lookup).
+* ``f_dv``, ``f_dr`` (Eqs. 13-18): ``f0 = |f_v^t - f_v^(t-1)|`` (the absolute
+  change; ours, a change of either sign matters), through the temporal trigger
+  ``Tr`` (Fig. 6a, :func:`trigger_step`): a pulse sets the signal to its height
+  ``A``, which then decays linearly by ``A / theta`` per frame (``theta`` in
+  frames, default 16, ours; a larger pulse restarts it). The triggered signal
+  is convolved with a 5x5x5 box over the probe grid (zero outside the grid)
+  times a directional kernel on the 8-octant table: the octant itself and its
+  three edge neighbours (octants differing in one sign; ours -- an octant has
+  no 3x3 neighbourhood, this is the 2x2x2 octant cube's analogue). Both are
+  plain sums as in Eq. 15 (the scale cancels in Metropolis ratios).
+* ``f_s = f_c f_v`` (Eq. 19), ``f_d = f_c f_v (f_dv + mu f_dr)``, ``mu = 2`` (Eq. 20).
+* The guide of the static chains (Sec. 4.8): ``h = exp(min(g / f_s, 1)) f_s``
+  (:func:`static_guide`; ``g`` the cached irradiance's luminance, our scalar of
+  the RGB cache).
+
+Probes outside ``V_out`` keep their last ``f_v``/``f_r``; their triggers decay.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...backend import dr, mi
+from ...errors import DyngiError
+from ...probes.rays import RayPlan
+from ...probes.update import probes_in_frustum
+from ...probes.volume import upload
+from ...sampling.rng import mix_seed
+
+OCTANTS = 8
+V_IN_CLIP, V_IN_FC = 1.2, 0.75         # Fig. 6b
+V_OUT_CLIP, V_OUT_FC = 1.4, 0.5
+BETA = 5.0                              # Eq. 12
+MU = 2.0                                # Eq. 20
+THETA = 16.0                            # trigger decay in frames (ours)
+SPATIAL_RADIUS = 2                      # 5x5x5 (Sec. 4.1.4)
+BACKFACE_DISTANCE_SCALE = 0.2           # the tracer's -0.2 t for back faces
+
+
+def octant_of(d):
+    """Octant index (Dr.Jit UInt32) of a direction: bit 0 ``x < 0``, bit 1 ``y < 0``, bit 2 ``z < 0``."""
+    one, zero = mi.UInt32(1), mi.UInt32(0)
+    return (dr.select(d.x < 0.0, one, zero) | dr.select(d.y < 0.0, one << 1, zero)
+            | dr.select(d.z < 0.0, one << 2, zero))
+
+
+def octant_of_np(d: np.ndarray) -> np.ndarray:
+    d = np.asarray(d)
+    return ((d[..., 0] < 0) * 1 + (d[..., 1] < 0) * 2 + (d[..., 2] < 0) * 4).astype(np.int64)
+
+
+def octant_signs(o):
+    """(sx, sy, sz) in {-1, 1} of octant ``o`` (Dr.Jit)."""
+    return mi.Vector3f(dr.select((o & 1) != 0, -1.0, 1.0), dr.select((o & 2) != 0, -1.0, 1.0),
+                       dr.select((o & 4) != 0, -1.0, 1.0))
+
+
+def camera_falloff(distance, k: float):
+    """``f_c`` (Eq. 10) of distances to the camera (NumPy)."""
+    d = np.asarray(distance, np.float64)
+    return np.exp(-np.maximum(d - k, 0.0))
+
+
+def frusta(volume, camera, res, k: float):
+    """(f_c (P,) float64, V_in (P,) bool, V_out (P,) bool) of Fig. 6b (host arrays)."""
+    dist = np.linalg.norm(volume.positions() - np.asarray(camera.origin, np.float64), axis=1)
+    fc = camera_falloff(dist, k)
+    v_in = probes_in_frustum(volume, camera, res, V_IN_CLIP) & (fc >= V_IN_FC)
+    v_out = probes_in_frustum(volume, camera, res, V_OUT_CLIP) & (fc >= V_OUT_FC)
+    return fc, v_in, v_out | v_in
+
+
+class PilotRays:
+    """One stratified random ray per octant per probe, identical on frames ``2j`` and ``2j+1`` (Sec. 4.4)."""
+
+    name = "adgi-pilot"
+
+    def __init__(self, stream: int = 0x9170):
+        self.stream = int(stream)
+
+    def plan(self, frame: int, seed: int, probe_ids, previous=None) -> RayPlan:
+        pids = np.asarray(probe_ids, np.uint32)
+        n = len(pids) * OCTANTS
+        idx = dr.arange(mi.UInt32, n)
+        slot = idx // OCTANTS
+        o = idx - slot * OCTANTS
+        probe = dr.gather(mi.UInt32, upload(pids, mi.UInt32), slot) if len(pids) else mi.UInt32()
+        pair = int(frame) // 2
+        key = probe * OCTANTS + o
+        s0 = dr.opaque(mi.UInt32, mix_seed(seed, pair, self.stream))
+        s1 = dr.opaque(mi.UInt32, mix_seed(seed, pair, self.stream + 1))
+        u = mi.Point2f(mi.sample_tea_float32(key, s0, 6), mi.sample_tea_float32(key, s1, 6))
+        d = dr.abs(mi.warp.square_to_uniform_sphere(u)) * octant_signs(o)
+        return RayPlan(probe, d, OCTANTS, None, pids, slot=slot)
+
+
+@dataclass
+class HeuristicState:
+    """Per-octant tables (``P * 8`` Floats, entry ``probe * 8 + o``) and per-probe stamps.
+
+    fv, fr : Float           latest f_v (Eq. 11) and f_r (Eq. 12)
+    trig_v, peak_v : Float   trigger signal and pulse height of the visibility change (Eq. 14)
+    trig_r, peak_r : Float   the same for the radiance change (Eq. 17)
+    fdv, fdr : Float         convolved triggers (Eqs. 15, 18)
+    fc : Float               f_c per probe (Eq. 10), this frame
+    stamp : UInt32           per probe: 1 + the frame its pilot rays were last traced (0: never)
+    """
+
+    fv: "mi.Float"
+    fr: "mi.Float"
+    trig_v: "mi.Float"
+    peak_v: "mi.Float"
+    trig_r: "mi.Float"
+    peak_r: "mi.Float"
+    fdv: "mi.Float"
+    fdr: "mi.Float"
+    fc: "mi.Float"
+    stamp: "mi.UInt32"
+
+    @staticmethod
+    def zeros(n_probes: int) -> "HeuristicState":
+        n = int(n_probes) * OCTANTS
+        z = [dr.zeros(mi.Float, n) for _ in range(8)]
+        return HeuristicState(*z, dr.full(mi.Float, 1.0, int(n_probes)), dr.zeros(mi.UInt32, int(n_probes)))
+
+    def fc_entries(self):
+        return dr.gather(mi.Float, self.fc, dr.arange(mi.UInt32, dr.width(self.fv)) // OCTANTS)
+
+    @property
+    def fs(self):
+        """``f_s = f_c f_v`` per entry (Eq. 19)."""
+        return self.fc_entries() * self.fv
+
+    def fd(self, mu: float = MU):
+        """``f_d = f_c f_v (f_dv + mu f_dr)`` per entry (Eq. 20)."""
+        return self.fs * (self.fdv + dr.opaque(mi.Float, mu) * self.fdr)
+
+
+def trigger_step(trig, peak, pulse, theta: float):
+    """Temporal trigger ``Tr`` (Eq. 14, Fig. 6a), one frame: the signal decays linearly by ``peak / theta``;
+    a pulse above the decayed signal restarts it at the pulse's height. Returns (signal, peak)."""
+    decayed = dr.maximum(trig - peak * dr.opaque(mi.Float, 1.0 / max(float(theta), 1e-6)), 0.0)
+    fire = pulse > decayed
+    return dr.select(fire, pulse, decayed), dr.select(fire, pulse, dr.select(decayed > 0.0, peak, 0.0))
+
+
+def convolve(table, counts, radius: int = SPATIAL_RADIUS):
+    """Eq. 15: box sum over ``(2r+1)^3`` probes (zero outside the grid) x the 4-octant directional kernel."""
+    nx, ny, nz = (int(c) for c in counts)
+    n = dr.width(table)
+    e = dr.arange(mi.UInt32, n)
+    probe = e // OCTANTS
+    o = e - probe * OCTANTS
+    cx = probe % nx
+    cy = (probe // nx) % ny
+    cz = probe // (nx * ny)
+    x = table
+    for c, size, stride in ((cx, nx, 1), (cy, ny, nx), (cz, nz, nx * ny)):
+        acc = dr.zeros(mi.Float, n)
+        ci = mi.Int32(c)
+        for d in range(-radius, radius + 1):
+            ok = (ci + d >= 0) & (ci + d < size)
+            src = mi.UInt32(mi.Int32(e) + d * stride * OCTANTS)
+            acc += dr.gather(mi.Float, x, dr.select(ok, src, e), ok)
+        dr.eval(acc)
+        x = acc
+    base = probe * OCTANTS
+    out = x + dr.gather(mi.Float, x, base + (o ^ 1)) + dr.gather(mi.Float, x, base + (o ^ 2)) \
+        + dr.gather(mi.Float, x, base + (o ^ 4))
+    dr.eval(out)
+    return out
+
+
+class ADGIHeuristics:
+    """Builds and updates :class:`HeuristicState` from pilot-ray results (see the module docstring).
+
+    grid : ProbeGrid     the probe grid (its counts and cell diagonal)
+    k : float | None     Eq. 10's threshold (world units); None = the probe box diagonal
+    beta, mu, theta      Eq. 12's range (5), Eq. 20's weight (2), the trigger's decay in frames (16)
+    """
+
+    def __init__(self, grid, k: float | None = None, beta: float = BETA, mu: float = MU, theta: float = THETA):
+        self.grid = grid
+        box = np.asarray(grid.spacing) * (np.asarray(grid.counts) - 1)
+        self.k = float(np.linalg.norm(box)) if k is None else float(k)
+        for name, v in (("beta", beta), ("theta", theta)):
+            if not (np.isfinite(v) and v > 0):
+                raise DyngiError(f"ADGI heuristic parameter '{name}' must be > 0, got {v}")
+        if not (np.isfinite(mu) and mu >= 0):
+            raise DyngiError(f"ADGI heuristic parameter 'mu' must be >= 0, got {mu}")
+        self.beta, self.mu, self.theta = float(beta), float(mu), float(theta)
+        self.pilot = PilotRays()
+
+    def initial_state(self) -> HeuristicState:
+        return HeuristicState.zeros(self.grid.n_probes)
+
+    def update(self, state: HeuristicState, frame: int, probe_ids, distance, direct_luminance,
+               fc: np.ndarray | None = None) -> HeuristicState:
+        """One frame: the pilot results of ``probe_ids`` (plan order, 8 rays each: ``distance`` signed as
+        the tracer returns it, ``direct_luminance`` per ray) -> the new state (``state`` is not modified).
+        ``fc``: this frame's f_c per probe (default: unchanged). An empty ``probe_ids`` only decays."""
+        pids = np.asarray(probe_ids, np.uint32)
+        P = self.grid.n_probes
+        frame_o = dr.opaque(mi.UInt32, int(frame))
+        fv, fr = mi.Float(state.fv), mi.Float(state.fr)
+        pulse_v = dr.zeros(mi.Float, P * OCTANTS)
+        pulse_r = dr.zeros(mi.Float, P * OCTANTS)
+        stamp = mi.UInt32(state.stamp)
+        if len(pids):
+            n = len(pids) * OCTANTS
+            i = dr.arange(mi.UInt32, n)
+            slot = i // OCTANTS
+            o = i - slot * OCTANTS
+            probe = dr.gather(mi.UInt32, upload(pids, mi.UInt32), slot)
+            d = mi.Float(distance)
+            t = dr.select(d < 0.0, -d / BACKFACE_DISTANCE_SCALE, d)
+            s = dr.opaque(mi.Float, self.grid.cell_diagonal)
+            fv_new = dr.select(dr.isfinite(t), dr.exp(-2.0 * t / s), 0.0)          # Eq. 11, for octant o ^ 7
+            lum = dr.maximum(mi.Float(direct_luminance), 0.0)
+            beta = dr.opaque(mi.Float, self.beta)
+            fr_new = dr.minimum(dr.select(dr.isfinite(lum), lum, 0.0), beta) / beta   # Eq. 12
+            ev = probe * OCTANTS + (o ^ 7)
+            er = probe * OCTANTS + o
+            # -- time differences between identical rays (second frame of a pair, Eqs. 13, 16) --
+            if int(frame) % 2 == 1:
+                same = dr.gather(mi.UInt32, state.stamp, probe) == frame_o       # traced at frame - 1
+                dr.scatter(pulse_v, dr.abs(fv_new - dr.gather(mi.Float, state.fv, ev)), ev, same)
+                dr.scatter(pulse_r, dr.abs(fr_new - dr.gather(mi.Float, state.fr, er)), er, same)
+            dr.scatter(fv, fv_new, ev)
+            dr.scatter(fr, fr_new, er)
+            dr.scatter(stamp, frame_o + 1, probe)
+        # -- temporal trigger (Eqs. 14, 17) and convolution (Eqs. 15, 18) --
+        trig_v, peak_v = trigger_step(state.trig_v, state.peak_v, pulse_v, self.theta)
+        trig_r, peak_r = trigger_step(state.trig_r, state.peak_r, pulse_r, self.theta)
+        dr.eval(fv, fr, trig_v, peak_v, trig_r, peak_r, stamp)
+        fdv = convolve(trig_v, self.grid.counts)
+        fdr = convolve(trig_r, self.grid.counts)
+        fc_dr = state.fc if fc is None else upload(np.asarray(fc, np.float32), mi.Float)
+        return HeuristicState(fv, fr, trig_v, peak_v, trig_r, peak_r, fdv, fdr, fc_dr, stamp)
+
+
+def static_guide(fs, g):
+    """The static chains' target ``h = exp(min(g / f_s, 1)) f_s`` (Sec. 4.8; 0 where ``f_s = 0``)."""
+    ratio = dr.select(fs > 0.0, dr.minimum(g / dr.maximum(fs, 1e-30), 1.0), 0.0)
+    return dr.exp(ratio) * fs
