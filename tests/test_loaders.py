@@ -145,3 +145,23 @@ def test_real_cornell_box_xml():
     np.testing.assert_allclose(np.broadcast_to(np.array(ours.o), (3, len(px))), np.array(theirs.o), atol=0.02)
     img = render(sc, res=(24, 24), spp=4)
     assert np.all(np.isfinite(img)) and img.mean() > 0.05
+
+
+def test_bounds_include_shapes_mitsuba_merged(backend, tmp_path):
+    """Mitsuba merges rectangles that share a BSDF into one mesh whose bbox() is invalid, so the scene's
+    own bbox() misses them; the probe volume must still span the room (it sat inside the cube before)."""
+    from dyngi.scene import load_scene
+
+    rect = ('<shape type="rectangle"><transform name="to_world"><scale x="2" y="2"/>{}</transform>'
+            '<ref id="w"/></shape>')
+    xml = ('<scene version="3.0.0"><bsdf type="diffuse" id="w"/>'
+           + rect.format('<rotate x="1" angle="-90"/>')
+           + rect.format('<translate y="2" z="-2"/>')
+           + '<shape type="cube"><transform name="to_world"><scale value="0.2"/><translate x="1" y="0.2"/>'
+             '</transform><ref id="w"/></shape>'
+           + '<emitter type="constant"/></scene>')
+    p = tmp_path / "room.xml"
+    p.write_text(xml)
+    lo, hi = load_scene(str(p)).meta.bounds
+    assert lo[0] == pytest.approx(-2.0, abs=1e-5) and hi[0] == pytest.approx(2.0, abs=1e-5)
+    assert lo[2] == pytest.approx(-2.0, abs=1e-5) and hi[1] == pytest.approx(4.0, abs=1e-5)

@@ -19,6 +19,31 @@ from .animation import Animator
 from .camera import Camera, CameraPath
 
 
+
+def scene_bounds(mi_scene) -> tuple[np.ndarray, np.ndarray]:
+    """(lo[3], hi[3]) float64: the bounds of every shape of ``mi_scene``.
+
+    Not ``mi_scene.bbox()``: Mitsuba 3.9 merges shapes that share a BSDF (e.g. the rectangles and cubes
+    of a room in an XML file) into one mesh whose ``bbox()`` covers only part of it (or is invalid), and
+    the scene's box then misses them (measured: a room of six rectangles and a cube came out as the
+    cube's box, so every probe sat in the cube). Meshes contribute the box of their vertex positions.
+    """
+    lo = np.full(3, np.inf)
+    hi = np.full(3, -np.inf)
+    for sh in mi_scene.shapes():
+        if sh.is_mesh():
+            if sh.vertex_count() == 0:
+                continue
+            v = np.asarray(sh.vertex_positions_buffer(), np.float64).reshape(-1, 3)
+            a, b = v.min(axis=0), v.max(axis=0)
+        else:
+            bb = sh.bbox()
+            if not bb.valid():
+                continue
+            a, b = np.array(bb.min, np.float64), np.array(bb.max, np.float64)
+        lo, hi = np.minimum(lo, a), np.maximum(hi, b)
+    return lo, hi
+
 @dataclass
 class SceneMeta:
     bounds: tuple            # (lo[3], hi[3])
@@ -82,8 +107,7 @@ class Scene:
             a.bind(self.params)
         self.time: float | None = None
         self._base_hash: str | None = None
-        bb = self.mi_scene.bbox()
-        lo, hi = np.array(bb.min, np.float64), np.array(bb.max, np.float64)
+        lo, hi = scene_bounds(self.mi_scene)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise DyngiError(f"scene '{self.name}' has no finite geometry bounds")
         if self.probe_box is None or self.probe_counts is None:

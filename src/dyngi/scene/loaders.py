@@ -64,8 +64,9 @@ def _check_meshes(sc: Scene, path: str) -> None:
 
 
 def _camera_from_bbox(mi_scene) -> Camera:
-    bb = mi_scene.bbox()
-    lo, hi = np.array(bb.min), np.array(bb.max)
+    from .core import scene_bounds
+
+    lo, hi = scene_bounds(mi_scene)
     c = 0.5 * (lo + hi)
     r = 0.5 * np.linalg.norm(hi - lo)
     return Camera(tuple(c + [0.0, 0.2 * r, 2.2 * r]), tuple(c), (0, 1, 0), 45.0)
