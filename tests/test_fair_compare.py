@@ -447,3 +447,14 @@ def test_indirect_warns_when_probes_carry_the_sky(env, tmp_path, capsys):
     assert "warning" in capsys.readouterr().err
     run = prepare("cornell-static", ["ddgi"], str(tmp_path / "b"), 2, "equal-frames", None, {}, None, None, True)
     assert run["warnings"] == []
+
+
+def test_equal_rays_flags_the_gamma_blend_bias(env, tmp_path):
+    """An equal-ray budget that cuts ddgi below 32 rays per probe with the perceptual blend is not silent:
+    summary.md says how biased that is; the linear blend (irradiance_gamma=1) is not flagged."""
+    out = tmp_path / "g"
+    _compare(out, ["path", "ddgi", "ddgi:irradiance_gamma=1"], frames=3, budget="equal-rays",
+             scene="cornell-static")
+    md = _md(out)
+    flagged = [ln for ln in md.splitlines() if "rays per probe with the perceptual blend" in ln]
+    assert len(flagged) == 1 and flagged[0].startswith("**Warning:** ddgi:")

@@ -197,7 +197,11 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
         summary[label] = s
         if label != labels[0]:
             accounting[label] = budget_accounting(seq, first, budget)
+    warnings = list(run.get("warnings", []))
+    for label, seq in results.items():       # what techniques flag about their own frames, once each
+        seen = dict.fromkeys(w for st in seq.stats for w in (st.get("warnings") or ()))
+        warnings += [f"{label}: {w}" for w in seen]
     ctx = {"frames": frames, "res": tuple(res), "budget": budget, "seed": seed, "ref_spp": run["ref_spp"],
            "ref_depth": run["ref_depth"], "indirect": run["indirect"], "ref_noise": summarize_noise(noise),
-           "accounting": accounting, "warnings": run.get("warnings", [])}
+           "accounting": accounting, "warnings": warnings}
     return {"results": results, "refs": refs, "rows": rows, "summary": summary, "ctx": ctx}

@@ -205,6 +205,11 @@ class DDGITechnique(_ProbeTechniqueBase):
         stats.update({k: v for k, v in info.items() if k != "rays"})
         stats["active_probes"] = int(np.count_nonzero(self.volume.state.states))
         stats["rays_per_probe"] = rpp
+        if rpp < GAMMA_BIAS_RAYS and p["irradiance_gamma"] > 1.0:
+            stats["warnings"] = [f"{rpp} rays per probe with the perceptual blend (irradiance_gamma="
+                                 f"{p['irradiance_gamma']:g}): biased low by ~3% on average, up to ~18% in texels "
+                                 "facing a small bright source (docs/benchmarks.md, gamma 5 blend bias); "
+                                 "irradiance_gamma=1 is unbiased"]
         self._measure(stats, info["probes_traced"], rpp)
         return FrameResult(image=img, indirect=ind, stats=stats)
 
@@ -258,6 +263,7 @@ class DDGITechnique(_ProbeTechniqueBase):
             self._ms_fixed = max(stats["total_ms"] - update, 0.0)
 
 
+GAMMA_BIAS_RAYS = 32  # below this many rays per probe the gamma-5 blend's low bias exceeds 1% (measured)
 MIN_BUDGET_RAYS = 8   # fewest rays per probe a budget can leave (below this the blend has holes)
 
 
