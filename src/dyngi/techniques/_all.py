@@ -3,3 +3,4 @@ from . import path  # noqa: F401
 from . import ddgi  # noqa: F401
 from .adgi import technique as _adgi  # noqa: F401
 from . import isddgi  # noqa: F401
+from . import restir  # noqa: F401
