@@ -65,8 +65,41 @@ def _noise_of(out) -> tuple[np.ndarray, dict]:
     return np.asarray(img, np.float32), (dict(noise) if isinstance(noise, dict) else {})
 
 
+class ReferenceList(list):
+    """The per-frame reference images, with ``tracked``: the 8 tracked pixels of SMC-IR Sec. 5.2 and their
+    per-pixel references of more samples (``{'pixels', 'values': T x 8 x 3, 'spp'}``), or None."""
+
+    tracked: dict | None = None
+
+
 def collect_references(scene, frames: int, res, spp: int, ref_depth: int, indirect: bool = False,
-                       bar=None) -> tuple[list, list]:
+                       bar=None, tracked_spp: int | None = None) -> tuple[list, list]:
+    """(images, noise dicts) of the references of frames 0..frames-1 (cached on disk).
+
+    The images come as a :class:`ReferenceList` whose ``tracked`` holds the 8 tracked pixels (chosen
+    from frame 0's reference, :func:`dyngi.metrics.temporal.pick_tracked_pixels`) and their per-pixel
+    references of ``tracked_spp`` samples (default 16x ``spp``, :mod:`dyngi.experiments.tracked`;
+    0: none, the image reference's values stand in)."""
+    refs, noise = _collect_images(scene, frames, res, spp, ref_depth, indirect, bar)
+    refs = ReferenceList(refs)
+    if refs:
+        from ..metrics.temporal import pick_tracked_pixels
+        from .tracked import TRACKED_SPP_FACTOR, TRACKED_SPP_MAX, cached_tracked_reference
+
+        pix = pick_tracked_pixels(refs[0])
+        tspp = min(TRACKED_SPP_MAX, TRACKED_SPP_FACTOR * int(spp)) if tracked_spp is None else int(tracked_spp)
+        if tspp > 0:
+            vals = np.stack([cached_tracked_reference(scene, scene.frame_time(i), res, pix, tspp, ref_depth,
+                                                      indirect)
+                             for i in range(frames)])
+        else:
+            vals = np.stack([r[pix[:, 0], pix[:, 1]] for r in refs])
+        refs.tracked = {"pixels": pix, "values": vals, "spp": tspp if tspp > 0 else int(spp)}
+    return refs, noise
+
+
+def _collect_images(scene, frames: int, res, spp: int, ref_depth: int, indirect: bool = False,
+                    bar=None) -> tuple[list, list]:
     """(images, noise dicts) of the references of frames 0..frames-1 (cached on disk)."""
     from .reference import reference_halves
 
@@ -125,7 +158,9 @@ def evaluate_sequence(label: str, seq, refs: list, names, images: list | None = 
     """(csv rows, summary) of one technique's run against ``refs``.
 
     ``images``: what to measure (default ``seq.images``; ``seq.indirect`` for indirect-only comparisons).
-    Summary: ``mean`` per metric (NaN if any frame failed), ``E``/``E_prime`` (SMC-IR Sec. 5.2),
+    Summary: ``mean`` per metric (NaN if any frame failed), ``E``/``E_prime`` (SMC-IR Sec. 5.2, every
+    pixel against the image reference), ``E_tracked``/``E_prime_tracked`` (the same over the 8 tracked
+    pixels against their per-pixel reference, when ``refs.tracked`` is set: :class:`ReferenceList`),
     ``ms_per_frame`` and ``rays_per_frame`` over the steady frames, ``stage_ms``,
     ``nonfinite_pixels``/``nonfinite_frames``/``failed``, ``negative_pixels``.
     """
@@ -150,6 +185,12 @@ def evaluate_sequence(label: str, seq, refs: list, names, images: list | None = 
         tm = {"E": float("nan"), "E_prime": float("nan")}
     else:
         tm = temporal_errors(np.stack([np.maximum(x, 0.0) for x in images]), np.stack(refs))
+    tracked = getattr(refs, "tracked", None)
+    te = {"E": float("nan"), "E_prime": float("nan")}
+    if tracked is not None and not failed:   # Sec. 5.2: 8 tracked pixels against their own reference
+        pix = tracked["pixels"]
+        est = np.stack([np.maximum(x, 0.0)[pix[:, 0], pix[:, 1]] for x in images])[:, :, None, :]
+        te = temporal_errors(est, np.asarray(tracked["values"])[:, :, None, :])
     steady, steady_ms = seq.steady()
     stage_ms = {}
     for st in steady:
@@ -158,6 +199,9 @@ def evaluate_sequence(label: str, seq, refs: list, names, images: list | None = 
     summary = {
         "mean": {k: float(np.mean([f[k] for f in per_frame])) for k in names},
         "E": float(tm["E"]), "E_prime": float(tm["E_prime"]),
+        "E_tracked": float(te["E"]), "E_prime_tracked": float(te["E_prime"]),
+        "tracked_pixels": tracked["pixels"].tolist() if tracked is not None else None,
+        "tracked_spp": int(tracked["spp"]) if tracked is not None else None,
         "ms_per_frame": float(np.mean(steady_ms)),
         "stage_ms": stage_ms,
         "rays_per_frame": float(np.mean([s.get("total_rays", 0) for s in steady])),

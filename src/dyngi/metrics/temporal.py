@@ -156,3 +156,33 @@ def temporal_errors(frames, refs, pixels=None, exposure=1.0, dt: float = 1.0) ->
     for img, ref in zip(frames, refs):
         tr.add(img, ref)
     return tr.result()
+
+
+def pick_tracked_pixels(ref, n: int = 8, grid: tuple[int, int] = (4, 2)) -> np.ndarray:
+    """The ``n`` = 8 pixels tracked as in SMC-IR Sec. 5.2, chosen from a reference image (H x W x 3).
+
+    Which and why (our choice; the paper does not say which 8 it tracks): the image is cut into a
+    ``grid`` of 4 x 2 cells, one pixel per cell, so the 8 spread over the whole view; in each cell, the
+    pixel whose reference luminance is the median of the cell's *lit* pixels (luminance > 0), so each
+    tracks a typical surface of its region rather than a dark miss, an emitter or an edge extreme; a cell
+    with no lit pixel gives its centre. Deterministic in the reference; every technique gets the same
+    pixels. Returns (n, 2) int (row, col).
+    """
+    img = as_image(ref, "reference", nonnegative=True)
+    h, w = img.shape[:2]
+    y = luminance(img)
+    gx, gy = grid
+    out = []
+    for cy in range(gy):
+        for cx in range(gx):
+            r0, r1 = cy * h // gy, max(cy * h // gy + 1, (cy + 1) * h // gy)
+            c0, c1 = cx * w // gx, max(cx * w // gx + 1, (cx + 1) * w // gx)
+            cell = y[r0:r1, c0:c1]
+            lit = np.flatnonzero(cell.ravel() > 0)
+            if len(lit) == 0:
+                out.append(((r0 + r1) // 2, (c0 + c1) // 2))
+                continue
+            vals = cell.ravel()[lit]
+            k = lit[np.argsort(vals, kind="stable")[len(lit) // 2]]
+            out.append((r0 + k // cell.shape[1], c0 + k % cell.shape[1]))
+    return np.asarray(out[: int(n)], np.int64)

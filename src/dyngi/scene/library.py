@@ -36,12 +36,14 @@ def builtin(name: str, description: str, stands_for: str = ""):
 def builtin_names() -> list[str]:
     from . import builtin as _  # noqa: F401  (registers the scenes)
     from . import builtin_hall as _hall  # noqa: F401
+    from . import builtin_smcir as _smcir  # noqa: F401
     return sorted(BUILTINS)
 
 
 def make_builtin(name: str):
     from . import builtin as _  # noqa: F401
     from . import builtin_hall as _hall  # noqa: F401
+    from . import builtin_smcir as _smcir  # noqa: F401
     if name not in BUILTINS:
         raise unknown_choice("scene", name, BUILTINS)
     e = BUILTINS[name]

@@ -1,0 +1,238 @@
+"""Points that VPL techniques trace: camera-visible points, candidate hits, photon paths, visibility.
+
+All per-ray work is one Dr.Jit kernel per call; results come back to the host as
+NumPy arrays of the valid lanes (a few ten thousand points: the host-side
+selection of :mod:`dyngi.techniques.smcir` works on them).
+
+* :func:`raw_candidates` -- Algorithm 1 lines 3 and 5 (Sec. 3.2.1): camera rays
+  through random pixel positions find directly visible points ``x``; one
+  cosine-distributed ray from each finds ``y``. A hit counts when both ``x`` and
+  ``y`` are front-facing (:func:`dyngi.probes.trace.shading_side`) diffuse
+  surfaces (diffuse albedo > 0): VPLs live on diffuse surfaces only (Sec. 3.1).
+* :func:`segment_clear` -- two-sided visibility between point pairs (shadow ray,
+  both cosines > 0): the mailbox test of Sec. 3.2.2.
+* :func:`camera_sees` -- a point lies in the view frustum and the camera ray to it is unoccluded.
+* :func:`trace_photons` -- Keller's instant radiosity (1997): photons from the
+  lights (``scene.sample_emitter_ray``: area, point, spot, directional, environment),
+  a VPL at each diffuse bounce.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..backend import dr, mi
+from ..probes.trace import shading_side
+from ..sampling.diffuse import diffuse_albedo
+from ..sampling.rng import make_sampler
+
+RAY_EPS = 1e-4
+"""Shadow-ray shortening at both ends, relative to 1 + max|p| (our choice; Mitsuba's own offset is ~1e-6)."""
+
+
+MIN_LANES = 16
+"""Per-point kernels run on at least this many lanes (padded): a width-1 Dr.Jit array is a scalar
+broadcast, whose kernel differs from the vector one, so a frame with one invalid VPL compiled anew."""
+
+
+def padded(a: np.ndarray | None, n: int | None = None):
+    """``a`` (rows) padded with copies of its last row (or zeros) to ``max(len, MIN_LANES)`` rows."""
+    if a is None:
+        return None
+    a = np.asarray(a)
+    want = max(len(a), MIN_LANES) if n is None else n
+    if len(a) >= want:
+        return a
+    fill = np.repeat(a[-1:], want - len(a), axis=0) if len(a) else np.zeros((want,) + a.shape[1:], a.dtype)
+    return np.concatenate([a, fill])
+
+
+def aligned(a: np.ndarray, dtype=np.float32) -> np.ndarray:
+    """A 64-byte-aligned contiguous copy of ``a``: Dr.Jit maps NumPy memory as it is, and an unaligned
+    array compiles a kernel of its own (``align 1`` loads), so per-frame host arrays recompiled."""
+    a = np.asarray(a, dtype)
+    item = np.dtype(dtype).itemsize
+    buf = np.empty(a.size + 64 // item, dtype)
+    off = (-buf.ctypes.data % 64) // item
+    out = buf[off:off + a.size].reshape(a.shape)
+    out[...] = a
+    return out
+
+
+def to_float(a: np.ndarray):
+    return mi.Float(aligned(np.ravel(a)))
+
+
+def _vec3(cls, a):
+    a = np.asarray(a, np.float32).reshape(-1, 3)
+    return cls(*(mi.Float(aligned(a[:, i])) for i in range(3)))
+
+
+def to_point(a: np.ndarray):
+    return _vec3(mi.Point3f, a)
+
+
+def to_vector(a: np.ndarray):
+    return _vec3(mi.Vector3f, a)
+
+
+def to_color(a: np.ndarray):
+    return _vec3(mi.Color3f, a)
+
+
+def to_numpy3(v) -> np.ndarray:
+    return np.stack([np.asarray(v[i], np.float32) for i in range(3)], axis=1)
+
+
+def _mscene(scene):
+    return scene.mi_scene if hasattr(scene, "mi_scene") else scene
+
+
+def _surface(mscene, ray, active):
+    """(si, front mask, shading normal facing the ray, diffuse albedo) of the first hit."""
+    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
+    hit = si.is_valid() & active
+    bsdf = si.bsdf(ray)
+    front, n = shading_side(si, ray, bsdf, hit)
+    alb = diffuse_albedo(bsdf, si, front)
+    ok = front & (dr.max(alb) > 0.0)
+    return si, ok, n, alb
+
+
+def raw_candidates(scene, camera, res, n: int, seed: int, frame: int, stream: int = 0x51C):
+    """``n`` camera rays -> visible points x -> one cosine ray each -> hits y (Sec. 3.2.1).
+
+    Returns (dict of NumPy arrays over the valid candidates: ``pos``, ``nrm``, ``albedo``,
+    ``mailbox``, ``mailbox_n``, ``mailbox_albedo`` (the diffuse albedo at x); dict of the valid visible points ``x``/``n``; rays traced).
+    """
+    mscene = _mscene(scene)
+    w, h = res
+    sampler = make_sampler(n, seed, frame, stream)
+    pix = mi.UInt32(dr.minimum(sampler.next_1d() * (w * h), w * h - 1))
+    ray = camera.sample_rays(res, pix, sampler.next_2d())
+    si, okx, nx, alb_x = _surface(mscene, ray, mi.Bool(True))
+    frame_x = mi.Frame3f(nx)
+    d = frame_x.to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
+    ray2 = si.spawn_ray(d)
+    si2, oky, ny, alb = _surface(mscene, ray2, okx)
+    oky &= okx
+    P, X = si2.p, si.p
+    dr.eval(P, ny, alb, X, nx, alb_x, okx, oky)
+    okx_n, oky_n = np.asarray(okx, bool), np.asarray(oky, bool)
+    Xn, NXn = to_numpy3(X), to_numpy3(nx)
+    cand = {"pos": to_numpy3(P)[oky_n], "nrm": to_numpy3(ny)[oky_n], "albedo": to_numpy3(alb)[oky_n],
+            "mailbox": Xn[oky_n], "mailbox_n": NXn[oky_n], "mailbox_albedo": to_numpy3(alb_x)[oky_n]}
+    pts = {"x": Xn[okx_n], "n": NXn[okx_n]}
+    return cand, pts, n + int(okx_n.sum())
+
+
+def segment_clear(scene, a: np.ndarray, na: np.ndarray | None, b: np.ndarray, nb: np.ndarray | None):
+    """Per pair: is the segment a -> b unoccluded, with dot(na, b - a) > 0 and dot(nb, a - b) > 0
+    (a normal of None is not checked)? Returns (bool array, rays traced)."""
+    if len(a) == 0:
+        return np.zeros(0, bool), 0
+    mscene = _mscene(scene)
+    n_in = len(a)
+    a, na, b, nb = padded(a), padded(na), padded(b), padded(nb)
+    A, B = to_point(a), to_point(b)
+    d = B - A
+    dist = dr.norm(d)
+    wdir = d / dr.maximum(dist, 1e-12)
+    ok = dist > 0.0
+    if na is not None:
+        ok &= dr.dot(to_vector(na), wdir) > 0.0
+    if nb is not None:
+        ok &= dr.dot(to_vector(nb), wdir) < 0.0
+    eps = dr.opaque(mi.Float, RAY_EPS) * (1.0 + dr.maximum(dr.max(dr.abs(A)), dr.max(dr.abs(B))))
+    ray = mi.Ray3f(A + wdir * eps, wdir)
+    ray.maxt = dr.maximum(dist - 2.0 * eps, 0.0)   # (o, d, x): x would be the time
+    ok &= ~mscene.ray_test(ray, ok)
+    dr.eval(ok)
+    okn = np.asarray(ok, bool)[:n_in]
+    return okn, n_in
+
+
+def in_frustum(camera, res, pts: np.ndarray) -> np.ndarray:
+    """Host: does each point project inside the image (the camera model of :meth:`Camera.sample_rays`)?"""
+    left, up, d = camera.frame()
+    w, h = res
+    tanx = float(np.tan(np.radians(camera.fov) * 0.5))
+    tany = tanx / (w / h)
+    v = np.asarray(pts, np.float64) - np.asarray(camera.origin, np.float64)
+    z = v @ d
+    with np.errstate(divide="ignore", invalid="ignore"):
+        px = 0.5 * (1.0 - (v @ left) / (z * tanx))
+        py = 0.5 * (1.0 - (v @ up) / (z * tany))
+    return (z > 0) & (px >= 0) & (px < 1) & (py >= 0) & (py < 1)
+
+
+def camera_sees(scene, camera, res, pts: np.ndarray, nrm: np.ndarray | None = None):
+    """In the frustum and unoccluded from the camera (and facing it, given normals). (bool array, rays)."""
+    inside = in_frustum(camera, res, pts)
+    out = np.zeros(len(pts), bool)
+    if inside.any():
+        o = np.broadcast_to(np.asarray(camera.origin, np.float32), (int(inside.sum()), 3))
+        ok, _ = segment_clear(scene, o, None, pts[inside], None if nrm is None else nrm[inside])
+        out[inside] = ok
+    return out, int(inside.sum())
+
+
+def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 0x1A):
+    """Keller's instant radiosity: ``n_photons`` light paths, a VPL at each of the first ``bounces``
+    diffuse hits. Slot ``b * n_photons + j`` is bounce ``b + 1`` of photon ``j``.
+
+    A photon ``j`` leaves a light with weight ``w_j`` (Mitsuba's ``sample_emitter_ray``: power / pdf, so
+    ``mean(w)`` is the scene's emitted power); at its b-th diffuse hit y (albedo rho) it leaves a VPL of
+    radiance-like value ``L = beta rho / pi`` (beta: w_j times the albedos before y), to be weighted by
+    ``1 / n_photons`` in shading. It continues by cosine sampling (weight rho). Returns dict of NumPy
+    arrays (``pos``, ``nrm``, ``albedo``, ``radiosity``, ``used``) and the rays traced.
+    """
+    mscene = _mscene(scene)
+    sampler = make_sampler(n_photons, seed, 0, stream)     # frame-independent: a fixed photon set
+    ray, w, _ = mscene.sample_emitter_ray(0.0, sampler.next_1d(), sampler.next_2d(), sampler.next_2d(),
+                                          mi.Bool(True))
+    beta = mi.Color3f(w)
+    alive = dr.isfinite(dr.max(beta)) & (dr.max(beta) > 0.0)
+    cols = {k: [] for k in ("pos", "nrm", "albedo", "radiosity", "used")}
+    rays = 0
+    for _ in range(int(bounces)):    # a few static bounces, each one kernel over all photons
+        si, ok, n, alb = _surface(mscene, ray, alive)
+        ok &= alive
+        L = dr.select(ok, beta * alb * dr.inv_pi, 0.0)
+        dr.eval(si.p, n, alb, L, ok)
+        for k, v in (("pos", si.p), ("nrm", n), ("albedo", alb), ("radiosity", L)):
+            cols[k].append(to_numpy3(v))
+        cols["used"].append(np.asarray(ok, bool))
+        rays += n_photons
+        d = mi.Frame3f(n).to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
+        ray = si.spawn_ray(d)
+        beta = beta * alb
+        alive = ok
+    out = {k: np.concatenate(v) for k, v in cols.items()}
+    out["radiosity"] = np.where(np.isfinite(out["radiosity"]), out["radiosity"], 0.0)
+    out["used"] &= out["radiosity"].max(axis=1) > 0.0
+    return out, rays
+
+
+def photon_first_hits(scene, u: np.ndarray):
+    """Photons from primary samples ``u`` (n x 5: emitter choice, 2D position, 2D direction) to their first
+    hit: NumPy ``pos``, ``nrm``, ``albedo``, ``radiosity`` (= w rho / pi, as :func:`trace_photons`'s first
+    bounce) and ``ok`` (a front-facing diffuse hit). The light-visible surface samples of a reflective
+    shadow map, with the primary-sample parametrisation that Metropolis chains move in."""
+    mscene = _mscene(scene)
+    n_in = len(u)
+    u = padded(np.asarray(u, np.float32))
+    U = [mi.Float(aligned(u[:, i])) for i in range(5)]
+    ray, w, _ = mscene.sample_emitter_ray(0.0, U[0], mi.Point2f(U[1], U[2]), mi.Point2f(U[3], U[4]),
+                                          mi.Bool(True))
+    beta = mi.Color3f(w)
+    alive = dr.isfinite(dr.max(beta)) & (dr.max(beta) > 0.0)
+    si, ok, n, alb = _surface(mscene, ray, alive)
+    ok &= alive
+    L = dr.select(ok, beta * alb * dr.inv_pi, 0.0)
+    dr.eval(si.p, n, alb, L, ok)
+    out = {"pos": to_numpy3(si.p), "nrm": to_numpy3(n), "albedo": to_numpy3(alb), "radiosity": to_numpy3(L),
+           "ok": np.asarray(ok, bool)}
+    out = {k: v[:n_in] for k, v in out.items()}
+    out["radiosity"] = np.where(np.isfinite(out["radiosity"]), out["radiosity"], 0.0)
+    out["ok"] &= out["radiosity"].max(axis=1) > 0.0
+    return out, n_in
