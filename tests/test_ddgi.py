@@ -7,6 +7,7 @@ from dyngi.errors import DyngiError
 from dyngi.scene import builtin_names, load_scene
 from dyngi.techniques.base import Frame, create_technique, technique_names, to_image
 from dyngi.techniques.ddgi import parse_probe_counts, render_probe_view
+from helpers import assert_steady_state_compiles_nothing
 
 RES = (48, 32)
 
@@ -128,20 +129,13 @@ def test_probe_debug_view():
 def test_steady_state_frame_compiles_no_new_kernels():
     sc = load_scene("cornell-moving-light")
     tech = create_technique("ddgi", sc, {"probe_counts": "4", "rays_per_probe": 32})
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    seen = set()
-    try:
-        for f in range(10):
-            t = sc.frame_time(f)
-            sc.at(t)
-            dr.kernel_history()
-            tech.step(Frame(f, t, sc.camera(t), RES, seed=0))
-            hashes = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
-            if f >= 3:
-                assert hashes <= seen, f"frame {f} compiled {len(hashes - seen)} new kernels"
-            seen |= hashes
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+    def step(f):
+        t = sc.frame_time(f)
+        sc.at(t)
+        tech.step(Frame(f, t, sc.camera(t), RES, seed=0))
+
+    assert_steady_state_compiles_nothing(step, frames=10, warmup=3)
 
 
 @pytest.mark.parametrize("name", ["tunnel-gate", "cornell-moving-box"])

@@ -9,6 +9,7 @@ from dyngi.sampling.metropolis import ADGI_DIRECTION_STEP, MetropolisChains, ref
 from dyngi.sampling.octahedral import oct_encode_np
 from dyngi.sampling.fibonacci import spherical_fibonacci_np
 from stats import chi2_uniform
+from helpers import assert_steady_state_compiles_nothing
 
 SEED = 1234
 
@@ -167,18 +168,12 @@ def test_steady_state_frame_compiles_nothing(backend):
     """A new frame (new opaque seed) launches only kernels seen before (compared by hash)."""
     chains = MetropolisChains((0, 0, 0), (3, 2, 1), 1.0, burn_in=2, iterations=4)
     s = chains.initial_state(64, 1)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        seen = set()
-        for f in range(5):
-            dr.kernel_history()
-            s, _ = chains.run(s, h5_dr, 1, f)
-            h = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
-            if f >= 2:
-                assert h and h <= seen, f"frame {f} compiled {len(h - seen)} new kernels"
-            seen |= h
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    state = [s]
+
+    def step(f):
+        state[0], _ = chains.run(state[0], h5_dr, 1, f)
+
+    assert_steady_state_compiles_nothing(step, frames=5, warmup=2, nonempty=True)
 
 
 def test_reflect_into_box(backend):

@@ -15,6 +15,7 @@ from dyngi.probes.trace import ProbeRayResults
 from dyngi.probes.volume import upload
 from dyngi.sampling.octahedral import texel_directions
 from dyngi.scene import load_scene
+from helpers import assert_steady_state_compiles_nothing
 
 
 def small_volume(counts=(2, 2, 2), Ti=8, Td=16):
@@ -432,18 +433,8 @@ def test_scatter_blend_compiles_no_new_kernels_in_steady_state():
         b.update(vol, random_results(plan, rng, 0.1))
         dr.eval(vol.device.irradiance)
 
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    seen = set()
-    try:
-        for f in range(5):
-            dr.kernel_history()
-            frame(f, rng.integers(0 if f else 1, 40, len(ids)))
-            hashes = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
-            if f >= 2:
-                assert hashes <= seen, f"frame {f} compiled {len(hashes - seen)} new kernels"
-            seen |= hashes
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert_steady_state_compiles_nothing(lambda f: frame(f, rng.integers(0 if f else 1, 40, len(ids))),
+                                         frames=5, warmup=2)
 
 
 def test_ddgi_technique_same_probes_with_either_estimator():

@@ -11,6 +11,7 @@ from dyngi.sampling.octahedral import border_source_index, texel_directions
 from dyngi.scene import Camera, load_scene
 from dyngi.scene.builder import SceneBuilder
 from dyngi.scene.geometry import box, diffuse, quad
+from helpers import assert_steady_state_compiles_nothing
 
 
 def make_updater(scene, counts=None, rays=256, hysteresis=0.97, direct="sky", gamma=5.0, states=True,
@@ -299,19 +300,13 @@ def test_no_nan_over_frames_fast(name):
 def test_steady_state_update_compiles_no_new_kernels():
     sc = load_scene("cornell-moving-light")
     vol, q, up = make_updater(sc, counts=(4, 4, 4), rays=64)
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    seen = set()
-    try:
-        for f in range(8):
-            sc.at(sc.frame_time(f))
-            dr.kernel_history()   # clear
-            up.update(sc, f, 0)
-            hashes = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
-            if f >= 3:   # after warm-up (first frame, first history, first reclassification)
-                assert hashes <= seen, f"frame {f} compiled {len(hashes - seen)} new kernels"
-            seen |= hashes
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+
+    def step(f):
+        sc.at(sc.frame_time(f))
+        up.update(sc, f, 0)
+
+    # warm-up: first frame, first history, first reclassification
+    assert_steady_state_compiles_nothing(step, frames=8, warmup=3)
 
 
 def test_state_summaries_drjit_match_numpy():

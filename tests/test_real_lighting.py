@@ -19,6 +19,7 @@ from dyngi.sampling.sunsky import split_sunsky
 from dyngi.scene import load_scene
 from dyngi.scene.builtin import room_sun_blinds
 from dyngi.techniques.base import Frame, create_technique, to_image
+from helpers import assert_steady_state_compiles_nothing
 
 RES = (48, 36)
 REF_SPP = 512
@@ -251,15 +252,5 @@ def test_ddgi_on_the_shared_cornell_box():
 def test_sun_split_and_glass_loops_compile_nothing_in_steady_frames(name):
     sc = load_scene(name)
     tech = create_technique("ddgi", sc, {"probe_counts": "4,3,4", "rays_per_probe": 32})
-    seen = set()
-    dr.set_flag(dr.JitFlag.KernelHistory, True)
-    try:
-        for f in range(6):
-            dr.kernel_history()
-            tech.step(Frame(f, 0.0, sc.camera(0.0), (32, 24), seed=0))
-            hashes = {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
-            if f >= 3:
-                assert hashes <= seen, f"frame {f} compiled {len(hashes - seen)} new kernels"
-            seen |= hashes
-    finally:
-        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert_steady_state_compiles_nothing(lambda f: tech.step(Frame(f, 0.0, sc.camera(0.0), (32, 24), seed=0)),
+                                         frames=6, warmup=3)

@@ -48,22 +48,18 @@ for both renderers).
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import numbers
-import os
-import re
 import time
-import uuid
 from pathlib import Path
 
 import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
-from ..metrics.image import RELMSE_EPS
 from ..sampling.rng import mix_seed
-from .reference import DEFAULT_MAX_DEPTH, DEFAULT_REF_SPP, DIRECT_DEPTH, RR_DEPTH, default_cache_dir
+from .reference import (DEFAULT_MAX_DEPTH, DEFAULT_REF_SPP, DIRECT_DEPTH, RR_DEPTH, _check_seed, _check_time_res,
+                        _entry_paths, _load_entry, _passes, _render_settings, _store, combine_halves, half_spp,
+                        reference_key)
 
 INDIRECT_FORMAT = 1
 """Bump when the way indirect references are computed changes (invalidates their cache entries)."""
@@ -74,22 +70,13 @@ _HALF_STREAMS = (0x1A1, 0x1A2)
 
 
 def _check(t, res, spp, max_depth, seed) -> tuple[int, int]:
-    if not (isinstance(t, numbers.Real) and np.isfinite(t)):
-        raise DyngiError(f"indirect reference time must be a finite number, got {t!r}")
-    try:
-        w, h = (int(v) for v in res)
-        ok = all(float(v) == int(v) for v in res)
-    except (TypeError, ValueError):
-        raise DyngiError(f"indirect reference resolution must be (width, height), got {res!r}") from None
-    if not ok or w < 1 or h < 1:
-        raise DyngiError(f"indirect reference resolution must be two positive integers (width, height), got {res!r}")
+    w, h = _check_time_res(t, res, "indirect reference")
     if not (isinstance(spp, numbers.Integral) and spp >= 2):
         raise DyngiError(f"indirect reference spp must be an integer >= 2 (two independent halves), got {spp!r}")
     if not (isinstance(max_depth, numbers.Integral) and (max_depth > DIRECT_DEPTH or max_depth == -1)):
         raise DyngiError(f"an indirect-only reference needs max_depth > {DIRECT_DEPTH} or -1 (unbounded), "
                          f"got {max_depth!r}")
-    if not (isinstance(seed, numbers.Integral) and 0 <= seed < 2 ** 32):
-        raise DyngiError(f"indirect reference seed must be an integer in [0, 2^32), got {seed!r}")
+    _check_seed(seed, "indirect reference")
     return w, h
 
 
@@ -99,17 +86,12 @@ def _render_half(scene, camera, res, spp: int, max_depth: int, seed: int) -> np.
     from ..techniques.path import render_paths
 
     w, h = res
-    per = max(1, min(spp, MAX_SAMPLES_PER_PASS // (w * h)))
     acc = np.zeros((h, w, 3), np.float64)
-    done, i = 0, 0
-    while done < spp:
-        n = min(per, spp - done)
+    for i, n in enumerate(_passes(res, spp, MAX_SAMPLES_PER_PASS)):
         L, _ = render_paths(scene, camera, res, n, seed=seed, frame_index=i, max_depth=int(max_depth),
                             rr_depth=RR_DEPTH, power_heuristic=True, indirect_only=True)
         dr.eval(L)
         acc += to_image(L, res).astype(np.float64) * n
-        done += n
-        i += 1
     return acc / spp
 
 
@@ -141,16 +123,11 @@ def indirect_reference_image(scene, t: float, res, spp: int = DEFAULT_REF_SPP,
     w, h = _check(t, res, spp, max_depth, seed)
     scene.at(float(t))
     camera = scene.camera(float(t))
-    na = int(spp) // 2
-    nb = int(spp) - na
+    na, nb = half_spp(spp)
     a = _render_half(scene, camera, (w, h), na, max_depth, mix_seed(seed, 0, _HALF_STREAMS[0]))
     b = _render_half(scene, camera, (w, h), nb, max_depth, mix_seed(seed, 0, _HALF_STREAMS[1]))
-    n = na + nb
-    m = (na * a + nb * b) / n
-    d2 = (a - b) ** 2
-    f = na * nb / float(n * n)
-    noise = {"mse": float(np.mean(d2) * f), "relmse": float(np.mean(d2 / (m * m + RELMSE_EPS)) * f),
-             "spp": int(spp), "res": [w, h], "method": "two independent halves"}
+    m, noise = combine_halves(a, b, na, nb)
+    noise.update(spp=int(spp), res=[w, h], method="two independent halves")
     return m.astype(np.float32), noise
 
 
@@ -164,55 +141,14 @@ def indirect_reference_settings(scene, t: float, res, spp: int = DEFAULT_REF_SPP
         "format": INDIRECT_FORMAT,
         "kind": "indirect",
         "renderer": "dyngi-path-indirect-only",
-        "state": scene.state_hash(float(t)),
-        "res": [w, h],
-        "spp": int(spp),
-        "max_depth": int(max_depth),
-        "rr_depth": RR_DEPTH,
-        "seed": int(seed),
+        **_render_settings(scene, t, (w, h), spp, max_depth, seed),
         "filter": "box",              # camera samples uniform in the pixel
-        "variant": mi.variant(),
-        "mitsuba": mi.__version__,
     }
-
-
-def _key(settings: dict) -> str:
-    blob = json.dumps(settings, sort_keys=True, separators=(",", ":")).encode()
-    return hashlib.sha256(blob).hexdigest()[:20]
 
 
 def indirect_reference_paths(scene, settings: dict, cache_dir=None) -> tuple[Path, Path]:
     """(exr, json) paths of the cache entry for ``settings`` (same directory as the full references)."""
-    d = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
-    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", scene.name or "scene")[:48]
-    base = f"{slug}-indirect-{_key(settings)}"
-    return d / f"{base}.exr", d / f"{base}.json"
-
-
-def _atomic_write(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp{path.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def _load(exr: Path, js: Path, key: str, res) -> tuple[np.ndarray, dict] | None:
-    if not (exr.is_file() and js.is_file()):
-        return None
-    try:
-        meta = json.loads(js.read_text())
-        if meta.get("key") != key or not isinstance(meta.get("noise"), dict):
-            return None
-        img = np.asarray(mi.Bitmap(str(exr)), dtype=np.float32)
-    except Exception:  # corrupt entry: re-render and overwrite
-        return None
-    w, h = res
-    if img.shape != (h, w, 3) or not np.all(np.isfinite(img)):
-        return None
-    return img, meta["noise"]
+    return _entry_paths(scene, settings, cache_dir, kind="indirect")
 
 
 def cached_indirect_reference(scene, t: float, res, spp: int = DEFAULT_REF_SPP,
@@ -227,19 +163,14 @@ def cached_indirect_reference(scene, t: float, res, spp: int = DEFAULT_REF_SPP,
     at ``t``, resolution, spp, depths, seed, filter, variant, Mitsuba version, format).
     """
     settings = indirect_reference_settings(scene, t, res, spp, max_depth, seed)
-    key = _key(settings)
+    key = reference_key(settings)
     exr, js = indirect_reference_paths(scene, settings, cache_dir)
-    hit = _load(exr, js, key, settings["res"])
+    hit = _load_entry(exr, js, key, settings["res"], meta_ok=lambda meta: isinstance(meta.get("noise"), dict))
     if hit is not None:
-        return hit[0], hit[1], True
+        return hit[0], hit[1]["noise"], True
     start = time.perf_counter()
     img, noise = indirect_reference_image(scene, t, res, spp, max_depth, seed)
     meta = dict(settings, key=key, scene=scene.name, time=float(t), noise=noise,
                 render_seconds=round(time.perf_counter() - start, 3), created=time.strftime("%Y-%m-%dT%H:%M:%S"))
-    try:
-        exr.parent.mkdir(parents=True, exist_ok=True)
-        _atomic_write(exr, lambda p: mi.Bitmap(np.ascontiguousarray(img, np.float32)).write(str(p)))
-        _atomic_write(js, lambda p: p.write_text(json.dumps(meta, indent=1, sort_keys=True)))
-    except OSError as e:
-        raise DyngiError(f"cannot write the reference cache in '{exr.parent}': {e.strerror or e}") from None
+    _store(exr, js, img, meta)
     return img, noise, False

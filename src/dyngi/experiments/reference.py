@@ -124,23 +124,48 @@ def default_cache_dir() -> Path:
     return base / "dyngi" / "reference"
 
 
-def _check_settings(t, res, spp, max_depth, seed):
+def _check_time_res(t, res, what: str = "reference") -> tuple[int, int]:
+    """Validate a reference's time and (width, height); ``what`` names the kind in the error."""
     if not (isinstance(t, numbers.Real) and np.isfinite(t)):
-        raise DyngiError(f"reference time must be a finite number, got {t!r}")
+        raise DyngiError(f"{what} time must be a finite number, got {t!r}")
     try:
         w, h = (int(v) for v in res)
         ok = all(float(v) == int(v) for v in res)
     except (TypeError, ValueError):
-        raise DyngiError(f"reference resolution must be (width, height), got {res!r}") from None
+        raise DyngiError(f"{what} resolution must be (width, height), got {res!r}") from None
     if not ok or w < 1 or h < 1:
-        raise DyngiError(f"reference resolution must be two positive integers (width, height), got {res!r}")
+        raise DyngiError(f"{what} resolution must be two positive integers (width, height), got {res!r}")
+    return (w, h)
+
+
+def _check_seed(seed, what: str = "reference") -> None:
+    if not (isinstance(seed, numbers.Integral) and 0 <= seed < 2 ** 32):
+        raise DyngiError(f"{what} seed must be an integer in [0, 2^32), got {seed!r}")
+
+
+def _check_settings(t, res, spp, max_depth, seed):
+    w, h = _check_time_res(t, res)
     if not (isinstance(spp, numbers.Integral) and spp >= 1):
         raise DyngiError(f"reference spp must be a positive integer, got {spp!r}")
     if not (isinstance(max_depth, numbers.Integral) and (max_depth >= 1 or max_depth == -1)):
         raise DyngiError(f"reference max_depth must be >= 1 or -1 (unbounded), got {max_depth!r}")
-    if not (isinstance(seed, numbers.Integral) and 0 <= seed < 2 ** 32):
-        raise DyngiError(f"reference seed must be an integer in [0, 2^32), got {seed!r}")
+    _check_seed(seed)
     return (w, h)
+
+
+def _render_settings(scene, t: float, res, spp: int, max_depth: int, seed: int) -> dict:
+    """The key entries every cached reference kind shares: scene state at ``t``, resolution, sample
+    count, depths, seed, Mitsuba version and variant (settings already validated)."""
+    return {
+        "state": scene.state_hash(float(t)),
+        "res": [int(res[0]), int(res[1])],
+        "spp": int(spp),
+        "max_depth": int(max_depth),
+        "rr_depth": RR_DEPTH,
+        "seed": int(seed),
+        "mitsuba": mi.__version__,
+        "variant": mi.variant(),
+    }
 
 
 def reference_settings(scene, t: float, res, spp: int = DEFAULT_REF_SPP, max_depth: int = DEFAULT_MAX_DEPTH,
@@ -149,15 +174,8 @@ def reference_settings(scene, t: float, res, spp: int = DEFAULT_REF_SPP, max_dep
     w, h = _check_settings(t, res, spp, max_depth, seed)
     return {
         "format": FORMAT_VERSION,
-        "state": scene.state_hash(float(t)),
-        "res": [w, h],
-        "spp": int(spp),
-        "max_depth": int(max_depth),
-        "rr_depth": RR_DEPTH,
-        "seed": int(seed),
+        **_render_settings(scene, t, (w, h), spp, max_depth, seed),
         "integrator": "path",
-        "mitsuba": mi.__version__,
-        "variant": mi.variant(),
         "sensor": SENSOR,
         "filter": PIXEL_FILTER,
     }
@@ -173,19 +191,28 @@ def _slug(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name or "scene")[:48]
 
 
+def _entry_paths(scene, settings: dict, cache_dir=None, kind: str = "") -> tuple[Path, Path]:
+    """(exr, json) paths ``<dir>/<scene>-[<kind>-]<key>.{exr,json}`` of a cache entry."""
+    d = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
+    base = f"{_slug(scene.name)}-{kind + '-' if kind else ''}{reference_key(settings)}"
+    return d / f"{base}.exr", d / f"{base}.json"
+
+
 def reference_paths(scene, settings: dict, cache_dir=None) -> tuple[Path, Path]:
     """(exr, json) paths of the cache entry for ``settings``."""
-    d = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
-    base = f"{_slug(scene.name)}-{reference_key(settings)}"
-    return d / f"{base}.exr", d / f"{base}.json"
+    return _entry_paths(scene, settings, cache_dir)
 
 
 # -- rendering ------------------------------------------------------------------
 
-def _passes(res, spp: int) -> list[int]:
-    """Split ``spp`` into passes of at most MAX_SAMPLES_PER_PASS samples (depends on res and spp only)."""
+def _passes(res, spp: int, max_samples: int | None = None) -> list[int]:
+    """Split ``spp`` into passes of at most ``max_samples`` (default MAX_SAMPLES_PER_PASS) samples.
+
+    Depends on res, spp and ``max_samples`` only.
+    """
     w, h = res
-    per = max(1, min(spp, MAX_SAMPLES_PER_PASS // (w * h)))
+    cap = MAX_SAMPLES_PER_PASS if max_samples is None else max_samples
+    per = max(1, min(spp, cap // (w * h)))
     out = [per] * (spp // per)
     if spp % per:
         out.append(spp % per)
@@ -216,13 +243,16 @@ def _render(scene, t: float, res, spp: int, max_depth: int, seed: int) -> np.nda
 
 # -- cache ------------------------------------------------------------------------
 
-def _load(exr: Path, js: Path, key: str, res) -> np.ndarray | None:
-    """The cached image, or None when absent, incomplete or inconsistent."""
+def _load_entry(exr: Path, js: Path, key: str, res, meta_ok=None) -> tuple[np.ndarray, dict] | None:
+    """(image, metadata) of a cache entry, or None when absent, incomplete or inconsistent.
+
+    ``meta_ok``: optional predicate on the metadata; an entry it rejects counts as absent.
+    """
     if not (exr.is_file() and js.is_file()):
         return None
     try:
         meta = json.loads(js.read_text())
-        if meta.get("key") != key:
+        if meta.get("key") != key or (meta_ok is not None and not meta_ok(meta)):
             return None
         img = np.asarray(mi.Bitmap(str(exr)), dtype=np.float32)
     except Exception:  # corrupt entry: re-render and overwrite
@@ -230,7 +260,13 @@ def _load(exr: Path, js: Path, key: str, res) -> np.ndarray | None:
     w, h = res
     if img.shape != (h, w, 3) or not np.all(np.isfinite(img)):
         return None
-    return img
+    return img, meta
+
+
+def _load(exr: Path, js: Path, key: str, res) -> np.ndarray | None:
+    """The cached image, or None when absent, incomplete or inconsistent."""
+    hit = _load_entry(exr, js, key, res)
+    return None if hit is None else hit[0]
 
 
 def _atomic_write(path: Path, write) -> None:
@@ -309,18 +345,28 @@ def reference_halves(scene, t: float, res, spp: int = DEFAULT_REF_SPP, max_depth
     No extra samples are rendered for the estimate. Returns
     ``(image, {'mse', 'relmse', 'spp', 'halves'})``.
     """
-    from ..metrics import RELMSE_EPS
-
     n1, n2 = half_spp(spp)
     a, _ = cached_reference(scene, t, res, n1, max_depth, cache_dir, seed=0)
     b, _ = cached_reference(scene, t, res, n2, max_depth, cache_dir, seed=1)
-    a64, b64 = a.astype(np.float64), b.astype(np.float64)
-    img = (n1 * a64 + n2 * b64) / (n1 + n2)
+    img, noise = combine_halves(a, b, n1, n2)
+    noise.update(spp=int(spp), halves=[n1, n2])
+    return img.astype(np.float32), noise
+
+
+def combine_halves(a: np.ndarray, b: np.ndarray, n1: int, n2: int) -> tuple[np.ndarray, dict]:
+    """Sample-weighted mean of two independent halves (n1, n2 samples) and its own error.
+
+    Returns ``(m, {'mse', 'relmse'})`` with m = (n1 a + n2 b) / n (float64),
+    MSE ``mean((a - b)^2) * n1 n2 / n^2`` and relMSE the same with each term
+    divided by ``m^2 + RELMSE_EPS`` (see :func:`reference_halves`).
+    """
+    from ..metrics import RELMSE_EPS
+
+    a64, b64 = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    m = (n1 * a64 + n2 * b64) / (n1 + n2)
     k = n1 * n2 / float(n1 + n2) ** 2
     d2 = (a64 - b64) ** 2
-    noise = {"mse": float(np.mean(d2) * k), "relmse": float(np.mean(d2 / (img * img + RELMSE_EPS)) * k),
-             "spp": int(spp), "halves": [n1, n2]}
-    return img.astype(np.float32), noise
+    return m, {"mse": float(np.mean(d2) * k), "relmse": float(np.mean(d2 / (m * m + RELMSE_EPS)) * k)}
 
 
 def fill_reference_cache(scene, frames, res, spp: int = DEFAULT_REF_SPP, max_depth: int = DEFAULT_MAX_DEPTH,

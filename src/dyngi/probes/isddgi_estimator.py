@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
-from .estimator import MIN_BLEND_WEIGHT, TexelEstimate
+from .estimator import MIN_BLEND_WEIGHT, TexelEstimate, _int_power_dr
 from .isddgi_planner import N_SETS, set_directions
 from .volume import upload
 
@@ -112,21 +112,6 @@ def _texel_dirs_dr():
     return mi.Vector3f(*[mi.Float(np.ascontiguousarray(set_directions()[:, c], np.float32)) for c in range(3)])
 
 
-def _int_power(c, p: float):
-    if p == 1.0:
-        return c
-    if p != int(p) or p < 1 or p > 1024:
-        return dr.power(c, p)
-    n, out, sq = int(p), None, c
-    while n:
-        if n & 1:
-            out = sq if out is None else out * sq
-        n >>= 1
-        if n:
-            sq = sq * sq
-    return out
-
-
 def _planar(channels, n: int):
     """Channel-planar flat Float (channel ``c`` of entry ``e`` at ``c * n + e``) of evaluated channels."""
     for ch in channels:
@@ -168,7 +153,7 @@ def integrate_sets_dr(plan, radiance, dist, max_distance: float, power: float = 
         e = dr.fma(L, wi, e)
         we += wi
         a = dr.minimum(dr.abs(h), dmax)
-        wdd = dr.select(c > cut, _int_power(c, power), 0.0) * w
+        wdd = dr.select(c > cut, _int_power_dr(c, power), 0.0) * w
         m1 = dr.fma(a, wdd, m1)
         m2 = dr.fma(a * a, wdd, m2)
         wd += wdd

@@ -23,13 +23,13 @@ its probe, ~3x ddgi's BLAS blend) outweigh the saved rays when tracing is cheap.
 """
 from __future__ import annotations
 
-import json
 import os
 
 import numpy as np
 
 from ..io import atomic_output_dir
 from ..reproduce import paper_table, register_experiment
+from ._summary import write_summary
 
 PAPER = ("Liu, Huang, Rocha, Malmros, Zhang, \"Importance-Based Ray Strategies for Dynamic Diffuse Global "
          "Illumination\", I3D 2023 (supplement only available here)")
@@ -106,13 +106,6 @@ def reproduce_isddgi(out_dir: str, quick: bool = False, quiet: bool = True) -> s
                     f"Both techniques at their defaults, {cfg['frames']} frames at {cfg['res'][0]}x{cfg['res'][1]}, "
                     f"reference {cfg['ref_spp']} spp; per-scene reports in the sub-folders. Steady frames only "
                     "(frame 0 with the warm-up is left out of the costs).", "", paper_table(rows), ""])
-    with atomic_output_dir(os.path.join(out_dir, "_summary")) as tmp:
-        with open(os.path.join(tmp, "summary.md"), "w") as f:
-            f.write(md)
-        with open(os.path.join(tmp, "paper.json"), "w") as f:
-            json.dump({"experiment": "isddgi", "quick": quick, "paper": PAPER, "figures": figs,
-                       "rows": [{"quantity": q, "paper": p, "ours": o} for q, p, o in rows]}, f, indent=1)
-    for name in ("summary.md", "paper.json"):
-        os.replace(os.path.join(out_dir, "_summary", name), os.path.join(out_dir, name))
-    os.rmdir(os.path.join(out_dir, "_summary"))
-    return out_dir
+    return write_summary(out_dir, md, {
+        "paper.json": {"experiment": "isddgi", "quick": quick, "paper": PAPER, "figures": figs,
+                       "rows": [{"quantity": q, "paper": p, "ours": o} for q, p, o in rows]}})

@@ -20,13 +20,13 @@ VPL set that replacements produce (tests/test_smcir.py), so the table shows what
 """
 from __future__ import annotations
 
-import json
 import os
 
 import numpy as np
 
 from ..io import atomic_output_dir
 from ..reproduce import paper_table, register_experiment
+from ._summary import write_summary
 
 PAPER = ("Hedman, Karras, Lehtinen, \"Sequential Monte Carlo Instant Radiosity\", IEEE TVCG 23(5), 2017 "
          "(extends I3D 2016)")
@@ -138,17 +138,9 @@ def reproduce_smcir(out_dir: str, quick: bool = False, quiet: bool = True) -> st
                     f"{cfg['ref_spp']} spp; tracked pixels 16x that), equal VPL budget; per-sequence reports in "
                     "the sub-folders. Visibility is ray-traced (our substitution for 128x128 paraboloid shadow "
                     "maps).", "", paper_table(rows), ""])
-    with atomic_output_dir(os.path.join(out_dir, "_summary")) as tmp:
-        with open(os.path.join(tmp, "summary.md"), "w") as f:
-            f.write(md)
-        with open(os.path.join(tmp, "paper.json"), "w") as f:
-            json.dump({"experiment": "smcir", "quick": quick, "paper": PAPER, "figures": figs,
-                       "rows": [{"quantity": q, "paper": p, "ours": o} for q, p, o in rows]}, f, indent=1,
-                      default=float)
-        with open(os.path.join(tmp, "summary.json"), "w") as f:    # every run, as the CLI reads it
-            json.dump({"experiment": "smcir", "techniques": {f"{sc}/{lab}": v for sc, d in figs.items()
-                                                             for lab, v in d.items()}}, f, indent=1, default=float)
-    for name in ("summary.md", "paper.json", "summary.json"):
-        os.replace(os.path.join(out_dir, "_summary", name), os.path.join(out_dir, name))
-    os.rmdir(os.path.join(out_dir, "_summary"))
-    return out_dir
+    return write_summary(out_dir, md, {
+        "paper.json": {"experiment": "smcir", "quick": quick, "paper": PAPER, "figures": figs,
+                       "rows": [{"quantity": q, "paper": p, "ours": o} for q, p, o in rows]},
+        # every run, as the CLI reads it
+        "summary.json": {"experiment": "smcir", "techniques": {f"{sc}/{lab}": v for sc, d in figs.items()
+                                                               for lab, v in d.items()}}})
