@@ -121,7 +121,8 @@ def cmd_render(args) -> int:
         params.setdefault("spp", args.spp)
     res = parse_res(args.res) if args.res is not None else None
     summary = render_to_dir(args.scene, args.technique, args.out, frames=args.frames, res=res,
-                            seed=args.seed, params=params, t0=args.t0, quiet=args.quiet)
+                            seed=args.seed, params=params, t0=args.t0, quiet=args.quiet,
+                            denoise=args.denoise)
     w, h = summary["res"]
     print(f"wrote {summary['frames']} frame(s) of '{summary['scene']}' at {w}x{h} with '{args.technique}' to "
           f"{args.out} ({summary['mean_ms']:.1f} ms/frame, {summary['mean_rays'] / 1e6:.2f} Mrays/frame)")
@@ -192,7 +193,7 @@ def cmd_compare(args) -> int:
                       params=_parse_sets(args.set),
                       metrics=[m.strip() for m in args.metrics.split(",") if m.strip()],
                       grid_frames=_frame_list(args.grid_frames, args.frames),
-                      ref_depth=args.ref_depth, indirect=args.indirect)
+                      ref_depth=args.ref_depth, indirect=args.indirect, denoise=args.denoise)
     print(f"wrote comparison to {out} (open {os.path.join(out, 'report.html')})")
     return _report_failures(out)
 
@@ -321,6 +322,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start time in seconds (default 0; looping animations wrap, see 'dyngi scenes')")
     s.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="technique parameter, repeatable (see 'dyngi techniques')")
+    s.add_argument("--denoise", action="store_true",
+                   help="also write frame_NNNN_denoised.exr/.png: every frame denoised with Intel OIDN (pyoidn; our substitute for the OptiX denoiser "
+                        "of the DDGI Resampling paper), fed with albedo and normal AOVs of the primary hits")
     s.add_argument("--out", required=True, help="output folder (created; files in it are replaced)")
     common(s, res_default=None)
     s.set_defaults(fn=cmd_render)
@@ -348,6 +352,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="reference max depth (default: the scene's own max depth, 12 for built-in scenes)")
     s.add_argument("--indirect", action="store_true",
                    help="compare indirect-only images against an indirect-only reference")
+    s.add_argument("--denoise", action="store_true",
+                   help="also report every technique as <spec>+denoise: its frames denoised with Intel OIDN (pyoidn; our substitute for the OptiX denoiser "
+                        "of the DDGI Resampling paper), fed with albedo and normal AOVs of the primary hits")
     s.add_argument("--grid-frames", default=None, metavar="I,J,...",
                    help="frames shown in the image grids (default: the middle and the last)")
     s.add_argument("--metrics", default="mse,relmse,mape,flip,ssim",

@@ -82,7 +82,7 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
                 budget: str = "equal-frames", seed: int = 0, ref_spp: int | None = None, quiet: bool = False,
                 params: dict | None = None, grid_frames: list[int] | None = None,
                 metrics: list[str] | None = None, ref_depth: int | None = None, indirect: bool = False,
-                scene=None) -> str:
+                scene=None, denoise: bool = False) -> str:
     """Run the comparison and write the outputs described in the module docstring; return ``out_dir``.
 
     ``techniques``: specs ``NAME[:KEY=VALUE...]``. ``metrics``: names from :data:`dyngi.metrics.METRICS`
@@ -91,10 +91,16 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
     the reference's max depth (default: the scene's own, :func:`~dyngi.experiments.reference.scene_max_depth`).
     ``indirect``: compare the techniques' indirect-only images (``FrameResult.indirect``) against an
     indirect-only reference. ``scene``: an already loaded Scene instead of ``scene_name``.
+    ``denoise``: also report every technique denoised by Intel OIDN (label ``<spec>+denoise``; see
+    :func:`add_denoised`).
     """
     res = tuple(res)
+    if denoise:
+        from .denoise import require
+        require()
     run = prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, metrics, ref_depth,
                   indirect, scene)
+    run["denoise"] = bool(denoise)
     rs = execute(run, res, seed, quiet)
     with atomic_output_dir(run["out_dir"]) as tmp:
         write_outputs(tmp, run["scene"], run["labels"], run["specs"], rs["results"], rs["refs"], rs["rows"],
@@ -197,6 +203,8 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
         summary[label] = s
         if label != labels[0]:
             accounting[label] = budget_accounting(seq, first, budget)
+    if run.get("denoise"):
+        add_denoised(run, results, refs, rows, summary, accounting, res, imgs_indirect=run["indirect"])
     warnings = list(run.get("warnings", []))
     for label, seq in results.items():       # what techniques flag about their own frames, once each
         seen = dict.fromkeys(w for st in seq.stats for w in (st.get("warnings") or ()))
@@ -205,3 +213,48 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
            "ref_depth": run["ref_depth"], "indirect": run["indirect"], "ref_noise": summarize_noise(noise),
            "accounting": accounting, "warnings": warnings}
     return {"results": results, "refs": refs, "rows": rows, "summary": summary, "ctx": ctx}
+
+
+DENOISED_SUFFIX = "+denoise"
+
+
+def add_denoised(run: dict, results: dict, refs, rows: list, summary: dict, accounting: dict, res,
+                 imgs_indirect: bool = False) -> None:
+    """Add ``<label>+denoise`` beside every technique: its frames denoised by Intel OIDN (our substitute
+    for the OptiX denoiser of the DDGI Resampling paper), fed with albedo and normal AOVs of the
+    primary hits (:func:`~dyngi.experiments.denoise.aux_buffers`, computed once per frame and shared by
+    all techniques). The denoiser's time is reported as the stats stage ``denoise`` of the denoised row
+    and is not charged to the technique's budget (the technique ran once, under its budget)."""
+    import time
+
+    from .denoise import aux_buffers, denoise
+    from .runner import SequenceResult
+
+    scene, labels = run["scene"], list(run["labels"])
+    first = results[labels[0]]
+    aux = []
+    for t in first.times:
+        sc = scene.at(t) if hasattr(scene, "at") else scene
+        aux.append(aux_buffers(sc, scene.camera(t), res))
+    for label in labels:
+        seq = results[label]
+        out = SequenceResult(label + DENOISED_SUFFIX, times=list(seq.times), wall_ms=list(seq.wall_ms))
+        for i, img in enumerate(seq.images):
+            t0 = time.perf_counter()
+            src = seq.indirect[i] if imgs_indirect else img
+            d = denoise(src, *aux[i])
+            ms = (time.perf_counter() - t0) * 1e3
+            out.images.append(d if not imgs_indirect else img)
+            out.indirect.append(d if imgs_indirect else None)
+            st = dict(seq.stats[i])
+            st["ms"] = dict(st.get("ms", {}), denoise=ms)
+            out.stats.append(st)
+        dl = label + DENOISED_SUFFIX
+        results[dl] = out
+        r, s = evaluate_sequence(dl, out, refs, run["names"], out.indirect if imgs_indirect else None)
+        rows += r
+        summary[dl] = s
+        if label in accounting:
+            accounting[dl] = accounting[label]
+        run["specs"][dl] = run["specs"][label]
+        run["labels"].append(dl)

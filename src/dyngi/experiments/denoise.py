@@ -23,6 +23,13 @@ from ..errors import DyngiError
 QUALITIES = ("high", "balanced", "fast")
 
 
+def require() -> None:
+    """Raise one clear error when the OIDN binding is missing (before any work is done)."""
+    if not available():
+        raise DyngiError("--denoise needs Intel Open Image Denoise's Python binding: "
+                         "pip install 'pyoidn>=2.5.1' (or reinstall dyngi with the 'denoise' extra)")
+
+
 def available() -> bool:
     """Whether the OIDN binding (``pyoidn``) can be imported."""
     try:

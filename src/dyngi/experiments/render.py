@@ -36,7 +36,12 @@ def default_res(scene) -> tuple[int, int]:
 
 
 def render_to_dir(scene_name: str, technique: str, out_dir: str, frames: int = 1, res=None, seed: int = 0,
-                  params: dict | None = None, t0: float = 0.0, quiet: bool = False) -> dict:
+                  params: dict | None = None, t0: float = 0.0, quiet: bool = False, denoise: bool = False) -> dict:
+    """Render ``frames`` frames into ``out_dir``; with ``denoise`` also ``frame_NNNN_denoised.exr/.png``
+    (Intel OIDN with albedo/normal AOVs of the primary hits, :mod:`dyngi.experiments.denoise`)."""
+    if denoise:
+        from .denoise import require
+        require()
     check_writable(out_dir)
     scene = load_scene(scene_name)
     tech = create_technique(technique, scene, params)
@@ -54,6 +59,11 @@ def render_to_dir(scene_name: str, technique: str, out_dir: str, frames: int = 1
             if r.indirect is not None:
                 write_exr(os.path.join(tmp, f"indirect_{i:04d}.exr"), r.indirect)
             pngs.append(tonemap_srgb(r.image))
+            if denoise:
+                from .denoise import aux_buffers, denoise as oidn
+                d = oidn(r.image, *aux_buffers(scene, frame.camera, res))
+                write_exr(os.path.join(tmp, f"frame_{i:04d}_denoised.exr"), d)
+                write_png(os.path.join(tmp, f"frame_{i:04d}_denoised.png"), d)
 
         seq = run_sequence(scene, tech, frames, res, seed=seed, t0=t0, progress=bar, on_frame=on_frame,
                            keep_images=False)
