@@ -57,3 +57,18 @@ def test_missing_oidn_is_one_clear_error(cache, monkeypatch):
         run_compare("cornell-static", ["path"], str(cache / "x"), frames=1, res=(16, 12), quiet=True,
                     denoise=True)
     assert not (cache / "x").exists()       # nothing half-written
+
+
+def test_denoise_spec_key_denoises_that_spec_only(cache):
+    _need_oidn()
+    from dyngi.experiments.compare import run_compare
+    from dyngi.techniques.base import parse_spec
+
+    assert parse_spec("path:denoise=true:spp=2").denoise and parse_spec("path:spp=2").params == {"spp": 2}
+    with pytest.raises(DyngiError, match="denoise must be true or false"):
+        parse_spec("path:denoise=maybe")
+    out = cache / "spec"
+    run_compare("cornell-static", ["path", "path:denoise=true"], str(out), frames=1, res=(32, 24), ref_spp=32,
+                quiet=True, metrics=["mse"], grid_frames=[])
+    with open(os.path.join(out, "summary.json")) as f:
+        assert set(json.load(f)["techniques"]) == {"path", "path:denoise=true", "path:denoise=true+denoise"}

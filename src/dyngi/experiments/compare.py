@@ -95,12 +95,12 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
     :func:`add_denoised`).
     """
     res = tuple(res)
-    if denoise:
-        from .denoise import require
-        require()
     run = prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, metrics, ref_depth,
                   indirect, scene)
-    run["denoise"] = bool(denoise)
+    run["denoise"] = [lb for lb in run["labels"] if denoise or run["specs"][lb].denoise]
+    if run["denoise"]:
+        from .denoise import require
+        require()
     rs = execute(run, res, seed, quiet)
     with atomic_output_dir(run["out_dir"]) as tmp:
         write_outputs(tmp, run["scene"], run["labels"], run["specs"], rs["results"], rs["refs"], rs["rows"],
@@ -220,7 +220,8 @@ DENOISED_SUFFIX = "+denoise"
 
 def add_denoised(run: dict, results: dict, refs, rows: list, summary: dict, accounting: dict, res,
                  imgs_indirect: bool = False) -> None:
-    """Add ``<label>+denoise`` beside every technique: its frames denoised by Intel OIDN (our substitute
+    """Add ``<label>+denoise`` beside every technique of ``run['denoise']`` (all with ``--denoise``, or
+    the specs with ``denoise=true``): its frames denoised by Intel OIDN (our substitute
     for the OptiX denoiser of the DDGI Resampling paper), fed with albedo and normal AOVs of the
     primary hits (:func:`~dyngi.experiments.denoise.aux_buffers`, computed once per frame and shared by
     all techniques). The denoiser's time is reported as the stats stage ``denoise`` of the denoised row
@@ -237,6 +238,8 @@ def add_denoised(run: dict, results: dict, refs, rows: list, summary: dict, acco
         sc = scene.at(t) if hasattr(scene, "at") else scene
         aux.append(aux_buffers(sc, scene.camera(t), res))
     for label in labels:
+        if label not in run["denoise"]:
+            continue
         seq = results[label]
         out = SequenceResult(label + DENOISED_SUFFIX, times=list(seq.times), wall_ms=list(seq.wall_ms))
         for i, img in enumerate(seq.images):

@@ -39,6 +39,9 @@ def render_to_dir(scene_name: str, technique: str, out_dir: str, frames: int = 1
                   params: dict | None = None, t0: float = 0.0, quiet: bool = False, denoise: bool = False) -> dict:
     """Render ``frames`` frames into ``out_dir``; with ``denoise`` also ``frame_NNNN_denoised.exr/.png``
     (Intel OIDN with albedo/normal AOVs of the primary hits, :mod:`dyngi.experiments.denoise`)."""
+    from ..techniques.base import parse_spec
+
+    denoise = denoise or parse_spec(technique).denoise
     if denoise:
         from .denoise import require
         require()

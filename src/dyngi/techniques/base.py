@@ -88,6 +88,7 @@ class TechniqueSpec:
     label: str
     name: str
     params: dict = field(default_factory=dict)
+    denoise: bool = False    # reserved spec key ``denoise=true``: also report the frames denoised (OIDN)
 
     def merged(self, base: dict | None) -> dict:
         """``base`` settings (``--set``) overridden by the spec's own."""
@@ -114,6 +115,9 @@ def split_spec_list(text: str) -> list[str]:
 def parse_spec(text: str) -> TechniqueSpec:
     """Parse ``NAME[:KEY=VALUE...]``; values are parsed by the technique's ``Param`` types.
 
+    The key ``denoise`` (``path:denoise=true``) is reserved for every technique: it asks ``compare`` and
+    ``render`` for the frames denoised too (as ``--denoise`` does for all), and is not a technique parameter.
+
     Errors (one :class:`DyngiError`) name the technique, the key and the valid
     keys: ``unknown technique``, ``unknown parameter 'x' for technique 'ddgi'``,
     a malformed ``KEY=VALUE`` item, a key given twice, or a value of the wrong
@@ -134,8 +138,14 @@ def parse_spec(text: str) -> TechniqueSpec:
         if k in raw:
             raise DyngiError(f"technique spec '{label}' sets '{k}' twice")
         raw[k] = v
+    denoise = False
+    if "denoise" in raw and "denoise" not in cls.PARAMS:     # reserved key, handled by compare/render
+        v = raw.pop("denoise").lower()
+        if v not in ("true", "false", "1", "0", "yes", "no"):
+            raise DyngiError(f"technique spec '{label}': denoise must be true or false, got '{v}'")
+        denoise = v in ("true", "1", "yes")
     resolved = resolve_params(cls, raw)
-    return TechniqueSpec(label, name, {k: resolved[k] for k in raw})
+    return TechniqueSpec(label, name, {k: resolved[k] for k in raw}, denoise)
 
 
 @dataclass
