@@ -37,6 +37,7 @@ def test_compare_reports_raw_and_denoised_side_by_side(cache):
     # a 1-spp path frame is far noisier than the denoiser leaves it (relMSE: the light's edge pixels
     # dominate MSE, see tests/test_restir_denoise.py for the error away from them)
     assert js["techniques"]["path+denoise"]["mean"]["relmse"] < js["techniques"]["path"]["mean"]["relmse"]
+    assert "substitute for the OptiX denoiser" in (out / "summary.md").read_text()
 
 
 def test_render_writes_denoised_frames(cache):

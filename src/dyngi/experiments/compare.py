@@ -211,7 +211,11 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
         warnings += [f"{label}: {w}" for w in seen]
     ctx = {"frames": frames, "res": tuple(res), "budget": budget, "seed": seed, "ref_spp": run["ref_spp"],
            "ref_depth": run["ref_depth"], "indirect": run["indirect"], "ref_noise": summarize_noise(noise),
-           "accounting": accounting, "warnings": warnings}
+           "accounting": accounting, "warnings": warnings, "notes": []}
+    if run.get("denoise"):
+        ctx["notes"].append(f"Denoised rows ({DENOISED_SUFFIX}): Intel Open Image Denoise (pyoidn), our substitute "
+                            "for the OptiX denoiser of the DDGI Resampling paper, fed with albedo and normal AOVs "
+                            "of the primary hits; its time is the stage 'denoise', not charged to the budget.")
     return {"results": results, "refs": refs, "rows": rows, "summary": summary, "ctx": ctx}
 
 

@@ -139,6 +139,8 @@ def summary_md(scene, techniques, specs, summary, ctx, names, title: str | None 
                   + ", ".join(neg) + "."]
     for w in ctx.get("warnings", []):
         lines += ["", f"**Warning:** {w}."]
+    for n in ctx.get("notes", []):
+        lines += ["", n]
     rn = ctx.get("ref_noise") or {}
     if rn:
         lines += ["", f"Reference noise (two independent halves): relMSE {rn.get('relmse', float('nan')):.3g}, "
