@@ -67,11 +67,9 @@ class VPLTechnique(Technique):
         """Bounces of indirect light (max_depth - 2)."""
         return int(self.params["max_depth"]) - 2
 
-    def update_vpls(self, frame: Frame, t: StageTimer):  # pragma: no cover - interface
-        """This frame's VPLs: (pos[n,3], nrm[n,3], flux[n,3]) NumPy arrays, and a stats dict."""
-        raise NotImplementedError
-
     def step(self, frame: Frame) -> FrameResult:
+        """Shade this frame with the VPLs of the subclass's ``update_vpls(frame, timer) -> (pos[n,3],
+        nrm[n,3], flux[n,3], stats dict)`` (each of ``ir``, ``mir``, ``tcas``, ``smcir`` defines it)."""
         p = self.params
         t = StageTimer()
         pos, nrm, flux, extra = self.update_vpls(frame, t)
