@@ -33,17 +33,30 @@ def builtin(name: str, description: str, stands_for: str = ""):
     return deco
 
 
+def _load_builtins() -> None:
+    """Imports :mod:`dyngi.scene.builtin` and every ``dyngi.scene.builtin_*`` module (each registers
+    its scenes with :func:`builtin`), so a new scene module needs no edit here."""
+    import importlib
+    import pkgutil
+
+    from . import builtin as _  # noqa: F401
+    for m in sorted(pkgutil.iter_modules(_package_path())):
+        if m.name.startswith("builtin_"):
+            importlib.import_module(f"{__package__}.{m.name}")
+
+
+def _package_path():
+    import os
+    return [os.path.dirname(os.path.abspath(__file__))]
+
+
 def builtin_names() -> list[str]:
-    from . import builtin as _  # noqa: F401  (registers the scenes)
-    from . import builtin_hall as _hall  # noqa: F401
-    from . import builtin_smcir as _smcir  # noqa: F401
+    _load_builtins()
     return sorted(BUILTINS)
 
 
 def make_builtin(name: str):
-    from . import builtin as _  # noqa: F401
-    from . import builtin_hall as _hall  # noqa: F401
-    from . import builtin_smcir as _smcir  # noqa: F401
+    _load_builtins()
     if name not in BUILTINS:
         raise unknown_choice("scene", name, BUILTINS)
     e = BUILTINS[name]
