@@ -1,0 +1,479 @@
+"""Light hierarchy (LH) baseline of Dittebrandt et al. Sec. 7: a light BVH, stochastic traversal, no splitting.
+
+``lights=lighttree`` of ``nee-pt``. As in the paper's baseline ("as proposed by
+[CK18] and [MC19] but without splitting", Sec. 7):
+
+* **build, every frame** (dynamic lights are handled transparently): a binary
+  BVH over the emitter triangles by *binned SAH* ([Wal07]: 16 centroid bins on
+  the widest centroid axis, cost = surface area x light count per side), then
+  a top-down pass that **collapses** it to **8 children per node** (a node's
+  children are expanded, largest surface area first, until 8 or all are
+  leaves; [YKL17] "widening") with **at most 2 lights per leaf**;
+* **traversal**: from the root, one child is chosen at every node with
+  probability proportional to its importance; at the leaf one of its (<= 2)
+  lights is chosen by the unoccluded irradiance of the triangle,
+  :func:`~dyngi.sampling.light_select.triangle_irradiance` (the importance of
+  the VLC and the SLL; VLC paper Sec. 4). One uniform number is reused by
+  rescaling it at every level.
+
+Node importance (ours, following the light-BVH literature [CK18]): a cluster
+with bounding box B (centre c, half-diagonal r), power Phi (sum of the lights'
+``power``) and an orientation cone (axis a, half-angle theta_o, emission
+half-angle theta_e = pi/2 for one-sided area lights) has, at the receiver p
+with normal n, d = |c - p| and theta_u = asin(r / d) (the angle B's bounding
+sphere subtends),
+
+    I = Phi * cos(theta') * cos(theta_i') / d^2,
+    theta'   = max(0, angle(a, p - c) - theta_o - theta_u)   (0 if theta' >= theta_e),
+    theta_i' = max(0, angle(n, c - p) - theta_u)              (0 if theta_i' >= pi/2),
+
+with I = Phi / r^2 when p lies inside B's bounding sphere (d <= r: the
+distance term is continuous there, the cone terms become 1). The cone bounds
+are conservative: I = 0 only where no light of the cluster can reach the
+receiver's upper hemisphere from its emitting side (tested: every light with
+positive irradiance has a positive pmf).
+Where all children of a node (or both lights of a leaf) have zero importance,
+the choice falls back to power-proportional (our choice; such a point gets
+no light from that subtree, any choice is unbiased).
+
+``pmf`` is exact: every light stores its leaf and slot, every leaf and node its
+parent and slot, and ``pmf(light)`` multiplies the branch probabilities along
+that chain bottom-up with the same importance code that ``sample`` evaluates
+top-down (equal up to float rounding of the product order).
+
+CPU fast path (documented): the build runs in NumPy/Python on the host over
+the L triangle lights (a few hundred; O(L) nodes, level-synchronous NumPy) from the host arrays
+of :class:`~dyngi.sampling.emitter_triangles.EmitterTriangles`; the flattened
+tree is uploaded once per frame. Sampling and pmf are Dr.Jit loops.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..backend import dr, mi
+from .emitter_triangles import INVALID
+from .light_select import triangle_irradiance
+
+LEAF_BIT = 0x80000000
+WIDTH = 8            # children per node (Sec. 7)
+LEAF_SIZE = 2        # lights per leaf (Sec. 7)
+SAH_BINS = 16        # binned SAH (our choice of bin count)
+_ONE_MINUS = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
+_HALF_PI = float(np.pi / 2)
+
+
+def _seg_reduce(x, cs, op):
+    """Per-segment reduction of rows of ``x`` over contiguous segments starting at ``cs`` (all non-empty)."""
+    return op.reduceat(x, cs, axis=0)
+
+
+def _build_binary(tlo, thi, cen, power, normal):
+    """Binary BVH by binned SAH (Wald 2007), built level by level with NumPy (all nodes of a level at
+    once); leaves hold <= LEAF_SIZE lights. Every node covers a contiguous range of the final light
+    order ``perm``. Returns arrays over the binary nodes (children, ranges, bounds, power, cone) and perm."""
+    L = len(cen)
+    perm = np.arange(L)
+    start, end = [0], [L]
+    left, right = [-1], [-1]
+    clus = {}                       # node id -> (lo, hi, power, axis, cos_o)
+    level = np.array([0])
+    while len(level):
+        s = np.array([start[i] for i in level])
+        e = np.array([end[i] for i in level])
+        n = e - s
+        cs = np.concatenate([[0], np.cumsum(n)[:-1]])
+        seg = np.repeat(np.arange(len(level)), n)
+        idx = np.repeat(s - cs, n) + np.arange(n.sum())
+        lid = perm[idx]
+        # -- cluster data of this level's nodes (bounds, power, orientation cone) --
+        lo = _seg_reduce(tlo[lid], cs, np.minimum)
+        hi = _seg_reduce(thi[lid], cs, np.maximum)
+        pw = _seg_reduce(power[lid], cs, np.add)
+        wsum = _seg_reduce(normal[lid] * np.maximum(power[lid], 1e-30)[:, None], cs, np.add)
+        wn = np.linalg.norm(wsum, axis=1)
+        tot_w = _seg_reduce(np.maximum(power[lid], 1e-30), cs, np.add)
+        degenerate = wn < 1e-6 * tot_w
+        axis = np.where(degenerate[:, None], [0.0, 0.0, 1.0], wsum / np.maximum(wn, 1e-300)[:, None])
+        cos_o = _seg_reduce(np.einsum("ij,ij->i", normal[lid], axis[seg]), cs, np.minimum)
+        cos_o = np.where(degenerate, -1.0, np.clip(cos_o, -1.0, 1.0))
+        for k, node in enumerate(level):
+            clus[int(node)] = (lo[k], hi[k], float(pw[k]), axis[k], float(cos_o[k]))
+        # -- split the nodes with more than LEAF_SIZE lights --
+        sp = n > LEAF_SIZE
+        if not sp.any():
+            break
+        keep = sp[seg]
+        seg_s = np.cumsum(sp) - 1                 # index among the split nodes
+        n2 = n[sp]
+        cs2 = np.concatenate([[0], np.cumsum(n2)[:-1]])
+        idx2, sg = idx[keep], seg_s[seg[keep]]
+        lid2 = perm[idx2]
+        c = cen[lid2]
+        cmin, cmax = _seg_reduce(c, cs2, np.minimum), _seg_reduce(c, cs2, np.maximum)
+        ext = cmax - cmin
+        ax = np.argmax(ext, 1)
+        ea = ext[np.arange(len(n2)), ax]
+        ca = c[np.arange(len(c)), ax[sg]]
+        flat = ea <= 1e-12
+        b = np.floor(SAH_BINS * (ca - cmin[sg, ax[sg]]) / np.where(flat, 1.0, ea)[sg]).astype(np.int64)
+        b = np.clip(np.where(flat[sg], 0, b), 0, SAH_BINS - 1)
+        key = sg * SAH_BINS + b
+        K = len(n2)
+        blo = np.full((K * SAH_BINS, 3), np.inf)
+        bhi = np.full((K * SAH_BINS, 3), -np.inf)
+        np.minimum.at(blo, key, tlo[lid2])
+        np.maximum.at(bhi, key, thi[lid2])
+        cnt = np.bincount(key, minlength=K * SAH_BINS).reshape(K, SAH_BINS).astype(np.float64)
+        blo, bhi = blo.reshape(K, SAH_BINS, 3), bhi.reshape(K, SAH_BINS, 3)
+
+        def sweep(lo_, hi_, cn):
+            lo_, hi_ = np.minimum.accumulate(lo_, 1), np.maximum.accumulate(hi_, 1)
+            d = hi_ - lo_
+            d = np.where(np.isfinite(d), np.maximum(d, 0.0), 0.0)
+            return 2.0 * (d[..., 0] * d[..., 1] + d[..., 1] * d[..., 2] + d[..., 2] * d[..., 0]), np.cumsum(cn, 1)
+
+        la, ln = sweep(blo, bhi, cnt)
+        ra, rn = sweep(blo[:, ::-1], bhi[:, ::-1], cnt[:, ::-1])
+        ra, rn = ra[:, ::-1][:, 1:], rn[:, ::-1][:, 1:]         # bins j+1.. for a split after bin j
+        cost = la[:, :-1] * ln[:, :-1] + ra * rn
+        cost = np.where((ln[:, :-1] > 0) & (rn > 0), cost, np.inf)
+        best = np.argmin(cost, 1)
+        ok = np.isfinite(cost[np.arange(K), best]) & ~flat
+        # median split (by the axis coordinate, ties by order) where binning found no split
+        order = np.lexsort((np.arange(len(ca)), ca, sg))
+        rank = np.empty(len(ca), np.int64)
+        rank[order] = np.arange(len(ca)) - cs2[sg[order]]
+        go_right = np.where(ok[sg], b > best[sg], rank >= (n2 // 2)[sg])
+        new = np.lexsort((np.arange(len(sg)), go_right, sg))
+        perm[idx2] = lid2[new]
+        nL = np.bincount(sg, weights=~go_right, minlength=K).astype(np.int64)
+        children = []
+        for k, node in enumerate(level[sp]):
+            s0, e0 = start[node], end[node]
+            m = s0 + int(nL[k])
+            left[node], right[node] = len(start), len(start) + 1
+            start += [s0, m]
+            end += [m, e0]
+            left += [-1, -1]
+            right += [-1, -1]
+            children += [left[node], right[node]]
+        level = np.array(children, np.int64)
+    nb = len(start)
+    lo = np.array([clus[i][0] for i in range(nb)])
+    hi = np.array([clus[i][1] for i in range(nb)])
+    return dict(perm=perm, start=np.array(start), end=np.array(end), left=np.array(left), right=np.array(right),
+                lo=lo, hi=hi, power=np.array([clus[i][2] for i in range(nb)]),
+                axis=np.array([clus[i][3] for i in range(nb)]), cos_o=np.array([clus[i][4] for i in range(nb)]))
+
+
+class LightTreeSelector:
+    """``lights=lighttree``: an 8-wide light BVH rebuilt every frame, traversed stochastically (no splitting).
+
+    Parameters (keywords; the rest are accepted and ignored, contract of ``nee-pt``):
+    ``tris`` the :class:`EmitterTriangles`; ``mi_scene``, ``bounds`` unused.
+    """
+
+    name = "lighttree"
+
+    def __init__(self, tris, mi_scene=None, bounds=None, **opts):
+        self.tris = tris
+        self.count = int(tris.count)
+        self.build_ms = 0.0
+        self.build()
+
+    # ------------------------------------------------------------------ build (host)
+    def build(self) -> None:
+        """Binned SAH binary BVH, collapsed to 8-wide with <= 2 lights per leaf; upload."""
+        t0 = time.perf_counter()
+        L = self.count
+        if L == 0:
+            self._empty()
+            self.build_ms = 1e3 * (time.perf_counter() - t0)
+            return
+        h = self.tris.host_arrays()
+        p0, e1, e2 = h["p0"], h["e1"], h["e2"]
+        v = np.stack([p0, p0 + e1, p0 + e2], 1)
+        tlo, thi = v.min(1), v.max(1)
+        power = np.maximum(h["power"], 0.0)
+        normal = h["normal"]
+        bt = _build_binary(tlo, thi, h["centroid"], power, normal)
+        b_left, b_right = bt["left"].tolist(), bt["right"].tolist()
+        d = np.maximum(bt["hi"] - bt["lo"], 0.0)
+        b_area = (d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0]).tolist()
+        # -- collapse to WIDTH children per node (top down, BFS; the largest inner child is expanded first) --
+        slots = []           # per wide inner node: list of binary children
+        parents = []         # per wide inner node: (parent wide node, slot)
+        leaves = []          # per wide leaf: binary node
+        leaf_par = []
+        inner_nodes = [0]    # binary node of each wide inner node (BFS order == queue order)
+        queue = [(0, INVALID, 0)]
+        qi = 0
+        while qi < len(queue):
+            bn, par, slot = queue[qi]
+            qi += 1
+            idx = len(slots)
+            kids = [bn] if b_left[bn] < 0 else [b_left[bn], b_right[bn]]
+            while len(kids) < WIDTH:
+                inner = [k for k in kids if b_left[k] >= 0]
+                if not inner:
+                    break
+                big = max(inner, key=b_area.__getitem__)
+                i = kids.index(big)
+                kids[i:i + 1] = [b_left[big], b_right[big]]
+            slots.append(kids)
+            parents.append((par, slot))
+            for s_, k in enumerate(kids):
+                if b_left[k] < 0:
+                    leaf_par.append((idx, s_))
+                    leaves.append(k)
+                else:
+                    queue.append((k, idx, s_))
+                    inner_nodes.append(k)
+        N = len(slots)
+        wide_of = np.full(len(b_left), -1, np.int64)
+        wide_of[np.array(inner_nodes)] = np.arange(N)
+        leaf_of = np.full(len(b_left), -1, np.int64)
+        leaf_of[np.array(leaves, np.int64)] = np.arange(len(leaves))
+        j = np.array([n_i * WIDTH + s_ for n_i, kids in enumerate(slots) for s_ in range(len(kids))], np.int64)
+        kb = np.array([k for kids in slots for k in kids], np.int64)
+        child = np.full(N * WIDTH, INVALID, np.int64)
+        clo = np.zeros((N * WIDTH, 3))
+        chi = np.zeros((N * WIDTH, 3))
+        cpow = np.zeros(N * WIDTH)
+        caxis = np.tile([0.0, 0.0, 1.0], (N * WIDTH, 1))
+        ccos = np.full(N * WIDTH, -1.0)
+        is_leaf = bt["left"][kb] < 0
+        child[j] = np.where(is_leaf, LEAF_BIT | np.maximum(leaf_of[kb], 0), wide_of[kb])
+        clo[j], chi[j], caxis[j], ccos[j] = bt["lo"][kb], bt["hi"][kb], bt["axis"][kb], bt["cos_o"][kb]
+        cpow[j] = np.maximum(bt["power"][kb], 1e-30)     # > 0: the power fallback never picks an empty slot
+        nl = len(leaves)
+        lb = np.array(leaves, np.int64)
+        ls, le = bt["start"][lb], bt["end"][lb]
+        leaf_lights = np.full((nl, LEAF_SIZE), INVALID, np.int64)
+        perm = bt["perm"]
+        first = perm[ls]
+        second = np.where(le - ls > 1, perm[np.minimum(ls + 1, L - 1)], INVALID)
+        two = second != INVALID
+        a0 = np.where(two, np.minimum(first, np.where(two, second, 0)), first)
+        a1 = np.where(two, np.maximum(first, np.where(two, second, 0)), INVALID)
+        leaf_lights[:, 0], leaf_lights[:, 1] = a0, a1
+        light_leaf = np.zeros(L, np.int64)
+        light_slot = np.zeros(L, np.int64)
+        light_leaf[a0], light_slot[a0] = np.arange(nl), 0
+        light_leaf[a1[two]], light_slot[a1[two]] = np.arange(nl)[two], 1
+        par = np.array(parents, np.int64).reshape(-1, 2)
+        lpar = np.array(leaf_par, np.int64).reshape(-1, 2)
+        wd = np.ones(N, np.int64)          # depth of the wide tree (stats only): BFS order, parents first
+        for i in range(1, N):
+            wd[i] = wd[par[i, 0]] + 1
+        depth = int(wd.max())
+        # -- upload --
+        f32 = lambda a: mi.Float(np.ascontiguousarray(a, np.float32))
+        u32 = lambda a: mi.UInt32(np.ascontiguousarray(a, np.uint32))
+        self._child = u32(child)
+        self._clo = mi.Point3f(*[f32(clo[:, k]) for k in range(3)])
+        self._chi = mi.Point3f(*[f32(chi[:, k]) for k in range(3)])
+        self._cpow = f32(cpow)
+        self._caxis = mi.Vector3f(*[f32(caxis[:, k]) for k in range(3)])
+        self._ccos = f32(ccos)
+        self._leaf_l0, self._leaf_l1 = u32(leaf_lights[:, 0]), u32(leaf_lights[:, 1])
+        self._light_leaf, self._light_slot = u32(light_leaf), u32(light_slot)
+        self._node_par, self._node_pslot = u32(par[:, 0]), u32(par[:, 1])
+        self._leaf_par, self._leaf_pslot = u32(lpar[:, 0]), u32(lpar[:, 1])
+        dr.eval(self._child, self._clo, self._chi, self._cpow, self._caxis, self._ccos, self._leaf_l0,
+                self._leaf_l1, self._light_leaf, self._light_slot, self._node_par, self._node_pslot,
+                self._leaf_par, self._leaf_pslot)
+        self.nodes, self.leaves, self.depth = N, nl, depth
+        self._host = dict(child=child, lo=clo, hi=chi, power=cpow, axis=caxis, cos_o=ccos, leaf_lights=leaf_lights,
+                          light_leaf=light_leaf, node_parent=par, leaf_parent=lpar)
+        self.build_ms = 1e3 * (time.perf_counter() - t0)
+
+    def _empty(self):
+        self.nodes = self.leaves = self.depth = 0
+        z = mi.UInt32(np.array([INVALID], np.uint32))
+        self._child = z
+
+    # ------------------------------------------------------------------ importance (device)
+    def _child_importance(self, j, p, n, active):
+        """Importance of child slot j (see the module docstring) at receiver (p, n)."""
+        lo = dr.gather(mi.Point3f, self._clo, j, active)
+        hi = dr.gather(mi.Point3f, self._chi, j, active)
+        phi = dr.gather(mi.Float, self._cpow, j, active)
+        axis = dr.gather(mi.Vector3f, self._caxis, j, active)
+        cos_o = dr.gather(mi.Float, self._ccos, j, active)
+        c = 0.5 * (lo + hi)
+        r = 0.5 * dr.norm(hi - lo)
+        v = c - p
+        d2 = dr.squared_norm(v)
+        d = dr.sqrt(d2)
+        inside = d <= r
+        inv_d = dr.rcp(dr.maximum(d, 1e-20))
+        theta_u = dr.asin(dr.clip(r * inv_d, 0.0, 1.0))
+        theta = dr.acos(dr.clip(-dr.dot(axis, v) * inv_d, -1.0, 1.0))
+        theta_o = dr.acos(dr.clip(cos_o, -1.0, 1.0))
+        tp = dr.maximum(theta - theta_o - theta_u, 0.0)
+        emit = dr.select(tp < _HALF_PI, dr.cos(tp), 0.0)
+        ti = dr.acos(dr.clip(dr.dot(n, v) * inv_d, -1.0, 1.0))
+        tip = dr.maximum(ti - theta_u, 0.0)
+        recv = dr.select(tip < _HALF_PI, dr.cos(tip), 0.0)
+        far = phi * emit * recv / dr.maximum(d2, 1e-20)
+        near = phi / dr.maximum(r * r, 1e-20)
+        w = dr.select(inside, near, far)
+        return dr.select(active & dr.isfinite(w), w, 0.0), dr.select(active, phi, 0.0)
+
+    def _node_weights(self, node, p, n, active):
+        """The 8 child weights of ``node`` and their total (power-proportional fallback where all are 0)."""
+        ws, ps = [], []
+        for k in range(WIDTH):
+            w, ph = self._child_importance(node * WIDTH + k, p, n, active)
+            ws.append(w)
+            ps.append(ph)
+        tot = ws[0]
+        ptot = ps[0]
+        for k in range(1, WIDTH):
+            tot = tot + ws[k]
+            ptot = ptot + ps[k]
+        fb = tot <= 0.0
+        ws = [dr.select(fb, ps[k], ws[k]) for k in range(WIDTH)]
+        return ws, dr.select(fb, ptot, tot)
+
+    def _leaf_weights(self, leaf, p, n, active):
+        l0 = dr.gather(mi.UInt32, self._leaf_l0, leaf, active)
+        l1 = dr.gather(mi.UInt32, self._leaf_l1, leaf, active)
+        has1 = active & (l1 != INVALID)
+        ws = []
+        pw = []
+        for l, a in ((l0, active), (l1, has1)):
+            t = self.tris
+            w = triangle_irradiance(p, n, dr.gather(mi.Point3f, t.p0, l, a), dr.gather(mi.Vector3f, t.e1, l, a),
+                                    dr.gather(mi.Vector3f, t.e2, l, a), dr.gather(mi.Color3f, t.radiance, l, a), a)
+            ws.append(dr.select(a, w, 0.0))
+            pw.append(dr.select(a, dr.maximum(dr.gather(mi.Float, t.power, l, a), 1e-30), 0.0))
+        tot = ws[0] + ws[1]
+        fb = tot <= 0.0
+        ws = [dr.select(fb, pw[k], ws[k]) for k in range(2)]
+        return (l0, l1), ws, dr.select(fb, pw[0] + pw[1], tot)
+
+    # ------------------------------------------------------------------ LightSelector protocol
+    def begin_frame(self, ctx) -> None:
+        """Rebuild the hierarchy over this frame's light positions (Sec. 7: "construction ... each frame")."""
+        self.tris = ctx.tris
+        self.build()
+
+    def sample(self, p, n, u, active, p_prev=None):
+        """(light id, pmf) by stochastic top-down traversal with one uniform ``u`` (rescaled per level)."""
+        p, n = mi.Point3f(p), mi.Vector3f(n)
+        u = mi.Float(u)
+        width = dr.width(u)
+        active = mi.Bool(active) & dr.full(mi.Bool, self.count > 0, width)
+        if self.count == 0:
+            return dr.full(mi.UInt32, INVALID, width), dr.zeros(mi.Float, width)
+        node = dr.zeros(mi.UInt32, width)
+        pmf = dr.full(mi.Float, 1.0, width)
+        leaf = dr.full(mi.UInt32, INVALID, width)
+        going = mi.Bool(active)
+
+        def cond(node, leaf, pmf, u, going):
+            return going
+
+        def body(node, leaf, pmf, u, going):
+            ws, tot = self._node_weights(node, p, n, going)
+            x = u * tot
+            acc = mi.Float(0.0)
+            pick = mi.UInt32(WIDTH - 1)
+            wsel = ws[WIDTH - 1]
+            lo_sel = acc
+            found = mi.Bool(False)
+            for k in range(WIDTH):
+                nxt = acc + ws[k]
+                take = ~found & (x < nxt) & (ws[k] > 0.0)
+                pick = dr.select(take, k, pick)
+                wsel = dr.select(take, ws[k], wsel)
+                lo_sel = dr.select(take, acc, lo_sel)
+                found |= take
+                acc = nxt
+            # guard against rounding: the last child with positive weight
+            last = mi.UInt32(0)
+            for k in range(WIDTH):
+                last = dr.select(ws[k] > 0.0, k, last)
+            wl = ws[0]
+            lol = mi.Float(0.0)
+            a2 = mi.Float(0.0)
+            for k in range(WIDTH):
+                wl = dr.select(last == k, ws[k], wl)
+                lol = dr.select(last == k, a2, lol)
+                a2 = a2 + ws[k]
+            pick = dr.select(found, pick, last)
+            wsel = dr.select(found, wsel, wl)
+            lo_sel = dr.select(found, lo_sel, lol)
+            u2 = dr.clip((x - lo_sel) / dr.maximum(wsel, 1e-30), 0.0, _ONE_MINUS)
+            ok = going & (wsel > 0.0) & (tot > 0.0)
+            ref = dr.gather(mi.UInt32, self._child, node * WIDTH + pick, ok)
+            is_leaf = (ref & LEAF_BIT) != 0
+            pmf = dr.select(going, dr.select(ok, pmf * (wsel / tot), 0.0), pmf)
+            leaf = dr.select(ok & is_leaf, ref & ~mi.UInt32(LEAF_BIT), leaf)
+            node = dr.select(ok & ~is_leaf, ref, node)
+            u = dr.select(going, u2, u)
+            going = ok & ~is_leaf
+            return node, leaf, pmf, u, going
+
+        node, leaf, pmf, u, going = dr.while_loop((node, leaf, pmf, u, going), cond, body,
+                                                  labels=("node", "leaf", "pmf", "u", "going"),
+                                                  label="lighttree_sample")
+        ok = active & (leaf != INVALID)
+        (l0, l1), ws, tot = self._leaf_weights(leaf, p, n, ok)
+        first = u * tot < ws[0]
+        light = dr.select(first | (ws[1] <= 0.0), l0, l1)
+        w = dr.select(first | (ws[1] <= 0.0), ws[0], ws[1])
+        pmf = pmf * w / dr.maximum(tot, 1e-30)
+        ok &= (w > 0.0) & (pmf > 0.0)
+        return dr.select(ok, light, INVALID), dr.select(ok, pmf, 0.0)
+
+    def pmf(self, p, n, light_id, active, p_prev=None):
+        """Exact probability that :meth:`sample` returns ``light_id`` at (p, n): product of the branch
+        probabilities along the light's leaf-to-root chain."""
+        p, n = mi.Point3f(p), mi.Vector3f(n)
+        light_id = mi.UInt32(light_id)
+        width = dr.width(light_id)
+        active = mi.Bool(active) & (light_id < self.count) & dr.full(mi.Bool, True, width)
+        if self.count == 0:
+            return dr.zeros(mi.Float, width)
+        leaf = dr.gather(mi.UInt32, self._light_leaf, light_id, active)
+        slot = dr.gather(mi.UInt32, self._light_slot, light_id, active)
+        (l0, l1), ws, tot = self._leaf_weights(leaf, p, n, active)
+        prob = dr.select(slot == 0, ws[0], ws[1]) / dr.maximum(tot, 1e-30)
+        node = dr.gather(mi.UInt32, self._leaf_par, leaf, active)
+        kslot = dr.gather(mi.UInt32, self._leaf_pslot, leaf, active)
+        going = active & (prob > 0.0)
+
+        def cond(node, kslot, prob, going):
+            return going
+
+        def body(node, kslot, prob, going):
+            ws, tot = self._node_weights(node, p, n, going)
+            w = ws[0]
+            for k in range(1, WIDTH):
+                w = dr.select(kslot == k, ws[k], w)
+            prob = dr.select(going, dr.select(tot > 0.0, prob * (w / tot), 0.0), prob)
+            par = dr.gather(mi.UInt32, self._node_par, node, going)
+            ps = dr.gather(mi.UInt32, self._node_pslot, node, going)
+            node = dr.select(going, par, node)
+            kslot = dr.select(going, ps, kslot)
+            going = going & (par != INVALID) & (prob > 0.0)
+            return node, kslot, prob, going
+
+        node, kslot, prob, going = dr.while_loop((node, kslot, prob, going), cond, body,
+                                                 labels=("node", "kslot", "prob", "going"), label="lighttree_pmf")
+        return dr.select(active, prob, 0.0)
+
+    def record(self, p, n, light_id, visible, active) -> None:
+        """The light hierarchy learns nothing from samples."""
+
+    def end_frame(self) -> None:
+        pass
+
+    def stats(self) -> dict:
+        return {"lights": self.count, "nodes": self.nodes, "leaves": self.leaves, "depth": self.depth,
+                "build_ms": self.build_ms, "preprocess_ms": self.build_ms}
