@@ -1,0 +1,192 @@
+"""Primary DDGI (technique ``ddgi-primary``): the DDGI Resampling paper's Eq. 2 at the primary vertex.
+
+``L ~= L_e + T_fd L_e + L_DDGI + T_fg L``  (Majercik et al. 2022, Sec. 3.1, Eq. 2; the "Primary DDGI"
+column of its Fig. 3 / 8 and Table 1):
+
+* ``L_e`` at the primary vertex, and **direct light by ReSTIR DI** -- exactly
+  ``restir-pt``'s G-buffer, candidates, temporal and spatial reuse and shadow
+  ray (an internal :class:`~dyngi.techniques.restir.ReSTIRPTTechnique` run
+  with ``max_depth = 2``, ``progressive = False``), which covers ``T_f L_e``
+  through every smooth lobe of the primary BSDF (diffuse and glossy), plus the
+  emission seen through a delta lobe of the primary vertex;
+* ``L_DDGI``: ``albedo / pi * E_probe(x, n)`` from a plain DDGI volume
+  (:class:`~dyngi.probes.ddgi_plus.DDGIPlusVolume` in ``'ddgi'`` mode) whose
+  probe rays do NEE for **every** emitter (``direct='nee'``): the probes then
+  hold bounced light only (``sum_{i>=2} T_fd^i L_e``), since ReSTIR already
+  delivers the environment's and every light's direct part;
+* ``T_fg L``: the **glossy recursion**, path traced: at the primary vertex one
+  sample of the glossy lobes (:func:`dyngi.probes.glossy.sample_glossy`); at
+  each following vertex ``y``: NEE (one light sample, full BSDF) +
+  ``albedo / pi * E_probe(y)`` + the next glossy sample, up to ``glossy_depth``
+  glossy bounces. Emission hit by a glossy sample is not counted where the
+  lobe was smooth (NEE at the vertex before covered it: ReSTIR at the primary
+  vertex, NEE after) but is counted behind a delta lobe (which NEE cannot
+  sample; at the primary vertex that is ReSTIR's path part). No MIS, no
+  Russian roulette (our choice: the recursion is short and its throughput
+  falls with every glossy albedo).
+
+Unlike ``ddgi`` (diffuse indirect only), glossy surfaces reflect indirect
+light (through the recursion). On a scene without any diffuse lobe the
+technique is an unbiased path tracer of depth ``glossy_depth + 2`` (Mitsuba's
+``max_depth``; ``tests/test_ddgi_plus.py`` z-tests it against Mitsuba's ``path``).
+
+Conventions as ``ddgi``: the first frame warms the probes up (``warmup``
+updates without hysteresis), one jittered primary ray per pixel, no
+accumulation over frames. Differences: the primary ray does not pass through
+glass (restir-pt's G-buffer; glass reflects and refracts through the glossy
+recursion's delta lobes instead). ``FrameResult.indirect`` = the probe term +
+the recursion's light from vertices >= 3 (light that reflected at least once
+before the primary vertex).
+
+Parameters
+----------
+candidates, temporal, m_cap, spatial, radius, combine   ReSTIR DI, as ``restir-pt`` (32, True, 20, 3, 30, 'mis')
+glossy_depth : int = 4      glossy bounces of the T_fg L recursion (0: none, i.e. ``ddgi``'s diffuse-only indirect)
+probe parameters            ``ddgi``'s (probe_counts, rays_per_probe, hysteresis, warmup, ...), through
+                            :func:`dyngi.probes.ddgi_plus.plus_params`; the probes' ``direct`` routing is
+                            fixed to ``'nee'`` (see above)
+
+Bias: the probes' (lag, spatial and angular blur, leaks: ``living-room``);
+none in the ReSTIR part (``combine='mis'``) and in the recursion, which is
+truncated at ``glossy_depth`` glossy bounces.
+
+Stats per stage: restir-pt's (``gbuffer``, ``candidates``, ``temporal``,
+``spatial``, ``shadow``, ``path``, ``accumulate``), the probe update's
+(``warmup``, ``trace probes``, ``shade probes``, ``blend``, ``states``),
+``probe query`` and ``glossy``.
+"""
+from __future__ import annotations
+
+from ..backend import dr, mi
+from ..probes.ddgi_plus import DDGIPlusVolume, plus_params
+from ..probes.glossy import sample_glossy
+from ..probes.trace import shading_side
+from ..sampling.diffuse import diffuse_albedo
+from ..sampling.lights import EmitterSampling, sample_traced
+from ..sampling.rng import make_sampler
+from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
+from .restir import ReSTIRPTTechnique
+
+_GLOSSY_STREAM = 0x6C05
+_RESTIR_KEYS = ("candidates", "temporal", "m_cap", "spatial", "radius", "combine")
+_PROBE_SKIP = ("direct", "emission_attenuation", "emission_scale", "probe_glossy")
+
+
+def _params() -> dict:
+    out = {k: ReSTIRPTTechnique.PARAMS[k] for k in _RESTIR_KEYS}
+    out.update({k: v for k, v in plus_params().items() if k not in _PROBE_SKIP})
+    out["glossy_depth"] = Param(4, "glossy bounces of the path-traced T_fg L recursion (0: none)", min=0, max=64)
+    return out
+
+
+@dr.syntax
+def glossy_recursion(scene, volume, lights, si, ray, front, sampler, depth_max: int):
+    """``T_fg L`` at the primary vertex ``si`` (module docstring). Returns (L, rays traced per lane).
+
+    ``volume``: the :class:`~dyngi.probes.ddgi_plus.DDGIPlusVolume` whose query gives the diffuse indirect
+    light at each vertex; ``lights``: the NEE strategy at vertices >= 2; ``front``: lanes whose primary
+    vertex faces the camera; ``depth_max``: glossy bounces (a Python int: fixed per technique instance).
+    All of ``L`` is indirect light (it reflected at vertex >= 2 before the primary vertex): the emission
+    seen behind a delta lobe at vertex 2 is ReSTIR's and not counted here."""
+    L = mi.Color3f(0.0)
+    rays = mi.UInt32(0)
+    si = mi.SurfaceInteraction3f(si)
+    si.wi = si.to_local(-ray.d)
+    d, beta, active, delta = sample_glossy(si.bsdf(), si, sampler.next_1d(), sampler.next_2d(), front, True)
+    depth = mi.UInt32(1)
+    depth_u = mi.UInt32(depth_max)
+    active &= depth_u > 0
+    ctx = mi.BSDFContext()
+    prev_si = mi.SurfaceInteraction3f(si)
+    while dr.hint(active, label="dyngi_ddgi_primary_glossy"):
+        r = prev_si.spawn_ray(d)
+        nsi = scene.ray_intersect(r, ray_flags=mi.RayFlags.All, coherent=False, active=active)
+        rays += mi.UInt32(active)
+        hit = active & nsi.is_valid()
+        # -- emission (and the environment on a miss) behind a delta lobe, from vertex 3 on (vertex 2's is
+        # ReSTIR's path part); behind a smooth lobe it was NEE's at the vertex before --
+        em_on = active & delta & (depth >= 2)
+        L += dr.select(em_on, beta * mi.Color3f(nsi.emitter(scene, em_on).eval(nsi, em_on)), 0.0)
+        bsdf = nsi.bsdf(r)
+        fr, nn = shading_side(nsi, r, bsdf, hit)
+        # -- NEE at the new vertex (all emitters, full BSDF) --
+        ds, w, sh = sample_traced(lights, scene, nsi, sampler.next_2d(), fr)
+        rays += mi.UInt32(sh)
+        f = bsdf.eval(ctx, nsi, nsi.to_local(ds.d), fr & sh)
+        L += dr.select(fr & sh, beta * mi.Color3f(f) * w, 0.0)
+        # -- probe diffuse indirect at the new vertex --
+        alb = diffuse_albedo(bsdf, nsi, fr)
+        dif = fr & dr.any(alb > 0.0)
+        E = volume.query.irradiance(nsi.p, nn, -r.d, active=dif)
+        L += dr.select(dif, beta * alb * dr.inv_pi * E, 0.0)
+        # -- next glossy bounce --
+        nsi.wi = nsi.to_local(-r.d)
+        d2, w2, ok, delta = sample_glossy(bsdf, nsi, sampler.next_1d(), sampler.next_2d(), fr, True)
+        beta *= w2
+        depth += 1
+        prev_si = mi.SurfaceInteraction3f(nsi)
+        d = mi.Vector3f(d2)
+        active = hit & ok & (depth <= depth_u) & dr.any(beta > 0.0)
+    return L, rays
+
+
+@register
+class DDGIPrimaryTechnique(Technique):
+    """Primary DDGI (DDGI Resampling Sec. 3.1, Eq. 2): ReSTIR direct + probe diffuse indirect + T_fg L."""
+
+    name = "ddgi-primary"
+    description = ("Primary DDGI (Majercik et al. 2022, Eq. 2): ReSTIR DI at the primary vertex, DDGI probe "
+                   "diffuse indirect, path-traced glossy recursion T_fg L")
+    HAS_INDIRECT = True
+    INDIRECT_INCLUDES_PROBE_SKY = False   # the probes' rays NEE every emitter: they hold bounced light only
+    PARAMS = _params()
+    BATTERY_PARAMS = {"candidates": 4, "spatial": 2, "probe_counts": "3", "rays_per_probe": 16, "warmup": 1,
+                      "glossy_depth": 2}
+    FURNACE_PARAMS = {"candidates": 8, "probe_counts": "4", "rays_per_probe": 64, "hysteresis": 0.5,
+                      "irradiance_gamma": 1.0, "warmup": 8}
+
+    def __init__(self, scene, params=None):
+        super().__init__(scene, params)
+        p = self.params
+        self.restir = ReSTIRPTTechnique(scene, {**{k: p[k] for k in _RESTIR_KEYS}, "max_depth": 2,
+                                                "progressive": False})
+        probe = {k: p[k] for k in plus_params() if k in p}
+        probe["direct"] = "nee"
+        self.probes = DDGIPlusVolume(scene, probe, mode="ddgi")
+        self.lights = EmitterSampling()
+
+    def step(self, frame: Frame) -> FrameResult:
+        p = self.params
+        t = StageTimer()
+        self.probes.update(frame, timer=t)
+        r = self.restir.step(frame)               # G-buffer, ReSTIR DI, delta-lobe emission: L_e + T_f L_e
+        for k, v in r.stats["ms"].items():
+            t.ms[k] = t.ms.get(k, 0.0) + v
+        for k, v in r.stats["rays"].items():
+            t.add_rays(k, v)
+        gb = self.restir.hist.cur
+        si, ray = gb.si, gb.ray
+        mscene = self.scene.mi_scene
+        bsdf = si.bsdf(ray)
+        front, n = shading_side(si, ray, bsdf, gb.valid)     # n: the shading normal on the camera's side
+        with t.stage("probe query"):
+            alb = diffuse_albedo(bsdf, si, front)
+            E = self.probes.query.irradiance(si.p, n, -ray.d, active=front & dr.any(alb > 0.0))
+            ind = dr.select(front, alb * dr.inv_pi * E, 0.0)
+            dr.eval(ind)
+        gl = mi.Color3f(0.0)
+        if p["glossy_depth"] > 0:
+            with t.stage("glossy"):
+                npix = frame.res[0] * frame.res[1]
+                sampler = make_sampler(npix, frame.seed, frame.index, _GLOSSY_STREAM)
+                gl, rays = glossy_recursion(mscene, self.probes, self.lights, si, ray, front, sampler,
+                                            p["glossy_depth"])
+                gl = dr.select(dr.all(dr.isfinite(gl)), gl, 0.0)
+                dr.eval(gl, rays)
+            t.add_rays("glossy", dr.sum(rays))
+        indirect = to_image(ind + gl, frame.res)
+        img = r.image + indirect
+        stats = t.as_dict()
+        st = self.probes.stats()
+        stats.update({k: v for k, v in st.items() if k not in ("ms", "rays", "total_ms", "total_rays")})
+        return FrameResult(image=img, indirect=indirect, stats=stats)
