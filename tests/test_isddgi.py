@@ -203,9 +203,10 @@ def test_probe_state_algorithm_2():
 def test_isddgi_static_scene_converges_to_ddgi(backend):
     """Static Cornell box, both with a linear blend (``irradiance_gamma=1``) and hysteresis 0.8: the mean
     indirect image of frames 12-23 of isddgi is within 8% of ddgi's (256 rays) and the per-pixel relative
-    RMS difference under 0.35 (bounds recorded; measured 2026-12-01: ratio 0.970, rel. RMS 0.088). With
-    the default perceptual blend (gamma 5) the ratio was 0.908: the gamma-space blend biases noisier
-    per-frame estimates (fewer rays) lower (Jensen), a known bias of the DDGI blend, not of the sampling."""
+    RMS difference under 0.35 (bounds recorded; measured 2026-12-01: ratio 0.970, rel. RMS 0.088;
+    2026-12-02 with paired visits: 0.985, 0.092). With the default perceptual blend (gamma 5) the ratio
+    was 0.908 (0.916 on 2026-12-02): the gamma-space blend biases noisier per-frame estimates (fewer rays)
+    lower (Jensen), a known bias of the DDGI blend, not of the sampling (ddgi at 8 rays/probe: 0.886)."""
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique
     scene = load_scene("cornell-moving-box")
@@ -241,33 +242,38 @@ def test_reproduce_isddgi_quick(tmp_path):
     assert any("trace" in r["quantity"] for r in rows)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known weakness (measured 2026-12-01): in corridor-rooms the probe-ray hits use 1 NEE sample over 14 "
-    "lights, so per-ray luminance noise hides the switch; the importance budget spreads over ~300 of 384 "
-    "probes flagged by noise and only ~5% of the importance rays land in the switched room (7% of probes)"))
 def test_rendered_light_switch_concentrates_importance_rays(backend):
     """corridor-rooms: the ceiling light of room 1 north (x in [4, 8], z in [1, 5]) switches off at t = 1 s
     (nothing else changes before 1.5 s). Frames at t = 0.9 (light on), then at t = 1.2: within 2-6 frames
-    after the switch most importance rays should go to the probes inside that room (about 7% of the
-    probes); bound 0.5. Fails today (see the xfail reason): the scripted planner-level switch above passes."""
+    after the switch most importance rays go to the probes of that room (the probes inside it or on its
+    walls, lattice points within 0.1 m: relocation may move those to either side; ~9% of the probes); bound
+    0.7. Measured 2026-12-02 with paired visits (keyed NEE randomness, :mod:`dyngi.probes.isddgi_shading`):
+    0.94-0.98 on frames 12-16 (before them, per-frame NEE noise gave ~0.05: the old strict xfail)."""
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique
     scene = load_scene("corridor-rooms")
     tech = create_technique("isddgi:probe_counts=16,3,8", scene)
     pos = tech.volume.grid.base_positions()
-    room = (pos[:, 0] > 4.0) & (pos[:, 0] < 8.0) & (pos[:, 2] > 1.0) & (pos[:, 2] < 5.0)
+    room = (pos[:, 0] > 3.9) & (pos[:, 0] < 8.1) & (pos[:, 2] > 0.9) & (pos[:, 2] < 5.1)
     assert 0.03 < room.mean() < 0.12
     res = (16, 12)
     fr = 0
+    static_imp, after = 0, []
     for t, n in ((0.9, 10), (1.2, 7)):
         scene.at(t)
         for _ in range(n):
             r = tech.step(Frame(fr, t, scene.camera(t), res, seed=0))
+            if t < 1.0:
+                static_imp += r.stats["importance_rays"]
             if t > 1.0 and fr >= 12:
+                after.append(r.stats["importance_rays"])
                 plan = tech.last_plan
                 imp = plan.info.importance.sum(1)
                 ids = plan.probe_ids.astype(np.int64)
                 frac = imp[room[ids]].sum() / max(imp.sum(), 1)
                 print(f"frame {fr}: importance rays {imp.sum()}, in the room {frac:.2f}")
-                assert imp.sum() > 0 and frac > 0.5, frac
+                assert imp.sum() > 0 and frac > 0.7, frac
             fr += 1
+    # static frames: a static set's paired visits agree, so (almost) no importance rays (measured: 16 in total
+    # over frames 0-9, from one probe on a wall, vs ~300-550 per frame after the switch)
+    assert static_imp < 0.2 * np.mean(after), (static_imp, after)

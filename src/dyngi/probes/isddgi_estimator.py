@@ -17,8 +17,8 @@ radiance, i.e. ``E / pi`` -- the pi convention of Sec. 4.2 (``r_diff = rho * irr
 shading multiplies by ``albedo / pi``, i.e. ``r_diff = rho * irr``. The distance moments use DDGI's
 ``cos^distance_power`` lobe with the same weights. Back faces: as the probe core (:mod:`.estimator`).
 
-The sums are a Dr.Jit loop per texel over its probe's rays (:func:`integrate_sets_dr`: one lane per
-(probe, set), a ragged ``dr.while_loop`` over ``offsets[slot] .. offsets[slot+1]``; sequential sums per
+The sums are a Dr.Jit loop over the probe's rays (:func:`integrate_sets_dr`: one lane per (probe, pair of
+antipodal sets), a ragged ``dr.while_loop`` over ``offsets[slot] .. offsets[slot+1]``; sequential sums per
 lane, so bit-identical on reruns with no atomics); :func:`integrate_sets` is the NumPy twin used by tests.
 
 **Probe state** (Algorithm 2): a probe is ON iff it has a front-face hit and its back-face ratio
@@ -126,16 +126,33 @@ def _planar(channels, n: int):
     return out
 
 
+def antipodal_sets() -> np.ndarray:
+    """(256,) int64: the set whose centre direction is the opposite of set ``j``'s (an involution without
+    fixed points on the 16x16 octahedral grid: the octahedral fold maps texel centres to texel centres)."""
+    from ..sampling.octahedral import oct_encode_np
+    p = (oct_encode_np(-set_directions()) * 0.5 + 0.5) * 16 - 0.5
+    return np.round(p[:, 1]).astype(np.int64) * 16 + np.round(p[:, 0]).astype(np.int64)
+
+
 def integrate_sets_dr(plan, radiance, dist, max_distance: float, power: float = 50.0):
     """Dr.Jit version of :func:`integrate_sets` on the device arrays of ``plan`` (direction, weight) and the
-    traced ``radiance`` (Color3f) / ``dist`` (Float): returns (irradiance, distance) :class:`TexelEstimate`."""
+    traced ``radiance`` (Color3f) / ``dist`` (Float): returns (irradiance, distance) :class:`TexelEstimate`.
+
+    One lane per probe and *pair of antipodal sets* (ours, exact): a ray's cosine to set ``j'`` opposite
+    ``j`` is ``-cos_j``, so one loop iteration (the ray's gathers, its cosine and its ``|cos|^power``)
+    feeds both: the positive lobe to ``j``, the negative to ``j'`` -- half the lanes of one lane per set
+    (measured: integration ~2x faster on 2048 probes x ~30 rays)."""
     S = len(plan.probe_ids)
     n = S * N_SETS
+    half = N_SETS // 2
+    anti = antipodal_sets()
+    first = np.flatnonzero(np.arange(N_SETS) < anti)            # 128 sets, their antipodes the other 128
     offsets = upload(np.asarray(plan.offsets, np.uint32), mi.UInt32)
-    k = dr.arange(mi.UInt32, n)
-    slot = k // N_SETS
-    t = k - slot * N_SETS
-    nt = dr.gather(mi.Vector3f, _texel_dirs_dr(), t)
+    k = dr.arange(mi.UInt32, S * half)
+    slot = k // half
+    t = k - slot * half
+    ta = dr.gather(mi.UInt32, upload(first.astype(np.uint32), mi.UInt32), t)
+    nt = dr.gather(mi.Vector3f, _texel_dirs_dr(), ta)
     r0 = dr.gather(mi.UInt32, offsets, slot)
     r1 = dr.gather(mi.UInt32, offsets, slot + 1)
     dmax = dr.opaque(mi.Float, max_distance)
@@ -143,31 +160,62 @@ def integrate_sets_dr(plan, radiance, dist, max_distance: float, power: float = 
     weight = plan.weight if plan.weight is not None else dr.full(mi.Float, 1.0, plan.n_rays)
     direction = plan.direction
 
-    def body(r, e, we, m1, m2, wd):
+    def body(r, ea, wa, ma1, ma2, da, eb, wb, mb1, mb2, db):
         d = dr.gather(mi.Vector3f, direction, r)
         w = dr.gather(mi.Float, weight, r)
         L = dr.gather(mi.Color3f, radiance, r)
         h = dr.gather(mi.Float, dist, r)
-        c = dr.maximum(dr.dot(d, nt), 0.0)
-        wi = dr.select(h >= 0.0, c * w, 0.0)
-        e = dr.fma(L, wi, e)
-        we += wi
+        c = dr.dot(d, nt)
+        pos = c > 0.0
+        wf = dr.select(h >= 0.0, dr.abs(c) * w, 0.0)
+        wia = dr.select(pos, wf, 0.0)
+        wib = dr.select(pos, 0.0, wf)
+        ea = dr.fma(L, wia, ea)
+        wa += wia
+        eb = dr.fma(L, wib, eb)
+        wb += wib
         a = dr.minimum(dr.abs(h), dmax)
-        wdd = dr.select(c > cut, _int_power_dr(c, power), 0.0) * w
-        m1 = dr.fma(a, wdd, m1)
-        m2 = dr.fma(a * a, wdd, m2)
-        wd += wdd
-        return r + 1, e, we, m1, m2, wd
+        ac = dr.abs(c)
+        pw = dr.select(ac > cut, _int_power_dr(ac, power), 0.0) * w
+        pa = dr.select(pos, pw, 0.0)
+        pb = dr.select(pos, 0.0, pw)
+        ma1 = dr.fma(a, pa, ma1)
+        ma2 = dr.fma(a * a, pa, ma2)
+        da += pa
+        mb1 = dr.fma(a, pb, mb1)
+        mb2 = dr.fma(a * a, pb, mb2)
+        db += pb
+        return r + 1, ea, wa, ma1, ma2, da, eb, wb, mb1, mb2, db
 
-    z = mi.Float(0.0)
-    state = (mi.UInt32(r0), mi.Color3f(0.0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0))
-    _, e, we, m1, m2, wd = dr.while_loop(state, lambda r, *a: r < r1, body,
-                                         labels=("r", "e", "we", "m1", "m2", "wd"))
-    dr.eval(e, we, m1, m2, wd)      # once: the scatters below would otherwise each re-run the loop
+    state = (mi.UInt32(r0), mi.Color3f(0.0), *[mi.Float(0.0) for _ in range(4)], mi.Color3f(0.0),
+             *[mi.Float(0.0) for _ in range(4)])
+    out = dr.while_loop(state, lambda r, *a: r < r1, body,
+                        labels=("r", "ea", "wa", "ma1", "ma2", "da", "eb", "wb", "mb1", "mb2", "db"))
+    _, ea, wa, ma1, ma2, da, eb, wb, mb1, mb2, db = out
+    dr.eval(ea, wa, ma1, ma2, da, eb, wb, mb1, mb2, db)   # once: the gathers below would re-run the loop
+    # -- back to one entry per (slot, set): set j is lane (slot, pos[j]) side a, or its antipode's side b --
+    side_a = np.zeros(N_SETS, bool)
+    side_a[first] = True
+    lane_of = np.zeros(N_SETS, np.int64)
+    lane_of[first] = np.arange(half)
+    lane_of[anti[first]] = np.arange(half)
+    kk = dr.arange(mi.UInt32, n)
+    sl = kk // N_SETS
+    j = kk - sl * N_SETS
+    lane = sl * half + dr.gather(mi.UInt32, upload(lane_of.astype(np.uint32), mi.UInt32), j)
+    isa = dr.gather(mi.Bool, upload(side_a.astype(np.uint32), mi.UInt32) != 0, j)
+
+    def pick(va, vb):
+        return dr.select(isa, dr.gather(type(va), va, lane), dr.gather(type(vb), vb, lane))
+
+    e, we = pick(ea, eb), pick(wa, wb)
+    m1, m2, wd = pick(ma1, mb1), pick(ma2, mb2), pick(da, db)
+    dr.eval(e, we, m1, m2, wd)
     oki, okd = we > 0.0, wd > 0.0
     # counts: 1 per texel that received weight (the accumulator only caps them; per-ray counts would
     # cost two more loop variables, measured ~3x slower)
     ne, nd = mi.UInt32(oki), mi.UInt32(okd)
+    z = mi.Float(0.0)
     inv_i = dr.select(oki, dr.rcp(we), z)
     inv_d = dr.select(okd, dr.rcp(wd), z)
     flat_i = _planar([e[0] * inv_i, e[1] * inv_i, e[2] * inv_i], n)

@@ -5,9 +5,11 @@ DDGI's probe volume with 256 direction sets per probe (a 16x16 octahedral tile, 
 1-texel border: 18x18 irradiance and visibility squares) and, per frame, ``x_i`` uniform rays per probe
 (rotating cells, random per-probe shift, adaptive ``x_i``) plus importance rays allocated to the
 (probe, set) pairs whose hits changed (balance-heuristic mixture, Secs. 4.3-4.4). Planner, change
-measure and adaptive rule: :mod:`dyngi.probes.isddgi_planner`; integration (Algorithm 3) and probe
-states (Algorithm 2): :mod:`dyngi.probes.isddgi_estimator`. Hit shading, hysteresis blend (0.97), frame-0
-warm-up, relocation, query and primary shading are ``ddgi``'s (:mod:`dyngi.techniques.ddgi`).
+measure (paired visits) and adaptive rule: :mod:`dyngi.probes.isddgi_planner`; integration (Algorithm 3)
+and probe states (Algorithm 2): :mod:`dyngi.probes.isddgi_estimator`; hit shading is ``ddgi``'s with
+per-ray keyed random numbers (:mod:`dyngi.probes.isddgi_shading`: a check visit repeats its reference's
+NEE sample and hit lookup, so a static set's difference is ~0). Hysteresis blend (0.97), frame-0 warm-up,
+relocation, query and primary shading are ``ddgi``'s (:mod:`dyngi.techniques.ddgi`).
 
 Parameters (besides ``ddgi``'s common ones: probe_counts, biases, direct, jitter, ...)
 ----------
@@ -25,36 +27,50 @@ relocate, classify : bool       relocation (Majercik et al. 2021, as ``ddgi``, b
 reclassify_interval : int = 8   inactive probes trace their uniform rays every this many frames (ours)
 
 Warm-up (ours, as ``ddgi``'s): ``warmup`` updates on frame 0 with one ray in every set (256 per probe)
-and no hysteresis; the change measure starts from their samples.
+and no hysteresis; afterwards the change measure forgets their samples (the probes they read changed).
 
-Stages: ``plan`` (the allocation, host), then ``ddgi``'s ``trace probes``, ``shade probes``, ``blend``,
-``states`` (here: relocation, Algorithm 2 and the change measure). Stats per frame: ``uniform_rays``,
-``importance_rays`` (kept after the per-set limit), ``importance_dropped``, ``probe_trace_ms`` (the ``trace probes`` stage), ``dynamic_rays``,
-``changed_probes``, ``mean_uniform_per_probe``.
+Stages: ``plan`` (the allocation: host, sparse -- the rays' (probe, set) keys, no P x 256 tables per
+frame -- with one upload per frame, from which the device computes directions, weights and shading keys;
+the documented CPU fast path: the allocation's pdf, draws and prefix sums stay NumPy), then ``ddgi``'s
+``trace probes``, ``shade probes``, ``blend``, ``states`` (here: relocation, Algorithm 2 and the change
+measure). Stats per frame: ``uniform_rays``, ``importance_rays`` (kept after the per-set limit),
+``importance_dropped``, ``probe_trace_ms`` (the ``trace probes`` stage), ``dynamic_rays``,
+``changed_probes``, ``check_rays`` (paired visits that measured change), ``mean_uniform_per_probe``.
 
 Bias: as ``ddgi`` (hysteresis lag, spatial/angular blur, leaks); in addition a set that no ray visited for
 ``256 / x_i`` frames lags a change that the change measure did not see (a change the uniform rays miss is
-found only when the rotation reaches it), and the per-frame estimate is a ratio (self-normalised); the
-perceptual (gamma 5) blend biases the noisier per-frame estimates of fewer rays lower than ddgi's
-(measured on a static Cornell box: isddgi/ddgi indirect 0.91 at gamma 5, 0.97 at gamma 1).
+found only when the rotation reaches it), and the per-frame estimate is a ratio (self-normalised). The
+perceptual (gamma 5) blend biases few-ray per-frame estimates low (Jensen: the blend averages
+``E^(1/5)``), and isddgi's static probes drop to ``x_min = 8`` rays. Measured 2026-12-02 (static
+``cornell-moving-box``, probe_counts=4, 32x24, mean indirect of frames 16-39 over ddgi-256's): ddgi at 8
+rays/probe 0.886 (gamma 5) vs 1.054 (gamma 1) -- the same bias without any IS-DDGI part, so it is the
+blend, not the per-set estimator; isddgi 0.916 (gamma 5; 0.904 before the per-cell permutation of the
+uniform layout and the keyed shading) vs 0.996 (gamma 1), x_min=16: 0.935. ``irradiance_gamma=1`` removes
+it. Not explained: at equal rays isddgi stays below ddgi at gamma 5 (x_min=16: 0.935 vs ddgi-16 0.982).
 Texel counts (``irradiance_count``) count frames that gave a texel weight, not rays.
 
-Not done: comparison budgets (``--budget equal-rays|equal-time`` run the defaults).
+Budgets (``dyngi compare --budget equal-rays|equal-time``; ours): the frame's probe-ray target (equal rays:
+the budget minus the primary rays, over 1 + the measured NEE shadow rays per probe ray; equal time: the
+budget minus the last frame's non-update time, over its update ms per probe ray) scales uniform and
+importance rays together (:meth:`ISDDGIPlanner.plan`, ``n_rays``): probe rays exact (the last few
+uniformly drawn where no probe saw change). Stats ``budget_probe_rays`` and ``time_budget_ms``.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..probes import DiffuseHitShader, HysteresisBlend, ProbeStates
+from ..probes import HysteresisBlend, ProbeStates
 from ..probes.accumulator import merge_into_volume
 from ..probes.grid import PROBE_ACTIVE, PROBE_INACTIVE
 from ..probes.isddgi_estimator import BACKFACE_THRESHOLD, integrate_sets_dr, probe_states_alg2
 from ..probes.isddgi_planner import N_SETS, SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
+from ..probes.isddgi_shading import KeyedHitShader
 from ..probes.trace import HIT_LOOKUPS, trace_probe_rays
 from ..probes.update import _states_by_count
 from .base import Frame, FrameResult, Param, StageTimer, register
 from .ddgi import COMMON_PARAMS, WARMUP_FRAME_BASE, _ProbeTechniqueBase
 
+UPDATE_STAGES = ("plan", "trace probes", "shade probes", "blend", "states")
 TEXELS = SETS_PER_SIDE + 2      # 16x16 sets + the 1-texel border the bilinear query reads
 
 
@@ -67,6 +83,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
     """IS-DDGI (Liu et al. 2023): uniform + importance rays per direction set; see the module docstring."""
 
     name = "isddgi"
+    BUDGETS = ("equal-rays", "equal-time")
     description = ("IS-DDGI (Liu et al. 2023): DDGI with 256 direction sets per probe, few rotating uniform rays "
                    "and importance rays where the probes' hits changed")
     PARAMS = {
@@ -104,15 +121,19 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         self.planner = ISDDGIPlanner(self.volume.n_probes, p["x_init"], p["x_min"], p["x_max"], p["hold_frames"],
                                      p["importance_rays"], p["variant"], p["eps"], p["dynamic_threshold"],
                                      p["decay"], self.volume.max_distance)
-        self.shader = DiffuseHitShader(p["direct"], lookup=p["hit_lookup"])
+        self.shader = KeyedHitShader(p["direct"], lookup=p["hit_lookup"])
         self.blender = HysteresisBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
                                        p["change_threshold"], float("inf"), "fp32", "scatter")
         self.relocator = ProbeStates(relocate=True, classify=False) if p["relocate"] else None
         self._warmed = False
         self.last_plan = None
+        self._shadow_per_probe_ray = 1.0      # NEE shadow rays per probe ray (measured), for equal-ray budgets
+        self._ms_per_probe_ray = None         # update ms per probe ray on the last frame, for equal-time budgets
+        self._ms_fixed = 0.0
 
     # -- one probe update -------------------------------------------------------------
-    def update(self, frame_index: int, seed: int, t: StageTimer, adapt: bool = True, warm: bool = False) -> dict:
+    def update(self, frame_index: int, seed: int, t: StageTimer, adapt: bool = True, warm: bool = False,
+               frame: Frame | None = None) -> dict:
         p = self.params
         vol = self.volume
         st = vol.state
@@ -123,13 +144,20 @@ class ISDDGITechnique(_ProbeTechniqueBase):
                 "changed_probes": 0, "probes_traced": int(len(ids))}
         if not len(ids):
             return info
+        n_rays = None if frame is None else self._budget_probe_rays(frame, len(ids))
+        if n_rays is not None:
+            info["budget_probe_rays"] = n_rays
         with t.stage("plan"):
-            plan = self.planner.plan(frame_index, seed, ids, importance=live[ids])
+            plan = self.planner.plan(frame_index, seed, ids, importance=live[ids], n_rays=n_rays)
         self.last_plan = plan
         info.update(plan.info.stats)
         if not plan.n_rays:
             return info
-        res = trace_probe_rays(self.scene, vol, plan, self.shader, self.query, seed, frame_index, timer=t)
+        self.shader.keys = plan.shade_key          # paired visits: keyed NEE and hit-lookup randomness
+        try:
+            res = trace_probe_rays(self.scene, vol, plan, self.shader, self.query, seed, frame_index, timer=t)
+        finally:
+            self.shader.keys = None
         with t.stage("blend"):
             est_i, est_d = integrate_sets_dr(plan, res.radiance, res.distance, vol.max_distance,
                                              p["distance_power"])
@@ -138,9 +166,12 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         with t.stage("states"):
             L, d = res.host()
             if self.relocator is not None and wake:      # relocation on re-test frames only (ours: cost)
+                before = st.offsets.copy()
                 fin = _states_by_count(self.relocator, vol, plan, res)
                 if fin is not None:
                     fin()
+                # a moved probe's stored samples are no reference for its next rays (ours)
+                self.planner.forget(np.flatnonzero(np.any(st.offsets != before, axis=1)))
             if p["classify"]:
                 on = probe_states_alg2(plan.info, d, p["backface_threshold"])
                 pid = plan.probe_ids.astype(np.int64)
@@ -153,6 +184,34 @@ class ISDDGITechnique(_ProbeTechniqueBase):
             lum = 0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2]
             info.update(self.planner.observe(plan, lum, d, adapt=adapt))
         return info
+
+    # -- comparison budgets (ours) -------------------------------------------------------
+    def _budget_probe_rays(self, frame: Frame, n_probes: int) -> int | None:
+        """Probe rays this frame may trace under ``frame.ray_budget`` / ``time_budget_ms``; None: no budget.
+
+        Equal rays: the budget minus the primary rays (camera + ``direct_samples`` NEE rays per pixel, an upper
+        bound), over 1 + the NEE shadow rays per probe ray measured on the last frame (the warm-up's before
+        the first). Equal time: the budget minus the last frame's time outside the probe update, over the
+        last frame's update ms per probe ray (a linear model; the first frame runs the defaults). At least
+        one ray per traced probe."""
+        p = self.params
+        if frame.ray_budget is not None:
+            other = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
+            n = (frame.ray_budget - other) / (1.0 + self._shadow_per_probe_ray)
+        elif frame.time_budget_ms is not None and self._ms_per_probe_ray:
+            n = (frame.time_budget_ms - self._ms_fixed) / self._ms_per_probe_ray
+        else:
+            return None
+        return int(max(n, n_probes))
+
+    def _measure(self, stats: dict) -> None:
+        rays, ms = stats["rays"], stats["ms"]
+        if rays.get("trace probes"):
+            self._shadow_per_probe_ray = rays.get("shade probes", 0) / rays["trace probes"]
+            if "warmup" not in ms:
+                update = sum(ms.get(k, 0.0) for k in UPDATE_STAGES)
+                self._ms_per_probe_ray = update / rays["trace probes"]
+                self._ms_fixed = max(stats["total_ms"] - update, 0.0)
 
     def _warm_up(self, frame: Frame, t: StageTimer) -> None:
         self._warmed = True
@@ -168,20 +227,28 @@ class ISDDGITechnique(_ProbeTechniqueBase):
             with t.stage("warmup"):
                 for k in range(n):
                     self.update(WARMUP_FRAME_BASE + k, frame.seed, wt, adapt=False, warm=True)
-            t.add_rays("warmup", sum(wt.as_dict()["rays"].values()))
+            wr = wt.as_dict()["rays"]
+            t.add_rays("warmup", sum(wr.values()))
+            if wr.get("trace probes"):
+                self._shadow_per_probe_ray = wr.get("shade probes", 0) / wr["trace probes"]
         finally:
             acc.hysteresis, pl.force_uniform = saved, None
             pl.state.f[:] = 0.0          # the bounces added by the warm-up are no scene change
             pl.state.F[:] = 0.0
+            pl.state.has_sample[:] = False   # and its samples no reference: the probes they read have changed
+            pl.state.open_ref[:] = False
 
     def step(self, frame: Frame) -> FrameResult:
         t = StageTimer()
         if not self._warmed:
             self._warm_up(frame, t)
-        info = self.update(frame.index, frame.seed, t)
+        info = self.update(frame.index, frame.seed, t, frame=frame)
         img, ind = self._primary(frame, t)
         stats = t.as_dict()
         stats.update(info)
+        self._measure(stats)
+        if frame.time_budget_ms is not None:
+            stats["time_budget_ms"] = float(frame.time_budget_ms)
         stats["probe_trace_ms"] = stats["ms"].get("trace probes", 0.0)
         stats["active_probes"] = int(np.count_nonzero(self.volume.state.states))
         stats["mean_uniform_per_probe"] = float(np.mean(self.planner.state.x))

@@ -12,14 +12,16 @@ Both techniques run their defaults at equal frames (no budget); hardware, resolu
 from the paper's, so compare ratios and trends. ``--quick``: three scenes, few frames, small images
 (measured: 40 s on the shared 2-core box).
 
-Measured 2026-12-01 (64x48, 24 frames, reference 128 spp; the 2-core box shared with other jobs, so the
-milliseconds are noisy to +-50%): isddgi traced 5.5x / 5.2x / 4.0x / 5.8x / 5.0x fewer probe rays than
-ddgi on corridor-rooms / cornell-moving-box / tunnel-gate / atrium-sun / cornell-moving-light, probe-trace
-time 6.3x / 5.0x / 3.2x / 3.6x / 3.1x lower, but probe-update time (plan + trace + shade + blend + states)
-1.35x lower on corridor-rooms only and 0.5-0.7x (slower) elsewhere: the host-side planning and change
-measure (~35 ms per frame on 2048 probes) and the 256-set integration (each texel loops over all rays of
-its probe, ~3x ddgi's BLAS blend) outweigh the saved rays when tracing is cheap. FLIP vs the ground truth
-0.402 vs 0.412 / 0.210 vs 0.200 / 0.223 vs 0.203 / 0.138 vs 0.134 / 0.286 vs 0.266 (isddgi vs ddgi).
+Measured 2026-12-02 (run_scene at 64x48, 24 frames, corridor-rooms 45 so that its light switch at frame
+30 is inside the run, reference 128 spp; the 2-core box shared with other jobs, load ~12: milliseconds
+noisy to about 2x between runs): isddgi traced 12.0x / 6.2x / 4.6x / 6.3x / 5.3x fewer probe rays than ddgi on
+corridor-rooms / cornell-moving-box / tunnel-gate / atrium-sun / cornell-moving-light, probe-trace time
+5.1x / 2.8x / 2.2x / 3.8x / 3.7x lower (fixed per-kernel costs weigh more at these small ray counts),
+probe-update time 1.75x lower on corridor-rooms and 0.6-0.8x elsewhere: the 256-set integration plus
+the merge into 18x18 atlases (~3.5x ddgi's BLAS blend) outweighs the saved rays where tracing is cheap; the
+plan is ~30 ms per frame on ~2048 probes (sparse host allocation, device-side directions). MSE vs the ground
+truth 1.00x / 1.00x / 0.93x / 1.00x / 1.00x of ddgi's; FLIP 0.430 vs 0.412 / 0.198 vs 0.200 / 0.192 vs 0.203 /
+0.135 vs 0.134 / 0.279 vs 0.266 (isddgi vs ddgi).
 """
 from __future__ import annotations
 
@@ -35,7 +37,10 @@ PAPER = ("Liu, Huang, Rocha, Malmros, Zhang, \"Importance-Based Ray Strategies f
          "Illumination\", I3D 2023 (supplement only available here)")
 SCENES = ("corridor-rooms", "cornell-moving-box", "tunnel-gate", "atrium-sun", "cornell-moving-light")
 ISDDGI_QUICK = {"scenes": SCENES[:3], "res": (32, 24), "frames": 4, "ref_spp": 32}
-ISDDGI_FULL = {"scenes": SCENES, "res": (96, 72), "frames": 30, "ref_spp": 512}
+ISDDGI_FULL = {"scenes": SCENES, "res": (96, 72), "frames": 30, "ref_spp": 512,
+               "scene_frames": {"corridor-rooms": 45}}
+"""``scene_frames``: corridor-rooms' first light switch is at t = 1 s (frame 30); 45 frames include it and
+the 14 frames after it (30 frames would show no switch at all: the best case would not be exercised)."""
 UPDATE_STAGES = ("plan", "trace probes", "shade probes", "blend", "states")   # "plan": isddgi only
 ABSTRACT = {"trace_speedup": "3.29x-6.64x", "total_speedup": "1.27x-2.47x", "quality": "similar to DDGI"}
 
@@ -57,14 +62,15 @@ def run_scene(scene_name: str, cfg: dict, out_dir: str, quiet: bool = True) -> d
     from ..report import write_outputs
 
     names = ["mse", "flip"]
-    run = prepare(scene_name, ["isddgi", "ddgi"], out_dir, cfg["frames"], "equal-frames", cfg["ref_spp"], {}, names,
+    frames = cfg.get("scene_frames", {}).get(scene_name, cfg["frames"])
+    run = prepare(scene_name, ["isddgi", "ddgi"], out_dir, frames, "equal-frames", cfg["ref_spp"], {}, names,
                   None, False)
     rs = execute(run, cfg["res"], seed=0, quiet=quiet)
     s = rs["summary"]
     a, b = rs["results"]["isddgi"], rs["results"]["ddgi"]
     vs = [frame_metrics(x, y, names) for x, y in zip(a.images, b.images)]
     ci, cd = _cost(a), _cost(b)
-    fig = {"scene": scene_name,
+    fig = {"scene": scene_name, "frames": frames,
            "isddgi": {**s["isddgi"]["mean"], **ci}, "ddgi": {**s["ddgi"]["mean"], **cd},
            "isddgi_vs_ddgi": {k: float(np.mean([v[k] for v in vs])) for k in names},
            "ray_ratio": cd["probe_rays"] / max(ci["probe_rays"], 1.0),
@@ -103,7 +109,9 @@ def reproduce_isddgi(out_dir: str, quick: bool = False, quiet: bool = True) -> s
     figs = [run_scene(sc, cfg, os.path.join(out_dir, sc), quiet) for sc in cfg["scenes"]]
     rows = _rows(figs)
     md = "\n".join([f"# reproduce isddgi ({'quick' if quick else 'full'} run)", "", "IS-DDGI: " + PAPER + ".",
-                    f"Both techniques at their defaults, {cfg['frames']} frames at {cfg['res'][0]}x{cfg['res'][1]}, "
+                    f"Both techniques at their defaults, {cfg['frames']} frames "
+                    f"({', '.join(f'{k}: {v}' for k, v in cfg.get('scene_frames', {}).items()) or 'every scene'}) "
+                    f"at {cfg['res'][0]}x{cfg['res'][1]}, "
                     f"reference {cfg['ref_spp']} spp; per-scene reports in the sub-folders. Steady frames only "
                     "(frame 0 with the warm-up is left out of the costs).", "", paper_table(rows), ""])
     return write_summary(out_dir, md, {
