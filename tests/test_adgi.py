@@ -40,7 +40,7 @@ def test_static_scene_converges_to_ddgi(adgi):
     sc = load_scene("cornell-moving-light")
     d, rd = _run("ddgi", sc, {"probe_counts": "4"}, 24, t=0.0)
     a, ra = _run("adgi", sc, {"probe_counts": "4", "static_chains": 2048}, 24, t=0.0)
-    _, vin, _ = frusta(a.volume, sc.camera(0.0), RES, a.heur.k)
+    _, vin, _ = frusta(a.volume, sc.camera(0.0), RES, a.heur.k_for(sc.camera(0.0).origin))
     m = vin & (d.volume.state.states != 0) & (a.volume.state.states != 0)
     assert m.sum() >= 8
     A = d.volume.state.irradiance.reshape(-1, T, T, 3)[m][:, 1:-1, 1:-1]
@@ -61,8 +61,12 @@ def test_static_scene_converges_to_ddgi(adgi):
 
 def test_moving_object_is_finite_and_fires_the_dynamic_chains(adgi):
     sc = load_scene("cornell-moving-box")
+    lo, hi = (np.asarray(v, float) for v in sc.meta.probe_box)
+    # k = the box diagonal (the camera sits outside the box: the default k would give f_c = 1 everywhere and
+    # leave V_out - V_in to the clip margins alone, empty here)
     a, rs = _run("adgi", sc, {"probe_counts": "5", "static_chains": 512, "dynamic_chains": 256,
-                              "iterations": 8, "warmup": 2, "warmup_rays": 64}, 30)
+                              "iterations": 8, "warmup": 2, "warmup_rays": 64,
+                              "camera_threshold": float(np.linalg.norm(hi - lo))}, 30)
     for i, r in enumerate(rs):
         assert np.all(np.isfinite(r.image)) and np.all(np.isfinite(r.indirect)), i
     assert a.volume.state.is_finite()
@@ -72,7 +76,7 @@ def test_moving_object_is_finite_and_fires_the_dynamic_chains(adgi):
     # probes in V_out - V_in have their counts capped at 16 (Sec. 4.8)
     frusta = adgi
     t = sc.frame_time(29)
-    _, vin, vout = frusta(a.volume, sc.camera(t), RES, a.heur.k)
+    _, vin, vout = frusta(a.volume, sc.camera(t), RES, a.heur.k_for(sc.camera(t).origin))
     outer = vout & ~vin & (a.volume.state.states != 0)
     assert outer.any()
     Td = a.volume.distance_texels

@@ -151,3 +151,19 @@ def test_bad_heuristic_parameters_raise():
         ADGIHeuristics(GRID, theta=0.0)
     with pytest.raises(DyngiError, match="mu"):
         ADGIHeuristics(GRID, mu=-1.0)
+
+
+def test_camera_threshold_default_follows_the_camera(backend):
+    """Eq. 10's default k (ours): the probe box diagonal inside the box, plus the distance to the box outside
+    it (a camera outside the probe volume must still see its probes at f_c = 1); a user k is kept."""
+    from dyngi.probes import ProbeGrid
+    from dyngi.techniques.adgi.heuristics import ADGIHeuristics, camera_falloff
+    g = ProbeGrid.from_box((0, 0, 0), (2, 1, 3), (3, 2, 4))
+    h = ADGIHeuristics(g)
+    diag = np.linalg.norm([2, 1, 3])
+    assert np.isclose(h.k_for((1, 0.5, 1)), diag)
+    assert np.isclose(h.k_for((1, 0.5, -5)), diag + 5)
+    assert np.isclose(h.k_for((5, 4, 3)), diag + np.linalg.norm([3, 3, 0]))
+    far = np.linalg.norm(g.positions() - np.array([1, 0.5, -5]), axis=1)
+    assert np.all(camera_falloff(far, h.k_for((1, 0.5, -5))) == 1.0)
+    assert ADGIHeuristics(g, k=0.5).k_for((1, 0.5, -5)) == 0.5

@@ -24,7 +24,10 @@ Heuristics
 ----------
 * ``f_c`` (Eq. 10): 1 if ``|p - c| < k``, else ``exp(-(|p - c| - k))``
   (world units, as the paper). ``k`` is the user's threshold; our default is
-  the probe box diagonal (ours: every built-in scene is room-sized).
+  the probe box diagonal plus the camera's distance to the probe box
+  (:meth:`ADGIHeuristics.k_for`; ours: the scenes are room-sized, and a camera
+  outside the probe volume -- the real Cornell box -- would otherwise put every
+  probe outside ``V_out``).
 * ``f_v`` (Eq. 11): ``exp(-2 t / s)``, ``t = trace(p, -w)``, ``s`` the cell
   diagonal. The pilot ray of octant ``o`` along ``w_o`` measures ``t`` for the
   opposite octant ``o ^ 7`` (ours: no extra ray). A miss gives ``f_v = 0``; a
@@ -48,6 +51,27 @@ Heuristics
   the RGB cache).
 
 Probes outside ``V_out`` keep their last ``f_v``/``f_r``; their triggers decay.
+
+Storage: the 6-10-10 word (Sec. 4.3)
+------------------------------------
+"We store the quantities f_v, f_s, f_d as a 6-10-10 bit encoded 32 bit integer at each octant of the
+probes. The remaining 6 bits are used for other flags." :func:`pack_heuristics` builds that word per
+octant entry, in that order from the low bits: ``f_v`` in bits 0-5, ``f_s`` in bits 6-15, ``f_d`` in
+bits 16-25, flags in bits 26-31 (bit 26: the probe is in ``V_in``; the others are 0). The chains read
+``f_s``, ``f_d`` and the ``V_in`` flag from the word (:func:`unpack_heuristics`), so they see the
+quantised values, as on the GPU. Ours, the paper being silent on the scales:
+
+* ``f_v``, ``f_s`` lie in [0, 1] (Eqs. 11, 19) and are stored linearly; ``f_d`` (Eq. 20) is a sum over
+  the convolution window with no fixed bound, so it is stored relative to this frame's maximum
+  ``F = max f_d`` (one device reduction, kept beside the table as a Float; Metropolis ratios do not
+  see the scale);
+* ``f_v`` rounds to nearest (63 steps); ``f_s`` and ``f_d`` round *up*: a non-zero value never becomes
+  0, so "``f_d > 0``" (the texel-centre snap, the dynamic chains' support) and the static chains'
+  support are exactly those of the fp32 values (a round-up changes the guide by < 1/1023 of its range,
+  a sampling density only: the estimates are texel means and do not depend on it).
+
+The state (:class:`HeuristicState`) keeps ``f_v``, ``f_r`` and the triggers in fp32 for the time
+differences of Eqs. 13 and 16 (the paper does not say at what precision it takes them).
 """
 from __future__ import annotations
 
@@ -70,6 +94,8 @@ MU = 2.0                                # Eq. 20
 THETA = 16.0                            # trigger decay in frames (ours)
 SPATIAL_RADIUS = 2                      # 5x5x5 (Sec. 4.1.4)
 BACKFACE_DISTANCE_SCALE = 0.2           # the tracer's -0.2 t for back faces
+FV_BITS, FS_BITS, FD_BITS = 6, 10, 10   # Sec. 4.3: the 6-10-10 word (+ 6 flag bits)
+FLAG_V_IN = 1 << 26                     # flag bit: the probe is in V_in (ours)
 
 
 def octant_of(d):
@@ -180,30 +206,34 @@ def trigger_step(trig, peak, pulse, theta: float):
 
 
 def convolve(table, counts, radius: int = SPATIAL_RADIUS):
-    """Eq. 15: box sum over ``(2r+1)^3`` probes (zero outside the grid) x the 4-octant directional kernel."""
+    """Eq. 15: box sum over ``(2r+1)^3`` probes (zero outside the grid) x the 4-octant directional kernel.
+    ``table`` a Float, or a tuple of Floats convolved in the same kernels (one launch per axis for all)."""
+    many = isinstance(table, (tuple, list))
+    tables = list(table) if many else [table]
     nx, ny, nz = (int(c) for c in counts)
-    n = dr.width(table)
+    n = dr.width(tables[0])
     e = dr.arange(mi.UInt32, n)
     probe = e // OCTANTS
     o = e - probe * OCTANTS
     cx = probe % nx
     cy = (probe // nx) % ny
     cz = probe // (nx * ny)
-    x = table
+    xs = tables
     for c, size, stride in ((cx, nx, 1), (cy, ny, nx), (cz, nz, nx * ny)):
-        acc = dr.zeros(mi.Float, n)
+        accs = [dr.zeros(mi.Float, n) for _ in xs]
         ci = mi.Int32(c)
         for d in range(-radius, radius + 1):
             ok = (ci + d >= 0) & (ci + d < size)
-            src = mi.UInt32(mi.Int32(e) + d * stride * OCTANTS)
-            acc += dr.gather(mi.Float, x, dr.select(ok, src, e), ok)
-        dr.eval(acc)
-        x = acc
+            src = dr.select(ok, mi.UInt32(mi.Int32(e) + d * stride * OCTANTS), e)
+            for a, x in zip(accs, xs):
+                a += dr.gather(mi.Float, x, src, ok)
+        dr.eval(*accs)
+        xs = accs
     base = probe * OCTANTS
-    out = x + dr.gather(mi.Float, x, base + (o ^ 1)) + dr.gather(mi.Float, x, base + (o ^ 2)) \
-        + dr.gather(mi.Float, x, base + (o ^ 4))
-    dr.eval(out)
-    return out
+    outs = [x + dr.gather(mi.Float, x, base + (o ^ 1)) + dr.gather(mi.Float, x, base + (o ^ 2))
+            + dr.gather(mi.Float, x, base + (o ^ 4)) for x in xs]
+    dr.eval(*outs)
+    return tuple(outs) if many else outs[0]
 
 
 class ADGIHeuristics:
@@ -217,7 +247,9 @@ class ADGIHeuristics:
     def __init__(self, grid, k: float | None = None, beta: float = BETA, mu: float = MU, theta: float = THETA):
         self.grid = grid
         box = np.asarray(grid.spacing) * (np.asarray(grid.counts) - 1)
+        self.user_k = None if k is None else float(k)
         self.k = float(np.linalg.norm(box)) if k is None else float(k)
+        self._box = (np.asarray(grid.origin, np.float64), np.asarray(grid.origin, np.float64) + box)
         for name, v in (("beta", beta), ("theta", theta)):
             if not (np.isfinite(v) and v > 0):
                 raise DyngiError(f"ADGI heuristic parameter '{name}' must be > 0, got {v}")
@@ -225,6 +257,16 @@ class ADGIHeuristics:
             raise DyngiError(f"ADGI heuristic parameter 'mu' must be >= 0, got {mu}")
         self.beta, self.mu, self.theta = float(beta), float(mu), float(theta)
         self.pilot = PilotRays()
+
+    def k_for(self, camera_origin) -> float:
+        """Eq. 10's ``k`` for a camera at ``camera_origin``: the user's value, else (ours) the probe box
+        diagonal plus the camera's distance to the probe box (0 inside it), so that a camera outside the
+        probe volume (e.g. the real Cornell box's) does not see every probe at ``f_c < 0.5``."""
+        if self.user_k is not None:
+            return self.user_k
+        c = np.asarray(camera_origin, np.float64)
+        lo, hi = self._box
+        return self.k + float(np.linalg.norm(np.maximum(np.maximum(lo - c, c - hi), 0.0)))
 
     def initial_state(self) -> HeuristicState:
         return HeuristicState.zeros(self.grid.n_probes)
@@ -268,8 +310,7 @@ class ADGIHeuristics:
         trig_v, peak_v = trigger_step(state.trig_v, state.peak_v, pulse_v, self.theta)
         trig_r, peak_r = trigger_step(state.trig_r, state.peak_r, pulse_r, self.theta)
         dr.eval(fv, fr, trig_v, peak_v, trig_r, peak_r, stamp)
-        fdv = convolve(trig_v, self.grid.counts)
-        fdr = convolve(trig_r, self.grid.counts)
+        fdv, fdr = convolve((trig_v, trig_r), self.grid.counts)     # one launch per axis for both
         fc_dr = state.fc if fc is None else upload(np.asarray(fc, np.float32), mi.Float)
         return HeuristicState(fv, fr, trig_v, peak_v, trig_r, peak_r, fdv, fdr, fc_dr, stamp)
 
@@ -278,3 +319,31 @@ def static_guide(fs, g):
     """The static chains' target ``h = exp(min(g / f_s, 1)) f_s`` (Sec. 4.8; 0 where ``f_s = 0``)."""
     ratio = dr.select(fs > 0.0, dr.minimum(g / dr.maximum(fs, 1e-30), 1.0), 0.0)
     return dr.exp(ratio) * fs
+
+
+def pack_heuristics(fv, fs, fd, v_in=None):
+    """The 6-10-10 word per octant entry (module docstring, Sec. 4.3) -> ``(word UInt32, F Float)``,
+    ``F = max f_d`` the scale of the f_d field. ``v_in``: per-entry mask (Bool/Float > 0) for the flag bit.
+    Inverse: :func:`unpack_heuristics`."""
+    mv, ms, md = (1 << FV_BITS) - 1, (1 << FS_BITS) - 1, (1 << FD_BITS) - 1
+    F = dr.max(fd)
+    qv = mi.UInt32(dr.round(dr.clip(fv, 0.0, 1.0) * mv))
+    qs = mi.UInt32(dr.ceil(dr.clip(fs, 0.0, 1.0) * ms))
+    rel = dr.select(F > 0.0, fd / dr.maximum(F, 1e-30), 0.0)
+    qd = mi.UInt32(dr.ceil(dr.clip(rel, 0.0, 1.0) * md))
+    word = qv | (qs << FV_BITS) | (qd << (FV_BITS + FS_BITS))
+    if v_in is not None:
+        flag = v_in if isinstance(v_in, mi.Bool) else (mi.Float(v_in) > 0.0)
+        word = word | dr.select(flag, mi.UInt32(FLAG_V_IN), mi.UInt32(0))
+    dr.eval(word, F)
+    return word, F
+
+
+def unpack_heuristics(word, F):
+    """``(f_v, f_s, f_d, v_in)`` of 6-10-10 words (``F`` the f_d scale). Inverse: :func:`pack_heuristics`."""
+    mv, ms, md = (1 << FV_BITS) - 1, (1 << FS_BITS) - 1, (1 << FD_BITS) - 1
+    w = mi.UInt32(word)
+    fv = mi.Float(w & mv) / mv
+    fs = mi.Float((w >> FV_BITS) & ms) / ms
+    fd = mi.Float((w >> (FV_BITS + FS_BITS)) & md) / md * F
+    return fv, fs, fd, (w & FLAG_V_IN) != 0

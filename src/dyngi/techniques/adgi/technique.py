@@ -11,13 +11,17 @@ One frame, in the paper's stages (Table 4; ``stats['ms']`` keys ``P``, ``S``, ``
 
 * **P -- heuristics** (Sec. 4.1-4.4, :mod:`.heuristics`): frusta ``V_in`` /
   ``V_out`` (Fig. 6b); 8 pilot rays per probe of ``V_out`` (AABBCCDD); f_c, f_v,
-  f_r, triggers, convolution, f_s, f_d. On the first frame of each pair the
-  pilot rays also update the caches (Sec. 4.4), as static samples.
+  f_r, triggers, convolution, f_s, f_d, stored per octant as the 6-10-10 word of
+  Sec. 4.3 (:func:`.heuristics.pack_heuristics`; the chains read the quantised
+  f_s, f_d). On the first frame of each pair the pilot rays also update the
+  caches (Sec. 4.4), as static samples.
 * **S -- static chains** (Sec. 4.8): ``static_chains`` chains over continuous
   probe-grid coordinates (a probe owns the unit cell around it) x direction,
   target ``h = exp(min(g / f_s, 1)) f_s`` on probes of ``V_in`` (0 elsewhere),
-  ``g`` the luminance of the cached irradiance texel at ``w`` of the previous
-  frame (the paper reads a coarser mip; we read the texel itself -- ours).
+  ``g`` the luminance of the previous frame's cached irradiance at a coarser
+  mip (Sec. 4.8: "from the previous frame and from a higher mip-level"):
+  mip ``guide_mip`` = 1 of the 6x6 interior, i.e. 3x3 cells of 2x2 texels per
+  probe (the level is ours; :meth:`ADGITechnique.guide_feedback`).
   Samples in entries with ``f_d > 0`` are snapped to the centre of their
   irradiance texel. Each sample costs two rays: along ``w`` (radiance) and
   along ``-w`` (distance, the shadow ray).
@@ -48,14 +52,36 @@ volume's distance texels; DDGI's cos^50 kernel is about one 16x16 texel wide).
 
 Budgets (``dyngi compare --budget equal-rays``; ours): after the primary and
 pilot rays, half of what remains is reserved for the dynamic stage when it
-is on; the static stage runs only its first ``n`` chains, ``n`` = its share /
-((M - K) x (2 + measured NEE shadow rays per probe ray)); the dynamic stage
+is on and some octant has f_d > 0 this frame (else the static stage gets it
+all: a static scene wastes none of its budget); the static stage runs only
+its first ``n`` chains, ``n`` = its share / ((M - K) x (2 + measured NEE
+shadow rays per probe ray)); the dynamic stage
 traces whole proxy octants in order while the remainder lasts. Rays are
 counted exactly (probe rays, their NEE shadow rays, the ``-w`` rays).
-Equal-time budgets are not honoured (the defaults run).
+Equal time (``Frame.time_budget_ms``): the budget minus the last frame's time
+outside S and D, turned into rays of S and D by each stage's measured ms per
+ray on its last frame, then shared as above (so the chain counts scale with
+the time; the first frame, with nothing measured, runs the defaults); the
+spend is recorded (``stats['static_chains_run']``), not guaranteed.
+
+Speed (measured 2026-12-02, 2-core box under load 10-15, so +-50%; /tmp/figs/adgi.md): at the tunnel's
+8x6x32 grid and Q-DDGI's ~36k rays a frame, an ``adgi`` frame ran 55-100 ms of which only 17-26 ms is
+kernel execution: it launches ~106 JIT kernels (~375 launches with reductions and copies) against
+Q-DDGI's ~30 (~133), and syncs with the host for the ragged plans (host sort), the chain/proxy counts and
+the radiance convolution (NumPy). That fixed cost, not the rays, makes it slower than ``qddgi`` at small
+grids, and it is why an equal-time budget below it cannot be met (the chains shrink to 1 and the frame
+overspends; recorded, not hidden). Fused here: the two trigger convolutions (Eqs. 15, 18) share one
+launch per axis. At the defaults' ray counts the ratio of probe-sampling times adgi/qddgi fell from 10.7
+(1536 probes) to 4.7 (12288) to 2.7 (98304 probes, the largest grid whose set-up + 4 frames ran within a
+minute here); the paper's 2.36M-probe grid is out of reach on this CPU.
 
 Probe relocation and classification carry over from ``ddgi`` (the paper is
-silent): they run during the warm-up updates only (ours).
+silent; ours): during the warm-up updates, then every
+``reclassify_interval`` = 8 frames on the probes of V_out and the inactive ones, with ``ddgi``'s 32 fixed
+classification rays (:meth:`ADGITechnique._states_pass`).
+
+Encoding ``adgi``: Table 3's ``floor(R9)floor(G9)floor(B8)-N`` /
+``[R13][G13]-N``, visibility rounded to nearest (:mod:`.encoding`).
 
 Parameters
 ----------
@@ -65,14 +91,17 @@ iterations : int = 20             M per frame (ours)
 burn_in : int = 4                 K per frame (ours): M - K = 16 samples per chain per frame
 position_step : float = 0.5       static position step, in probe spacings (ours; "proportional", Sec. 4.8)
 direction_step : float = sqrt(pi/256)  static direction step, radians (Sec. 4.8)
-camera_threshold : float = 0      k of Eq. 10 (world units); 0 = the probe box diagonal (ours)
+camera_threshold : float = 0      k of Eq. 10 (world units); 0 = the probe box diagonal + the camera's
+                                  distance to the probe box (ours, :meth:`.heuristics.ADGIHeuristics.k_for`)
 theta : float = 16                trigger decay, frames (ours)
 n_max_static, n_max_dynamic : int = 63, 10   (Table 3)
 outer_count_cap : int = 16        (Sec. 4.8)
-encoding : str = 'adgi'           R9G9B8 + 6-bit count / R13G13 + count (Sec. 4.5-4.6)
+encoding : str = 'adgi'           R9G9B8 + 6-bit count / R13G13 + count (Sec. 4.5-4.6, Table 3)
+guide_mip : int = 1               mip level of g in the static guide (ours; Sec. 4.8 "a higher mip-level")
+reclassify_interval : int = 8     frames between relocation/classification passes after the warm-up (ddgi's)
 
 Bias: the moving average lags dynamic changes (Sec. 3.5); texels no chain
-visits keep old values; quantised storage rounds low.
+visits keep old values; quantised irradiance storage rounds low.
 """
 from __future__ import annotations
 
@@ -83,7 +112,6 @@ from ...errors import DyngiError
 from ...probes import DiffuseHitShader, HysteresisBlend, ProbeStates, ProbeUpdater, RayPlan, ScatterEstimator
 from ...probes import UniformSFDirections
 from ...probes.accumulator import MeanAccumulator, merge_into_volume, pull_from
-from ...probes.encoding import get_encoding
 from ...probes.trace import HIT_LOOKUPS, ProbeRayResults, trace_probe_distances, trace_probe_rays
 from ...probes.volume import upload
 from ...sampling.diffuse import diffuse_albedo
@@ -91,7 +119,9 @@ from ...sampling.metropolis import ADGI_DIRECTION_STEP, ChainState, MetropolisCh
 from ...sampling.octahedral import direction_to_texel_coords, texel_directions
 from ..base import Frame, FrameResult, Param, StageTimer, register
 from ..ddgi import COMMON_PARAMS, _ProbeTechniqueBase, _warm_up_volume
-from .heuristics import OCTANTS, ADGIHeuristics, frusta, octant_of, octant_signs, static_guide
+from .encoding import adgi_encoding
+from .heuristics import (OCTANTS, ADGIHeuristics, frusta, octant_of, octant_signs, pack_heuristics,
+                         static_guide, unpack_heuristics)
 from .moving_average import N_MAX_DYNAMIC, N_MAX_STATIC, Algorithm3Accumulator
 from .radiance import RadianceCache
 
@@ -157,7 +187,8 @@ class ADGITechnique(_ProbeTechniqueBase):
         "dynamic_direction_scale": Param(6.0, "dynamic/static direction step ratio (Sec. 4.9)", min=0.1),
         "dynamic_rays": Param(64, "deterministic rays per probe octant of a sampled proxy (a square)",
                               choices=(16, 64, 256)),
-        "camera_threshold": Param(0.0, "k of Eq. 10 in world units (0: the probe box diagonal)", min=0.0),
+        "camera_threshold": Param(0.0, "k of Eq. 10 in world units (0: the probe box diagonal + the camera's "
+                                  "distance to the box)", min=0.0),
         "beta": Param(5.0, "range of the radiance heuristic (Eq. 12)", min=1e-3),
         "mu": Param(2.0, "weight of the radiance change in f_d (Eq. 20)", min=0.0),
         "theta": Param(16.0, "temporal trigger decay in frames (Eq. 14)", min=1.0),
@@ -175,10 +206,14 @@ class ADGITechnique(_ProbeTechniqueBase):
                             choices=HIT_LOOKUPS),
         "warmup": Param(8, "ddgi-style probe updates on the first frame (no hysteresis)", min=0, max=256),
         "warmup_rays": Param(256, "rays per probe of each warm-up update", min=8, max=1 << 14),
-        "relocate": Param(True, "move probes out of geometry (warm-up)"),
-        "classify": Param(True, "deactivate probes inside geometry or far from surfaces (warm-up)"),
+        "relocate": Param(True, "move probes out of geometry (warm-up, then every reclassify_interval frames)"),
+        "classify": Param(True, "deactivate probes inside geometry or far from surfaces (as relocate)"),
+        "reclassify_interval": Param(8, "frames between ddgi's relocation/classification passes after the "
+                                     "warm-up (fixed rays; 0: warm-up only)", min=0),
+        "guide_mip": Param(1, "mip level of the irradiance feedback g in the static guide (Sec. 3.2/4.8; "
+                           "0: the texel itself)", min=0, max=3),
     }
-    BUDGETS = ("equal-rays",)
+    BUDGETS = ("equal-rays", "equal-time")
     BATTERY_PARAMS = {"probe_counts": "3", "static_chains": 256, "dynamic_chains": 64, "iterations": 6,
                       "burn_in": 2, "dynamic_rays": 16, "warmup": 1, "warmup_rays": 16}
     FURNACE_PARAMS = {"probe_counts": "4", "static_chains": 2048, "iterations": 12, "warmup": 8,
@@ -195,7 +230,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         g = self.grid
         self.counts = tuple(int(c) for c in g.counts)
         self.shader = PilotShader(p["direct"], lookup=p["hit_lookup"])
-        self.encoding = get_encoding(p["encoding"])
+        self.encoding = adgi_encoding(p["encoding"])     # Table 3: visibility rounds to nearest
         self.acc_static = Algorithm3Accumulator(p["n_max_static"])
         self.acc_dynamic = Algorithm3Accumulator(p["n_max_dynamic"])
         self._mean = MeanAccumulator()
@@ -219,10 +254,15 @@ class ADGITechnique(_ProbeTechniqueBase):
         self.updater = ProbeUpdater(self.volume, UniformSFDirections(p["warmup_rays"]),
                                     DiffuseHitShader(p["direct"], lookup=p["hit_lookup"]), self.blender,
                                     ProbeStates(p["relocate"], p["classify"]), self.query, reclassify_interval=0)
+        self.blender.encoding = self.encoding             # the warm-up stores through the same encoding
         self._warmed = False
         self._shadow_rate = 1.0                # NEE shadow rays per probe ray (measured)
         self._static_rays = None               # this frame's ray allowance of S and D (None: no budget)
         self._dynamic_rays = None
+        self._time_avail_ms = None             # equal time: this frame's ms for S + D (None: no time budget)
+        self._ms_per_ray = {"S": None, "D": None}   # measured on the last frame that traced in the stage
+        self._ms_fixed = 0.0                   # measured: the last frame's time outside S and D
+        self._setup_guide_mip(p["guide_mip"])
         self.radiance = RadianceCache(vol_n := self.volume.n_probes, p["radiance_texels"],
                                       self.volume.irradiance_texels)
         self._updated = np.zeros(vol_n, bool)
@@ -253,8 +293,13 @@ class ADGITechnique(_ProbeTechniqueBase):
                 with t.stage("warmup"):
                     self.radiance.merge(self.updater.last_results, p["n_max_static"])
         vol = self.volume
+        # -- ddgi's relocation/classification after the warm-up (the paper is silent; ours) --
+        if self._warmed and frame.index > 0 and p["reclassify_interval"] and \
+                frame.index % p["reclassify_interval"] == 0 and (p["relocate"] or p["classify"]):
+            _, _, near = frusta(vol, frame.camera, frame.res, self.heur.k_for(frame.camera.origin))
+            self._states_pass(frame, t, near | (vol.state.states == 0))
         active = vol.state.states != 0
-        fc, v_in, v_out = frusta(vol, frame.camera, frame.res, self.heur.k)
+        fc, v_in, v_out = frusta(vol, frame.camera, frame.res, self.heur.k_for(frame.camera.origin))
         v_in &= active
         v_out &= active
         stats = {}
@@ -276,13 +321,21 @@ class ADGITechnique(_ProbeTechniqueBase):
                     self._merge(res, None, self.acc_static, p["n_max_static"])
             else:
                 self.hstate = self.heur.update(self.hstate, frame.index, ids, mi.Float(), mi.Float(), fc)
+            # -- the 6-10-10 heuristics word per octant (Sec. 4.3); the chains read the quantised values --
+            vin_dr = upload(v_in.astype(np.float32), mi.Float)
+            vin_e = dr.gather(mi.Float, vin_dr, dr.arange(mi.UInt32, vol.n_probes * OCTANTS) // OCTANTS)
+            self.lut, self.lut_scale = pack_heuristics(self.hstate.fv, self.hstate.fs, self.hstate.fd(p["mu"]),
+                                                       vin_e)
+            _, fs_q, fd, _ = unpack_heuristics(self.lut, self.lut_scale)
+            self._fs_q = fs_q
+            dr.eval(fs_q, fd)
         self._plan_budget(frame, t)
-        vin_dr = upload(v_in.astype(np.float32), mi.Float)
-        fd = self.hstate.fd()
-        dr.eval(fd)
         # -- S: static chains (Sec. 4.8) --
         with t.stage("S"):
             stats["static_samples"] = self._static(frame, vin_dr, fd, t)
+        if self._time_avail_ms is not None:      # equal time: D gets what S left
+            per = self._ms_per_ray["D"] or self._ms_per_ray["S"]
+            self._dynamic_rays = None if per is None else max(self._time_avail_ms - t.ms.get("S", 0.0), 0.0) / per
         # -- D: dynamic chains on proxies (Sec. 4.9) --
         with t.stage("D"):
             stats["dynamic_proxy_octants"] = self._dynamic(frame, vin_dr, fd, t) if self.dynamic_state else 0
@@ -292,24 +345,69 @@ class ADGITechnique(_ProbeTechniqueBase):
         out = t.as_dict()
         out.update(stats)
         out["v_in"], out["v_out"] = int(v_in.sum()), int(v_out.sum())
+        out["static_chains_run"] = self._n_run
+        self._measure_time(out)
         return FrameResult(image=img, indirect=ind, stats=out)
 
-    # -- equal-ray budget (ours) ------------------------------------------------------------------
+    # -- equal-ray and equal-time budgets (ours) ----------------------------------------------------
     def _plan_budget(self, frame: Frame, t: StageTimer) -> None:
         """Share ``frame.ray_budget`` after the primary and pilot rays: the static chains get what the
         dynamic ones do not reserve (half when dynamic chains are on), by running only the first
         ``n`` static chains (``n`` from the rays a sample costs: 2 + the measured NEE shadow rays); the
-        dynamic stage then traces proxy octants in order while the remainder lasts."""
-        self._static_rays = self._dynamic_rays = None
+        dynamic stage then traces proxy octants in order while the remainder lasts.
+
+        ``frame.time_budget_ms`` (equal time): the budget minus the last frame's time outside S and D
+        (P, primary, states) is the ms of S + D; it becomes rays through the ms per ray each stage
+        measured on its last frame (S: its share; D: what S actually left, after S has run), so the
+        chain counts scale with the time budget. Nothing measured yet (the first frame): the defaults."""
+        self._static_rays = self._dynamic_rays = self._time_avail_ms = None
+        # the dynamic stage is reserved its half only when some entry has f_d > 0 this frame (else it
+        # traces nothing and S gets it all); one host read of the f_d scale, only under a budget
+        if frame.ray_budget is None and frame.time_budget_ms is None:
+            return
+        dyn = self.dynamic_state is not None and float(np.asarray(self.lut_scale).ravel()[0]) > 0.0
+        share = 0.5 if dyn else 0.0
         if frame.ray_budget is None:
+            if frame.time_budget_ms is not None and self._ms_per_ray["S"]:
+                self._time_avail_ms = max(float(frame.time_budget_ms) - self._ms_fixed, 0.0)
+                self._static_rays = self._time_avail_ms * (1.0 - share) / self._ms_per_ray["S"]
             return
         p = self.params
         spent = sum(v for k, v in t.as_dict()["rays"].items() if k != "warmup")
         primary = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
         avail = max(float(frame.ray_budget) - spent - primary, 0.0)
-        share = 0.5 if self.dynamic_state is not None else 0.0
         self._static_rays = avail * (1.0 - share)
         self._dynamic_rays = avail      # less what S spends
+
+    def _measure_time(self, stats: dict) -> None:
+        """Learn ms per ray of S and D and the ms outside them (for equal-time budgets); not on frames
+        with the warm-up (its time is one-off)."""
+        ms, rays = stats["ms"], stats["rays"]
+        if "warmup" in ms:
+            return
+        for k in ("S", "D"):
+            if rays.get(k):
+                self._ms_per_ray[k] = ms[k] / rays[k]
+        self._ms_fixed = max(stats["total_ms"] - ms.get("S", 0.0) - ms.get("D", 0.0), 0.0)
+
+    def _states_pass(self, frame: Frame, t: StageTimer, mask: np.ndarray) -> None:
+        """``ddgi``'s relocation and classification after the warm-up (issue 12 item 5; the paper is
+        silent, ours): every ``reclassify_interval`` frames, the probes of ``V_out`` (those the frame can
+        use; ``ddgi`` re-tests the probes it updates) and every inactive probe (``ddgi``'s re-test) are
+        re-tested with
+        ``ddgi``'s fixed set of classification rays (:class:`~dyngi.probes.update.ProbeUpdater`'s
+        ``classify_dirs``, 32 spherical-Fibonacci rays) and :class:`~dyngi.probes.states.ProbeStates`
+        moves / (de)activates it as ``ddgi`` does. The rays are counted (stage ``states``) and come out
+        of an equal-ray budget before the chains are sized."""
+        up = self.updater
+        ids = np.flatnonzero(mask).astype(np.uint32)
+        if not len(ids):
+            return
+        with t.stage("states"):
+            plan = up.classify_dirs.plan(frame.index, frame.seed, ids)
+            dist = trace_probe_distances(self.scene, self.volume, plan)
+            up.states.update(self.volume, ids, plan.shared_directions, dist)
+        t.add_rays("states", len(ids) * up.classify_dirs.n)
 
     def _chains_to_run(self) -> int:
         n = self.static_state.n
@@ -334,21 +432,65 @@ class ADGITechnique(_ProbeTechniqueBase):
         iy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, T - 3)
         return mi.UInt32(iy * (T - 2) + ix), mi.UInt32((iy + 1) * T + ix + 1)
 
-    def _static(self, frame: Frame, vin_dr, fd, t: StageTimer) -> int:
+    # -- the guide's feedback at a coarser mip (Sec. 3.2, 4.8) --
+    def _setup_guide_mip(self, level: int) -> None:
+        """Mip ``level`` of the irradiance maps' interiors: ``(T-2) / 2^level`` texels per side (rounded
+        up), each the mean luminance of the ``2^level x 2^level`` interior texels it covers (fewer at an odd
+        edge). Our choice: level 1 (3x3 per probe for the 8x8 maps), the first level coarser than the
+        texels the samples update; the paper says only "a higher mip-level" (Sec. 4.8)."""
+        T = self.volume.irradiance_texels
+        n = T - 2
+        self._mip_level = int(level)
+        self._mip_n = m = -(-n // (1 << self._mip_level))
+        iy, ix = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+        cell = ((iy >> self._mip_level) * m + (ix >> self._mip_level)).ravel()
+        self._mip_cell = upload(cell.astype(np.uint32), mi.UInt32)                  # interior texel -> mip cell
+        self._mip_src = upload(((iy + 1) * T + ix + 1).ravel().astype(np.uint32), mi.UInt32)   # -> atlas texel
+        self._mip_norm = upload((1.0 / np.bincount(cell, minlength=m * m)).astype(np.float32), mi.Float)
+
+    def guide_feedback(self):
+        """Per probe and mip cell (``P * m * m`` Floats): the luminance of the irradiance atlas at mip
+        ``guide_mip``, read at the start of the static stage, i.e. the previous frame's convolved
+        irradiance (this frame's samples reach the atlas only at the end of the frame). Luminance is our
+        scalar of the RGB cache (Rec. 709 weights)."""
         vol = self.volume
         T = vol.irradiance_texels
-        fs = self.hstate.fs
-        dev = vol.device
+        n_int = (T - 2) ** 2
+        mm = self._mip_n * self._mip_n
+        lane = dr.arange(mi.UInt32, vol.n_probes * n_int)
+        probe = lane // n_int
+        k = lane - probe * n_int
+        lum = mi.luminance(dr.gather(mi.Color3f, vol.device.irradiance,
+                                     probe * (T * T) + dr.gather(mi.UInt32, self._mip_src, k)))
+        cell = dr.gather(mi.UInt32, self._mip_cell, k)
+        g = dr.zeros(mi.Float, vol.n_probes * mm)
+        dr.scatter_reduce(dr.ReduceOp.Add, g, lum * dr.gather(mi.Float, self._mip_norm, cell), probe * mm + cell)
+        dr.eval(g)
+        return g
+
+    def _mip_cell_of(self, w):
+        """Mip cell (row-major in the ``m x m`` mip) that direction ``w`` falls in."""
+        T = self.volume.irradiance_texels
+        c = direction_to_texel_coords(w, T)
+        ix = dr.clip(mi.Int32(dr.floor(c.x)) - 1, 0, T - 3)
+        iy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, T - 3)
+        L = self._mip_level
+        return mi.UInt32((iy >> L) * self._mip_n + (ix >> L))
+
+    def _static(self, frame: Frame, vin_dr, fd, t: StageTimer) -> int:
+        vol = self.volume
+        fs = self._fs_q                      # f_s from the 6-10-10 word (Sec. 4.3)
+        g_mip = self.guide_feedback()
+        mm = self._mip_n * self._mip_n
 
         def target(x, w):
             probe = self._probe_of(x, self.counts)
             e = probe * OCTANTS + octant_of(w)
             f = dr.gather(mi.Float, fs, e) * dr.gather(mi.Float, vin_dr, probe)
-            _, tb = self._texel_of(w)
-            g = mi.luminance(dr.gather(mi.Color3f, dev.irradiance, probe * (T * T) + tb))
+            g = dr.gather(mi.Float, g_mip, probe * mm + self._mip_cell_of(w))
             return static_guide(f, g)
 
-        n_run = self._chains_to_run()
+        n_run = self._n_run = self._chains_to_run()
         st = self.static_state
         if n_run < st.n:      # a budget runs the first n_run chains; the others keep their states
             lane = dr.arange(mi.UInt32, n_run)

@@ -1,0 +1,88 @@
+"""``dyngi reproduce adgi`` (issue 12 item 8): its pieces (recovery criterion, the equal-rays protocol) and,
+slow, an end-to-end run on a micro configuration that checks the files and that the paper's figures are
+quoted beside ours."""
+import json
+import os
+
+import numpy as np
+import pytest
+
+from dyngi.scene import load_scene
+
+
+@pytest.fixture()
+def rep(backend):
+    from dyngi.experiments.reproductions import adgi
+    return adgi
+
+
+def test_registered(backend):
+    from dyngi.experiments.reproduce import experiment_names
+    assert "adgi" in experiment_names()
+
+
+def test_recovery_frames(rep):
+    e = [5.0, 3.0, 1.2, 1.05, 1.0, 1.0]
+    assert rep.recovery_frames(e, 1.0) == 4            # 1.05 <= 1.1 x 1.0, the 4th frame
+    assert rep.recovery_frames(e, 1.0, fraction=0.25) == 3
+    assert rep.recovery_frames([3.0, 2.0], 1.0) is None
+    assert rep.recovery_frames([0.5], 1.0) == 1
+
+
+def test_equal_time_check_points(rep):
+    """Fig. 7 at equal time: a check point shows the last frame finished by then (a frame finishing exactly at
+    the check point counts; before the first frame there is none)."""
+    cum = [10.0, 20.0, 35.0]
+    assert rep.at_equal_time(cum, ["a", "b", "c"], [5.0, 10.0, 19.9, 34.0, 35.0, 99.0]) == \
+        [None, "a", "a", "b", "c", "c"]
+
+
+def test_equal_rays_protocol_follows_qddgi(rep):
+    """``adgi@equal-rays``: each frame's budget is Q-DDGI's rays on that frame (less ADGI's over-spend on
+    earlier steady frames): the steady total is within 5 % of Q-DDGI's, and no steady frame exceeds its
+    budget by more than 5 % (the states pass every 8 frames is inside the budget here)."""
+    from dyngi.techniques.base import create_technique
+    sc = load_scene("cornell-moving-box")
+    times = [sc.frame_time(i) for i in range(10)]
+    small = {"probe_counts": "4", "warmup": 1}
+    q = rep.run_frames(sc, create_technique("qddgi", sc, small), times, (32, 24), keep=False)
+    qr = [s["total_rays"] for s in q["stats"]]
+    a = rep.run_frames(sc, create_technique("adgi", sc, dict(small, warmup_rays=32)), times, (32, 24),
+                       budgets=qr, keep=False)
+    ar = [s["total_rays"] for s in a["stats"]]
+    assert abs(sum(ar[1:]) / sum(qr[1:]) - 1) < 0.05, (ar, qr)
+    assert max(x / y for x, y in zip(ar[1:], qr[1:])) < 1.05 + 0.3, (ar, qr)
+    free = rep.run_frames(sc, create_technique("adgi", sc, dict(small, warmup_rays=32)), times, (32, 24), keep=False)
+    assert np.mean([s["total_rays"] for s in free["stats"][1:]]) > 2 * np.mean(qr[1:])   # the paper's protocol
+
+
+MICRO = {"res": (16, 12), "dt": 1.0, "hold": 2, "ref_spp": 4, "static_frames": 3,
+         "reference": {"texels": 4, "rays_per_texel": 1},
+         "params": {"probe_counts": "3,3,6", "warmup": 1, "warmup_rays": 16, "static_chains": 256,
+                    "dynamic_chains": 64}}
+
+
+@pytest.mark.slow
+def test_reproduce_adgi_micro_run(rep, tmp_path, monkeypatch):
+    """The whole experiment on a micro configuration (``--quick``'s code path): summary.md quotes the
+    paper's Fig. 9 and Table 4 figures beside ours, paper.json has every row, summary.json every run
+    without NaN, the CSVs one line per frame."""
+    from dyngi.experiments.reproduce import run_experiment
+    cfg = dict(MICRO)
+    cfg["params"] = dict(MICRO["params"])
+    monkeypatch.setattr(rep, "ADGI_QUICK", cfg)
+    out = run_experiment("adgi", str(tmp_path / "adgi"), quick=True)
+    md = open(os.path.join(out, "summary.md")).read()
+    for s in ("0.920/0.005", "0.868/0.012", "4.01 + 2.23 + 4.73 = 11.0", "adgi@equal-rays", "probes-reference",
+              "Fig. 10"):
+        assert s in md, s
+    pj = json.load(open(os.path.join(out, "paper.json")))
+    assert len(pj["rows"]) == 4 + 3 + 4 + 6
+    sj = json.load(open(os.path.join(out, "summary.json")))
+    assert sj["techniques"] and not any(v["failed"] for v in sj["techniques"].values())
+    n_tunnel = int(round(rep.GATE_END / cfg["dt"])) + 1 + cfg["hold"]
+    assert sum(1 for _ in open(os.path.join(out, "tunnel.csv"))) == 1 + n_tunnel
+    assert os.path.exists(os.path.join(out, "plots", "tunnel_error.png"))
+    rec = pj["tunnel"]["figures"]
+    assert set(rec) == {"adgi", "adgi@equal-rays", "qddgi", "probes-reference"}
+    assert all(np.isfinite(v["steady_relmse"]) for v in rec.values())
