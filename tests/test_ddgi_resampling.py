@@ -1,0 +1,240 @@
+"""ddgi-secondary / ddgi-resampling (dyngi.techniques.ddgi_resampling; issue 15, item 8).
+
+* Eq. 7's footprint as the kernels sum it equals a NumPy transcription on random paths;
+* footprint termination: on the glossy floor, the glossy recursion continues exactly where Eq. 8 says
+  (footprint of x_1 x_2 recomputed in NumPy from the recorded vertices <= c a0);
+* the G_max partition (Eq. 9): the bounded resampled part plus the residual BSDF sample estimates the
+  same indirect light as the unpartitioned BSDF estimate (G_max = 0) and as resampling alone
+  (G_max = 1e9), frozen probes, z-test on the per-frame image means;
+* the exact-radiance hook: ddgi-resampling with the probes replaced by path-traced radiance agrees with
+  Mitsuba's ``path`` (region and image-mean t-tests; a fast image-mean version and a slow one);
+* the leak on the thin-walled room (issue item 7) is recorded, when that scene exists.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import stats as sst
+from stats import luminance
+
+from dyngi.backend import dr, mi
+from dyngi.scene import builtin_names, load_scene
+from dyngi.techniques import Frame, create_technique
+from dyngi.techniques.ddgi_resampling import camera_footprint, footprint_np, footprint_term
+
+RES = (24, 18)
+PROBES = {"probe_counts": "4", "rays_per_probe": 64, "warmup": 4}
+
+
+def _run(tech, scene, frames, seed=0, static=True):
+    scene.at(0.0)
+    out = []
+    for i in range(frames):
+        out.append(tech.step(Frame(i, 0.0, scene.camera(0.0), RES, seed=seed, static=static and i > 0)))
+    return out
+
+
+def test_footprint_matches_eq7(backend):
+    rng = np.random.default_rng(3)
+    for n in (2, 3, 5):
+        pts = rng.normal(size=(64, n, 3))
+        nrm = rng.normal(size=(64, n, 3))
+        nrm /= np.linalg.norm(nrm, axis=2, keepdims=True)
+        pdf = rng.uniform(0.05, 50.0, size=(64, n - 1))
+        want = np.array([footprint_np(pts[i], pdf[i], nrm[i]) for i in range(64)])
+        s = mi.Float(0.0)
+        for k in range(n - 1):
+            d = pts[:, k + 1] - pts[:, k]
+            r = np.linalg.norm(d, axis=1)
+            cos = np.abs(np.einsum("ij,ij->i", nrm[:, k + 1], d / r[:, None]))
+            s += footprint_term(mi.Float(r), mi.Float(pdf[:, k]), mi.Float(cos), mi.Bool(False))
+        got = np.asarray(dr.square(s))
+        assert np.allclose(got, want, rtol=1e-4)
+    # a delta lobe adds no spread
+    assert float(footprint_term(mi.Float(1.0), mi.Float(1.0), mi.Float(1.0), mi.Bool(True))[0]) == 0.0
+
+
+@pytest.mark.parametrize("c", [0.2, 0.05])
+def test_footprint_termination_where_eq8_says(backend, c):
+    """glossy-floor (rough plastic floor, GGX alpha 0.04): after one frame, the pixels whose secondary
+    vertex x_2 continued the glossy recursion are exactly those with a(x_1 x_2) <= c a0, recomputed here
+    from the recorded vertices (Eq. 7 with the primary BSDF's pdf, Eq. 8 with the camera position)."""
+    scene = load_scene("glossy-floor")
+    tech = create_technique("ddgi-secondary", scene, {**PROBES, "footprint_c": c, "max_glossy": 1})
+    tech.record_debug = True
+    _run(tech, scene, 1)
+    d = {k: np.asarray(v) for k, v in tech.debug.items()}
+    x0 = np.asarray(scene.camera(0.0).origin, np.float64)
+    x1, x2, n1, n2 = (d[k].reshape(3, -1).T if d[k].ndim == 2 and d[k].shape[0] == 3 else d[k]
+                      for k in ("x1", "x2", "n1", "n2"))
+    ok = d["ok"] & d["glossy2"] & ~d["delta"]
+    seg = np.linalg.norm(x2 - x1, axis=1)
+    cos2 = np.abs(np.einsum("ij,ij->i", n2, (x2 - x1) / np.maximum(seg, 1e-12)[:, None]))
+    a = seg ** 2 / np.maximum(d["p1"] * np.maximum(cos2, 1e-4), 1e-12)
+    cam = x1 - x0
+    depth = np.linalg.norm(cam, axis=1)
+    cos1 = np.abs(np.einsum("ij,ij->i", n1, cam / np.maximum(depth, 1e-12)[:, None]))
+    a0 = 4 * np.pi * depth ** 2 / np.maximum(cos1, 1e-4)
+    go = d["rec"] > 0
+    margin = np.abs(a / (c * a0) - 1.0) > 1e-2
+    below = ok & (a <= c * a0) & margin
+    above = ok & (a > c * a0) & margin
+    assert below.sum() > 5 and above.sum() > 5, (below.sum(), above.sum())
+    assert not np.any(go & above), "a path continued although Eq. 8's footprint exceeded c a0"
+    assert not np.any(go & ~ok), "a path continued from a vertex without a glossy lobe"
+    # below the threshold the recursion continues unless the one glossy sample failed (grazing)
+    assert go[below].mean() > 0.9, go[below].mean()
+    assert np.allclose(np.asarray(camera_footprint(mi.Float(depth), mi.Float(cos1))), a0, rtol=1e-4)
+
+
+def _indirect_means(scene, frames, seed, **params):
+    base = {**PROBES, "temporal": False, "progressive": False, "hysteresis": 1.0, "change_threshold": 1e30,
+            "relocate": False, "classify": False}
+    tech = create_technique("ddgi-resampling", scene, {**base, **params})
+    rs = _run(tech, scene, frames, seed=seed)
+    ind = np.stack([luminance(r.indirect) for r in rs])       # frames x H x W
+    h, w = ind.shape[1:]
+    quads = [ind[:, :h // 2, :w // 2], ind[:, :h // 2, w // 2:], ind[:, h // 2:, :w // 2], ind[:, h // 2:, w // 2:]]
+    return np.stack([ind.mean((1, 2))] + [q.mean((1, 2)) for q in quads], 1)   # frames x 5
+
+
+def test_gmax_partition_sums_to_the_unpartitioned_estimate(backend):
+    """Eq. 9 on cornell-static with frozen probes (hysteresis 1 after the warm-up), independent frames
+    (no temporal reuse, no accumulation): the indirect image's mean and quadrant means with the partition
+    (G_max = 1/s^2) agree with the BSDF-only estimate (G_max = 0) and with resampling only (G_max = 1e9)
+    -- Welch t-tests, Bonferroni over 2 x 5 statistics at alpha = 0.01. The same seed gives the same
+    probes, so only the estimator differs."""
+    scene = load_scene("cornell-static")
+    n = 48
+    part = _indirect_means(scene, n, 1, gmax=1.0)
+    bsdf_only = _indirect_means(scene, n, 1, gmax=0.0)
+    resampled = _indirect_means(scene, n, 1, gmax=1e9)
+    alpha = 0.01 / 10
+    for other in (bsdf_only, resampled):
+        for j in range(5):
+            p = sst.ttest_ind(part[:, j], other[:, j], equal_var=False).pvalue
+            assert p > alpha, (j, part[:, j].mean(), other[:, j].mean(), p)
+    # the partition does something: both of its parts carry light (checked on the last frame)
+    tech = create_technique("ddgi-resampling", scene, {**PROBES, "temporal": False, "gmax": 1.0})
+    tech.record_debug = True
+    _run(tech, scene, 1)
+    lz = float(np.mean(np.asarray(tech.debug["L_z"])))
+    lr = float(np.mean(np.asarray(tech.debug["L_res"])))
+    assert lz > 0.1 * (lz + lr) and lr > 0.02 * (lz + lr), (lz, lr)
+
+
+def _mitsuba(scene, spp, k, max_depth):
+    scene.at(0.0)
+    sensor = scene.camera(0.0).to_sensor(RES, spp)
+    integ = mi.load_dict({"type": "path", "max_depth": max_depth, "rr_depth": 5})
+    return np.asarray(mi.render(scene.mi_scene, sensor=sensor, integrator=integ, spp=spp, seed=9100 + k),
+                      np.float32)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("reuse_visibility", [False, True])
+def test_exact_radiance_hook_converges_to_the_reference(backend, reuse_visibility):
+    """ddgi-resampling with ``exact_radiance`` (S(x) path-traced, max depth D - 1 from the secondary
+    vertex) is unbiased: K independent accumulated runs (temporal and spatial reuse on) vs K Mitsuba
+    ``path`` renders of depth D agree on the mean of 6 image regions (3 x 2) and of all pixels that do
+    not see the light (Welch t-tests, Bonferroni over 7 at alpha = 0.01).
+
+    Not per pixel: the per-pixel run means are right-skewed (measured 2026-12-02, 10 runs x 24 frames:
+    median skewness 0.46 vs 0.04 for Mitsuba's; the median per-pixel difference -2 % while the mean
+    over the unlit pixels is +1.3 % +- 1.7 %), so the per-pixel t-test of ``restir-pt``'s test rejects
+    28 of 432 pixels (expected <= 10) although the region means agree (p 0.33-0.60)."""
+    scene = load_scene("cornell-static")
+    D, K, frames = 5, 10, 24
+    a = []
+    for k in range(K):
+        tech = create_technique("ddgi-resampling", scene, {**PROBES, "exact_radiance": True, "exact_depth": D - 1,
+                                                           "reuse_visibility": reuse_visibility})
+        a.append(luminance(_run(tech, scene, frames, seed=300 + k)[-1].image))
+    a = np.stack(a)
+    b = np.stack([luminance(_mitsuba(scene, 16 * frames, k, D)) for k in range(K)])
+    H, W = a.shape[1:]
+    stats_a, stats_b = [], []
+    for i in range(2):
+        for j in range(3):
+            sl = (slice(None), slice(i * H // 2, (i + 1) * H // 2), slice(j * W // 3, (j + 1) * W // 3))
+            stats_a.append(a[sl].mean((1, 2)))
+            stats_b.append(b[sl].mean((1, 2)))
+    unlit = b.mean(0) < 1.0
+    stats_a.append(a[:, unlit].mean(1))
+    stats_b.append(b[:, unlit].mean(1))
+    for sa, sb in zip(stats_a, stats_b):
+        p = sst.ttest_ind(sa, sb, equal_var=False).pvalue
+        assert p > 0.01 / len(stats_a), (sa.mean(), sb.mean(), p)
+
+
+def test_exact_radiance_hook_image_mean(backend):
+    """Fast version of the convergence test: the image mean of the exact hook over independent frames
+    (no temporal reuse, no accumulation) agrees with a 256-spp Mitsuba ``path`` render (z < 3.3)."""
+    scene = load_scene("cornell-static")
+    D = 5
+    tech = create_technique("ddgi-resampling", scene, {**PROBES, "exact_radiance": True, "exact_depth": D - 1,
+                                                       "temporal": False, "progressive": False})
+    m = np.array([luminance(r.image).mean() for r in _run(tech, scene, 40, seed=11)])
+    ref = luminance(_mitsuba(scene, 256, 0, D)).mean()
+    z = (m.mean() - ref) / (m.std(ddof=1) / np.sqrt(len(m)))
+    assert abs(z) < 3.3, (m.mean(), ref, z)
+
+
+LEAK_SCENE = "living-room"
+
+
+@pytest.mark.skipif(LEAK_SCENE not in builtin_names(), reason="thin-walled room scene not available yet")
+@pytest.mark.parametrize("name", ["ddgi-secondary", "ddgi-resampling"])
+def test_leak_on_the_thin_walled_room_is_recorded(backend, name):
+    """Issue item 7: DDGI leaks through the thin sunlit walls of ``living-room``; hidden behind one bounce
+    it remains. The image mean after 16 frames (48x36, 64 rays per probe) against a 256-spp reference
+    must show the leak (brighter by > LEAK_MIN) and stay under the recorded bound LEAK_MAX (measured
+    2026-12-02, these settings: +74 % / +78 % for ddgi-secondary / ddgi-resampling; restir-pt +5.5 % at
+    64x36 after 4 frames: its excess is noise)."""
+    from dyngi.experiments.reference import reference_image, scene_max_depth
+
+    scene = load_scene(LEAK_SCENE)
+    res = (48, 36)
+    tech = create_technique(name, scene, {"rays_per_probe": 64})
+    scene.at(0.0)
+    r = None
+    for i in range(16):
+        r = tech.step(Frame(i, 0.0, scene.camera(0.0), res, seed=0, static=i > 0))
+    ref = reference_image(scene, 0.0, res, 256, scene_max_depth(scene))
+    ratio = float(luminance(r.image).mean() / max(luminance(ref).mean(), 1e-9))
+    print(f"{name} living-room mean ratio {ratio:.3f}")
+    assert np.isfinite(ratio) and LEAK_MIN < ratio - 1.0 < LEAK_MAX, ratio
+
+
+LEAK_MIN, LEAK_MAX = 0.2, 1.5
+"""Recorded leak bounds (relative excess of the image mean over the reference), see the test."""
+
+
+def test_reproduction_is_registered_and_counts_frames(backend):
+    """``dyngi reproduce ddgi-resampling`` exists; Table 1's frame count is the first frame at or below
+    the target MAPE (1-based), None when never reached."""
+    from dyngi.experiments.reproduce import experiment_names
+    from dyngi.experiments.reproductions.ddgi_resampling import frames_to_reach, steady_ms
+
+    assert "ddgi-resampling" in experiment_names()
+    assert frames_to_reach([0.5, 0.41, 0.4, 0.3], 0.4) == 3
+    assert frames_to_reach([0.5, float("nan"), 0.45], 0.4) is None
+    assert steady_ms([900.0, 300.0, 10.0, 12.0, 11.0]) == 11.0
+
+
+@pytest.mark.slow
+def test_reproduce_quick_writes_table1(backend, tmp_path):
+    """``dyngi reproduce ddgi-resampling --quick`` (measured 44 s at load 7) writes the Table 1 summary with
+    the paper's figures beside ours, one row per technique and scene, and exits 0."""
+    import json
+
+    from dyngi.cli import main
+
+    out = tmp_path / "r"
+    assert main(["reproduce", "ddgi-resampling", "--quick", "--out", str(out)]) == 0
+    md = (out / "summary.md").read_text()
+    assert "Time to equal MAPE" in md and "ROOM DOOR" in md and "ddgi-resampling" in md
+    figs = json.loads((out / "paper.json").read_text())["figures"]
+    assert figs and all(set(f["techniques"]) == {"restir-pt", "ddgi-primary", "ddgi-secondary", "ddgi-resampling"}
+                        for f in figs)
+    assert all(np.isfinite(f["target_mape"]) for f in figs)
