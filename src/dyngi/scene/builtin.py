@@ -578,7 +578,7 @@ def covered_lights():
 
 @builtin("rotating-hidden-light", "Floor lit only via a circular wall by a light below the floor that turns "
          "in 90-degree steps", "CDQ adaptation experiment (Dittebrandt et al., Sec. 7.3)")
-def rotating_hidden_light():
+def rotating_hidden_light(step_deg: float = 90.0, name: str = "rotating-hidden-light"):
     """A floor disc (radius 1.5 m) inside a cylindrical wall (radius 2 m), lit by a light below the floor.
 
     Stands for the CDQ adaptation scene of Dittebrandt et al. (Sec. 7.3): the
@@ -588,8 +588,12 @@ def rotating_hidden_light():
     degrees at t = 1, 2, 3 s (a step track: a sudden, defined rotational
     change over one frame), so guiding distributions must readapt. The camera
     looks straight down at the floor through the open top.
+
+    ``step_deg`` (default 90) is the rotation per step, so the 9 and 36 degree changes of Fig. 10
+    can be run (registered as ``rotating-hidden-light-9`` / ``-36`` in ``builtin_cdq.py``).
     """
-    b = SceneBuilder("rotating-hidden-light")
+    step = np.radians(float(step_deg))
+    b = SceneBuilder(name)
     R, r, H, B = 2.0, 1.5, 2.5, 0.8
     b.mesh("wall", cylinder((0.0, -B, 0.0), R, H + B, n=64, inward=True, caps=False), diffuse((0.7, 0.7, 0.7)))
     b.mesh("bottom", _floor(-R, R, -R, R, -B), diffuse((0.3, 0.3, 0.3)))
@@ -597,7 +601,7 @@ def rotating_hidden_light():
     s2 = np.sqrt(0.5)
     b.mesh("light", quad((1.35, -0.3, 0.0), (0.0, 0.0, 0.12), (0.08 * s2, -0.08 * s2, 0.0)), diffuse(DARK),
            (400.0, 380.0, 340.0))
-    b.animate(RigidMotion("light", angle=Track([0.0, 1.0, 2.0, 3.0], [[0.0], [np.pi / 2], [np.pi], [1.5 * np.pi]],
+    b.animate(RigidMotion("light", angle=Track([0.0, 1.0, 2.0, 3.0], [[0.0], [step], [2.0 * step], [3.0 * step]],
                                                 interp="step")))
     cam = Camera((0.0, 5.2, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, -1.0), 55.0)
     return b.build(cam, "Floor lit via a wall by a hidden, turning light", duration=4.0,
