@@ -10,13 +10,16 @@ def test_list_and_unknown_experiment(backend, capsys):
     from dyngi.cli import main
 
     assert main(["reproduce", "--list"]) == 0
-    out = capsys.readouterr().out
-    assert out.startswith("ddgi: ") and "Majercik" in out
+    lines = capsys.readouterr().out.splitlines()
+    names = [ln.split(":", 1)[0] for ln in lines if ln and not ln.startswith(" ")]
+    assert names == sorted(names) and {"ddgi", "adgi", "isddgi", "smcir"} <= set(names), names
+    assert any(ln.startswith("ddgi: ") and "Majercik" in ln for ln in lines)
     assert main(["reproduce", "nope", "--quick"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "unknown experiment 'nope'; valid experiments: ddgi" in err[0], err
+    valid = ", ".join(sorted(names))
+    assert len(err) == 1 and f"unknown experiment 'nope'; valid experiments: {valid}" in err[0], err
     assert main(["reproduce"]) == 2
-    assert "registered experiments: ddgi" in capsys.readouterr().err
+    assert f"registered experiments: {valid}" in capsys.readouterr().err
 
 
 def test_ddgi_quick_writes_report_with_paper_table(backend, tmp_path, monkeypatch):
