@@ -10,3 +10,4 @@ from . import mir  # noqa: F401
 from . import tcas  # noqa: F401
 from . import ddgi_primary  # noqa: F401
 from . import ddgi_resampling  # noqa: F401
+from . import neept  # noqa: F401

@@ -1,0 +1,528 @@
+"""Visibility Light Cache (Dittebrandt, Hanika, Dachsbacher: "Temporal Sample Reuse for Next Event
+Estimation and Path Guiding for Real-Time Path Tracing", Sec. 4 and Algorithm 1): ``lights=vlc``.
+
+Per octree leaf (Sec. 6, :mod:`dyngi.sampling.octree`) the VLC holds the lights
+that had an *unoccluded* NEE sample in that region in the previous frame, and
+NEE selects from it by per-shading-point importance; a cheap global
+exploration strategy, combined by MIS, keeps the estimator unbiased.
+
+Frame protocol (driven by ``nee-pt``)
+-------------------------------------
+1. ``record(p, n, light, visible, active)`` during the frame: every NEE sample
+   (light id + visibility bit, Sec. 4.1) is keyed by the leaf of its *current*
+   position ``octree.lookup(p)`` (the placing traversal of Sec. 6.3). Device arrays.
+2. ``octree.adapt()`` at the end of the frame (nee-pt): the tree the records were
+   keyed in becomes the previous tree; ``octree.prev_leaf`` maps every new leaf
+   to its previous leaf (Sec. 6.2 populate).
+3. ``begin_frame`` (construction, Sec. 4.1/4.2, Fig. 2 b-d) -- a documented host
+   (NumPy) pass whose time is reported as ``preprocess_ms``:
+
+   * (b) deduplication: visible records only, one entry per (leaf, light): an
+     exact dedup over the key ``leaf * L + light`` by a direct-address table
+     (a perfect hash; ``np.unique`` for huge key spaces); the paper's
+     per-region shared-memory hash table has the same result; all samples are
+     processed, our choice: the host pass is cheap at our counts;
+   * populate + (c) neighbour merge: new leaf ``c`` takes the set of
+     ``prev_leaf[c]`` united with the sets of the previous leaves of its six
+     face neighbours (``octree.neighbours``), deduplicated again;
+   * (d) buckets: light ``k`` goes into bucket ``k mod B`` (modulo hashing); the
+     buckets of the hash table are merged bottom-up (B halves, power-of-two B,
+     so bucket ``i`` and ``i + B/2`` merge) while no bucket exceeds the
+     capacity (32, Sec. 7); *hysteresis*: a bucket count lower than the leaf's
+     previous one is accepted only if it fits 75% of the capacity (Sec. 4.2);
+     lights inside a bucket are sorted by id. A leaf with no lights has B = 0.
+4. ``sample`` / ``pmf`` (device): Algorithm 1. With probability ``fraction``
+   (exploration, 10%) a light from the global exploration table, else a bucket
+   uniformly (1/B) and in it a light by importance (two traversals of the
+   bucket: accumulate, then select). The exact pmf of either outcome is
+   ``fraction * p_explore(k) + (1 - fraction) * w_k / (acc_b * B)`` with ``b = k
+   mod B``; ``pmf`` recomputes it with one traversal of that bucket. In a leaf
+   with an empty VLC the fraction is 1 (exploration only: our choice, the paper's
+   Fig. 9 "initial state"). A VLC-chosen bucket whose lights all have importance 0
+   at the point yields no light (``INVALID``, pmf 0): unbiased, since such lights
+   send nothing to a diffuse receiver there; the pmf over the lights then sums to
+   ``1 - (1 - fraction) * (#such buckets) / B`` (tested exactly in tests/test_vlc.py).
+
+Importance ``w_k``: the unoccluded irradiance (luminance) of triangle k at the
+shading point, analytic for a diffuse receiver
+(:func:`dyngi.sampling.light_select.triangle_irradiance`, Lambert's formula with
+horizon clipping). The paper uses LTCs for glossy receivers; after nee-pt's primary
+hit every surface is diffuse (Sec. 7), and at the primary hit we use the diffuse
+measure too (not implemented: LTC for glossy; documented limitation). A light whose
+importance is 0 at a point (behind it or below its horizon) contributes nothing to
+a diffuse receiver there, so skipping it is unbiased.
+
+Exploration (Sec. 4.3): a global alias table (Walker 1977; Vose's construction,
+host, every frame) over a blend of three normalised pmfs: light energy (power),
+change (power or position changed since the last frame) and camera distance
+(1 / max(d^2, (0.05 * scene diagonal)^2)); blend weights (our choice, the paper
+gives none) 0.6 / 0.2 / 0.2, renormalised over the heuristics that are non-zero.
+Every light with power > 0 keeps a positive exploration pmf (unbiasedness).
+
+Extension (ours, off by default: ``memory = 1`` is the paper's last-frame-only cache):
+``memory = M > 1`` keeps a light in a leaf's own set for M frames after its last
+visible sample there (ages carried through ``prev_leaf``; the neighbour merge is
+applied afresh each frame, so lights do not diffuse further over time).
+
+Sampling uses the shading point's previous-frame position (Sec. 6.3) to find the
+leaf when the caller passes ``p_prev``; ``nee-pt`` passes the current position (no
+motion vectors: the geometry of our scenes is static where it matters, our choice).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..backend import dr, mi
+from ..errors import DyngiError
+from .emitter_triangles import INVALID, EmitterTriangles
+from .light_select import FrameCtx, triangle_irradiance
+
+CAPACITY = 32          # bucket capacity (Sec. 7)
+HYSTERESIS = 0.75      # capacity factor when the bucket count would drop (Sec. 4.2: "e.g., 75%")
+EXPLORATION = 0.1      # exploration fraction (Sec. 7)
+EXPLORE_WEIGHTS = (0.6, 0.2, 0.2)   # energy, change, camera distance (our choice)
+
+
+# ---------------------------------------------------------------------------------------------
+# alias table (Walker 1977), built on the host, sampled on the device in O(1)
+# ---------------------------------------------------------------------------------------------
+def build_alias(pmf: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vose's alias construction: (prob[n] float32, alias[n] uint32) for ``pmf`` (sums to 1)."""
+    p = np.asarray(pmf, np.float64)
+    n = p.size
+    q = p * n
+    prob = np.ones(n)
+    alias = np.arange(n, dtype=np.int64)
+    small = [i for i in np.nonzero(q < 1.0)[0]]
+    large = [i for i in np.nonzero(q >= 1.0)[0]]
+    # host loop over lights: O(L) once per frame, small topology (allowed: few hundred lights)
+    while small and large:
+        s, g = small.pop(), large.pop()
+        prob[s] = q[s]
+        alias[s] = g
+        q[g] = (q[g] + q[s]) - 1.0
+        (small if q[g] < 1.0 else large).append(g)
+    for i in small + large:
+        prob[i] = 1.0
+    return prob.astype(np.float32), alias.astype(np.uint32)
+
+
+class AliasTable:
+    """Device alias table over ``pmf`` (host NumPy array); ``sample(u) -> index``, ``pmf`` exact."""
+
+    def __init__(self, pmf: np.ndarray):
+        pmf = np.asarray(pmf, np.float64)
+        pmf = pmf / pmf.sum()
+        prob, alias = build_alias(pmf)
+        self.n = int(pmf.size)
+        pad = max(0, 2 - self.n)      # >= 2 entries (a 1-element array may become a kernel literal)
+        self.prob = mi.Float(np.concatenate([prob, np.ones(pad, np.float32)]))
+        self.alias = mi.UInt32(np.concatenate([alias, np.zeros(pad, np.uint32)]))
+        self.pmf_host = pmf
+        self.pmf = mi.Float(np.concatenate([pmf, np.zeros(pad)]).astype(np.float32))
+
+    def sample(self, u, active=True):
+        x = mi.Float(u) * self.n
+        i = dr.minimum(mi.UInt32(x), self.n - 1)
+        f = x - mi.Float(i)
+        pr = dr.gather(mi.Float, self.prob, i, active)
+        al = dr.gather(mi.UInt32, self.alias, i, active)
+        return dr.select(f < pr, i, al)
+
+
+def _dedup(keys: np.ndarray, space: int) -> np.ndarray:
+    """Sorted distinct ``keys`` in [0, space): a direct-address table (a perfect hash of leaf * L + light) when
+    the key space is small (< 2^25 entries: a boolean scatter, O(n + space)), else ``np.unique``."""
+    if space <= (1 << 25):
+        mark = np.zeros(space, bool)
+        mark[keys] = True
+        return np.flatnonzero(mark).astype(np.int64)
+    return np.unique(keys)
+
+
+def _pad2(a) -> np.ndarray:
+    """uint32 copy of ``a`` padded with zeros to at least 2 entries (device tables, see _set_tables)."""
+    a = np.asarray(a).astype(np.uint32)
+    return a if a.size >= 2 else np.concatenate([a, np.zeros(2 - a.size, np.uint32)])
+
+
+def _merge_sets(src_of_new: np.ndarray, nb: np.ndarray | None, start: np.ndarray, cnt: np.ndarray,
+                lights: np.ndarray, L: int, merge: bool):
+    """Per new leaf c: the union of the old sets of src[c] and (``merge``) of src[neighbour]; deduplicated.
+
+    Returns (leaf[m], light[m]) sorted by (leaf, light)."""
+    Nc = src_of_new.size
+    cols = [src_of_new]
+    if merge and nb is not None:
+        nbm = nb.reshape(Nc, 6)
+        for k in range(6):
+            j = nbm[:, k]
+            ok = j != INVALID
+            s = np.full(Nc, INVALID, np.int64)
+            s[ok] = src_of_new[j[ok]]
+            cols.append(s)
+    C = np.repeat(np.arange(Nc, dtype=np.int64)[None, :], len(cols), 0).ravel()
+    O = np.stack(cols).ravel()
+    ok = (O != INVALID) & (O >= 0) & (O < cnt.size)
+    C, O = C[ok], O[ok]
+    n = cnt[O]
+    tot = int(n.sum())
+    if tot == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    rep_c = np.repeat(C, n)
+    first = np.repeat(start[O] - np.concatenate([[0], np.cumsum(n)[:-1]]), n)
+    idx = first + np.arange(tot)
+    key = _dedup(rep_c * L + lights[idx], Nc * L)
+    return key // L, key % L
+
+
+def bucket_counts(leaf: np.ndarray, light: np.ndarray, n_leaves: int, prev_b: np.ndarray,
+                  capacity: int = CAPACITY, hysteresis: float = HYSTERESIS) -> np.ndarray:
+    """Bucket count per leaf (Sec. 4.2, Fig. 2 d): the smallest power of two B such that no bucket
+    ``light mod B`` holds more than the capacity, where a B below the leaf's previous count ``prev_b``
+    must fit ``floor(hysteresis * capacity)`` (flicker hysteresis). Leaves without lights: 0.
+
+    Merging bottom-up from a large table (B -> B/2 merges buckets i and i + B/2 under modulo hashing)
+    stops at the same B as this search upward, which is what is computed."""
+    per = np.bincount(leaf, minlength=n_leaves) if leaf.size else np.zeros(n_leaves, np.int64)
+    B = np.zeros(n_leaves, np.int64)
+    todo = per > 0
+    b = 1
+    cap_low = max(1, int(np.floor(hysteresis * capacity)))
+    while np.any(todo):
+        sel = todo[leaf]
+        lf, lt = leaf[sel], light[sel]
+        occ = np.bincount(lf * b + lt % b, minlength=n_leaves * b).reshape(n_leaves, b).max(axis=1)
+        cap = np.where(b >= prev_b, capacity, cap_low)
+        ok = todo & (occ <= cap)
+        B[ok] = b
+        todo &= ~ok
+        b *= 2
+        if b > (1 << 24):      # cannot happen (B >= L puts one light per bucket)
+            raise DyngiError("VLC: bucket search did not terminate")
+    return B
+
+
+class VLCSelector:
+    """Visibility Light Cache light selector (``lights=vlc``); see the module docstring.
+
+    Parameters: ``tris`` (EmitterTriangles), ``octree`` (AdaptiveOctree; else taken from the FrameCtx),
+    ``exploration`` (fraction, 0.1), ``capacity`` (32), ``hysteresis`` (0.75), ``merge_neighbours``
+    (True), ``explore_weights`` ((energy, change, distance) = (0.6, 0.2, 0.2)).
+    """
+
+    name = "vlc"
+    accepts_leaf = True     # sample/pmf/record take an optional looked-up ``leaf=`` (nee-pt passes it)
+
+    def __init__(self, tris: EmitterTriangles, mi_scene=None, bounds=None, octree=None,
+                 exploration: float = EXPLORATION, capacity: int = CAPACITY, hysteresis: float = HYSTERESIS,
+                 merge_neighbours: bool = True, explore_weights=EXPLORE_WEIGHTS, memory: int = 1, **_ignored):
+        if not 0.0 < float(exploration) <= 1.0:
+            raise DyngiError(f"VLC exploration fraction {exploration} is out of range (0, 1]")
+        if int(capacity) < 1:
+            raise DyngiError(f"VLC bucket capacity {capacity} must be >= 1")
+        self.tris = tris
+        self.L = int(tris.count)
+        self.octree = octree
+        self.fraction = float(exploration)
+        self.capacity = int(capacity)
+        self.hysteresis = float(hysteresis)
+        self.merge = bool(merge_neighbours)
+        self.explore_weights = tuple(float(w) for w in explore_weights)
+        self.memory = max(1, int(memory))
+        self._carry = None
+        self.bounds = bounds
+        self._records: list = []
+        self._rec_prev_obj = None
+        self._prev_power = None
+        self._prev_cen = None
+        self.preprocess_ms = 0.0
+        self.explore_ms = 0.0
+        self._b_old = np.zeros(0, np.int64)       # bucket count per leaf of the tree the records are keyed in
+        lum = tris.host_arrays()["radiance"] @ np.array([0.212671, 0.715160, 0.072169]) if self.L else np.zeros(0)
+        self._lum = mi.Float(np.concatenate([lum, np.zeros(max(0, 2 - lum.size))]).astype(np.float32))
+        self._build_exploration(None)
+        self._upload_empty(self._n_leaves())
+        self.last = {"lights_mean": 0.0, "lights_max": 0, "buckets_mean": 0.0, "records": 0, "visible": 0}
+
+    # -- host build ----------------------------------------------------------------------------
+    def _n_leaves(self):
+        return int(self.octree.leaf_count) if self.octree is not None else 1
+
+    def _upload_empty(self, n):
+        self._set_tables(np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros(0, np.int64),
+                         np.zeros(0, np.int64), np.zeros(0, np.int64))
+        self._host_sets = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+    def _set_tables(self, boff, bcnt, bstart, blen, lights):
+        # padded to >= 2 entries: a 1-element array may enter a kernel as a literal (another kernel)
+        self.leaf_boff = mi.UInt32(_pad2(boff))
+        self.leaf_bcnt = mi.UInt32(_pad2(bcnt))
+        self.b_start = mi.UInt32(_pad2(bstart))
+        self.b_len = mi.UInt32(_pad2(blen))
+        self.lights = mi.UInt32(_pad2(lights))
+        self._b_cur = bcnt.astype(np.int64)
+        dr.eval(self.leaf_boff, self.leaf_bcnt, self.b_start, self.b_len, self.lights)
+
+    def _build_exploration(self, ctx):
+        """Global exploration pmf (energy, change, camera distance) and its alias table (Sec. 4.3)."""
+        t0 = time.perf_counter()
+        if not self.L:
+            self.explore = AliasTable(np.ones(1))
+            return
+        h = self.tris.host_arrays()
+        power = np.maximum(h["power"], 0.0)
+        if power.sum() <= 0:
+            power = np.ones_like(power)
+        parts, ws = [power / power.sum()], [self.explore_weights[0]]
+        if self._prev_power is not None and self.explore_weights[1] > 0:
+            moved = (np.abs(power - self._prev_power) > 1e-6 * (power + 1e-30)) | \
+                    np.any(np.abs(h["centroid"] - self._prev_cen) > 1e-6, axis=1)
+            ch = np.where(moved, power, 0.0)
+            if ch.sum() > 0:
+                parts.append(ch / ch.sum())
+                ws.append(self.explore_weights[1])
+        cam = getattr(ctx, "camera_pos", None) if ctx is not None else None
+        if cam is not None and self.explore_weights[2] > 0:
+            lo, hi = (np.asarray(b, np.float64) for b in (ctx.bounds if len(ctx.bounds) == 2 else
+                                                         (h["centroid"].min(0), h["centroid"].max(0) + 1)))
+            r0 = 0.05 * max(float(np.linalg.norm(hi - lo)), 1e-3)
+            d2 = np.sum((h["centroid"] - np.asarray(cam, np.float64)) ** 2, axis=1)
+            dist = np.where(power > 0, 1.0 / np.maximum(d2, r0 * r0), 0.0)
+            if dist.sum() > 0:
+                parts.append(dist / dist.sum())
+                ws.append(self.explore_weights[2])
+        ws = np.asarray(ws) / np.sum(ws)
+        pmf = sum(w * q for w, q in zip(ws, parts))
+        self.explore = AliasTable(pmf)
+        self._prev_power, self._prev_cen = power, h["centroid"].copy()
+        self.explore_ms = 1e3 * (time.perf_counter() - t0)
+
+    def begin_frame(self, ctx: FrameCtx) -> None:
+        """Construct every leaf's VLC from the last frame's records (host pass, timed: ``preprocess_ms``)."""
+        t0 = time.perf_counter()
+        if ctx is not None:
+            self.tris = ctx.tris
+            if getattr(ctx, "octree", None) is not None:
+                self.octree = ctx.octree
+        self._build_exploration(ctx)
+        Nc = self._n_leaves()
+        oc = self.octree
+        if not self._records or not self.L:
+            self._records = []
+            self._b_old = np.zeros(Nc, np.int64)
+            self._upload_empty(Nc)
+            self.last = {"lights_mean": 0.0, "lights_max": 0, "buckets_mean": 0.0, "records": 0, "visible": 0}
+            self._rec_prev_obj = getattr(oc, "prev_leaf", None)
+            self.preprocess_ms = 1e3 * (time.perf_counter() - t0)
+            return
+        leaf = np.concatenate([np.asarray(r[0].numpy(), np.int64) for r in self._records])
+        light = np.concatenate([np.asarray(r[1].numpy(), np.int64) for r in self._records])
+        vis = np.concatenate([np.asarray(r[2].numpy(), bool) for r in self._records])
+        n_rec = int(leaf.size)
+        No = self._rec_leaves
+        self._records = []
+        ok = vis & (leaf != INVALID) & (leaf < No) & (light < self.L)
+        # (b) dedup: one entry per (previous leaf, light)
+        key = _dedup(leaf[ok] * self.L + light[ok], No * self.L)
+        age = np.zeros(key.size, np.int64)
+        if self.memory > 1 and self._carry is not None and self._carry[3] == No:
+            # (our extension, off by default) lights seen visible in this leaf within the last `memory` frames
+            ck = self._carry[0] * self.L + self._carry[1]
+            key, age = np.concatenate([key, ck]), np.concatenate([age, self._carry[2]])
+            order = np.lexsort((age, key))
+            key, age = key[order], age[order]
+            first = np.concatenate([[True], key[1:] != key[:-1]]) if key.size else np.zeros(0, bool)
+            key, age = key[first], age[first]
+        o_leaf, o_light = key // self.L, key % self.L
+        cnt = np.bincount(o_leaf, minlength=No)
+        start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+        # populate: correspondence new leaf -> previous leaf
+        pl = getattr(oc, "prev_leaf", None)
+        if pl is not None and pl is not self._rec_prev_obj:
+            src = np.asarray(pl.numpy(), np.int64).ravel()
+        else:
+            src = np.arange(Nc, dtype=np.int64)
+        src = np.where((src >= 0) & (src < No), src, INVALID)
+        if self.memory > 1:     # carry each leaf's own set (not the merged one) into the new tree, one frame older
+            okc = src != INVALID
+            cs = np.nonzero(okc)[0]
+            n = cnt[src[cs]]
+            tot = int(n.sum())
+            first = np.repeat(start[src[cs]] - np.concatenate([[0], np.cumsum(n)[:-1]]), n) + np.arange(tot)
+            keep = age[first] + 1 < self.memory
+            self._carry = (np.repeat(cs, n)[keep], o_light[first][keep], age[first][keep] + 1, Nc)
+        nb = np.asarray(oc.neighbours.numpy(), np.int64) if (oc is not None and self.merge) else None
+        # (c) merge with the neighbours' caches
+        c_leaf, c_light = _merge_sets(src, nb, start, cnt, o_light, self.L, self.merge)
+        # (d) buckets with hysteresis
+        b_old = self._b_old if self._b_old.size == No else np.zeros(No, np.int64)
+        prev_b = np.where(src != INVALID, b_old[np.clip(src, 0, max(No - 1, 0))], 0)
+        B = bucket_counts(c_leaf, c_light, Nc, prev_b, self.capacity, self.hysteresis)
+        boff = np.concatenate([[0], np.cumsum(B)[:-1]]).astype(np.int64)
+        gb = boff[c_leaf] + c_light % np.maximum(B[c_leaf], 1)
+        order = np.lexsort((c_light, gb))
+        lights_sorted = c_light[order]
+        nbk = int(B.sum())
+        blen = np.bincount(gb, minlength=nbk) if nbk else np.zeros(0, np.int64)
+        bstart = np.concatenate([[0], np.cumsum(blen)[:-1]]) if nbk else np.zeros(0, np.int64)
+        self._set_tables(boff, B, bstart, blen, lights_sorted)
+        self._host_sets = (c_leaf, c_light)
+        self._b_old = B
+        self._rec_prev_obj = pl
+        per = np.bincount(c_leaf, minlength=Nc)
+        nonempty = per[per > 0]
+        self.last = {"lights_mean": float(nonempty.mean()) if nonempty.size else 0.0,
+                     "lights_max": int(per.max()) if per.size else 0,
+                     "buckets_mean": float(B[B > 0].mean()) if np.any(B > 0) else 0.0,
+                     "records": n_rec, "visible": int(ok.sum()), "leaves_with_vlc": int(nonempty.size)}
+        self.preprocess_ms = 1e3 * (time.perf_counter() - t0)
+
+    def host_cache(self, leaf: int) -> np.ndarray:
+        """Light ids in ``leaf``'s VLC (current tree), sorted (for tests)."""
+        c_leaf, c_light = self._host_sets
+        return np.sort(c_light[c_leaf == leaf])
+
+    def host_buckets(self, leaf: int) -> list:
+        """[array of light ids] per bucket of ``leaf`` (for tests)."""
+        boff = np.asarray(self.leaf_boff.numpy(), np.int64)
+        bcnt = np.asarray(self.leaf_bcnt.numpy(), np.int64)
+        bs, bl = np.asarray(self.b_start.numpy(), np.int64), np.asarray(self.b_len.numpy(), np.int64)
+        lt = np.asarray(self.lights.numpy(), np.int64)
+        return [lt[bs[g]:bs[g] + bl[g]] for g in range(boff[leaf], boff[leaf] + bcnt[leaf])]
+
+    # -- device sampling (Algorithm 1) ---------------------------------------------------------
+    def _leaf(self, p, p_prev, active):
+        if self.octree is None:
+            return dr.zeros(mi.UInt32, dr.width(p))
+        q = p if p_prev is None else p_prev
+        return self.octree.lookup(q, active)
+
+    def _importance(self, p, n, k, active):
+        p0 = dr.gather(mi.Point3f, self.tris.p0, k, active)
+        e1 = dr.gather(mi.Vector3f, self.tris.e1, k, active)
+        e2 = dr.gather(mi.Vector3f, self.tris.e2, k, active)
+        lum = dr.gather(mi.Float, self._lum, k, active)
+        return triangle_irradiance(p, n, p0, e1, e2, lum, active)
+
+    @dr.syntax
+    def _accumulate(self, p, n, start, length, target, active):
+        """First traversal: sum of importances in the bucket and the importance of ``target``."""
+        acc = mi.Float(0.0)
+        w = mi.Float(0.0)
+        i = mi.UInt32(0)
+        act = mi.Bool(active)
+        while act & (i < length):
+            k = dr.gather(mi.UInt32, self.lights, start + i, act)
+            wk = self._importance(p, n, k, act)
+            acc += wk
+            w = dr.select(k == target, wk, w)
+            i += 1
+        return acc, w
+
+    @dr.syntax
+    def _select(self, p, n, start, length, target_acc, active):
+        """Second traversal: the first light whose running importance sum exceeds ``target_acc``."""
+        cum = mi.Float(0.0)
+        chosen = mi.UInt32(INVALID)
+        w = mi.Float(0.0)
+        last_k = mi.UInt32(INVALID)
+        last_w = mi.Float(0.0)
+        found = mi.Bool(False)
+        i = mi.UInt32(0)
+        act = mi.Bool(active)
+        while act & (i < length) & ~found:
+            k = dr.gather(mi.UInt32, self.lights, start + i, act)
+            wk = self._importance(p, n, k, act)
+            cum += wk
+            hit = (wk > 0.0) & (cum > target_acc)
+            chosen = dr.select(hit, k, chosen)
+            w = dr.select(hit, wk, w)
+            found |= hit
+            last_k = dr.select(wk > 0.0, k, last_k)
+            last_w = dr.select(wk > 0.0, wk, last_w)
+            i += 1
+        # rounding: the target may reach the total; take the last light with a nonzero importance
+        chosen = dr.select(found, chosen, last_k)
+        w = dr.select(found, w, last_w)
+        return chosen, w
+
+    def _bucket(self, leaf, bidx, active):
+        off = dr.gather(mi.UInt32, self.leaf_boff, leaf, active)
+        g = off + bidx
+        return dr.gather(mi.UInt32, self.b_start, g, active), dr.gather(mi.UInt32, self.b_len, g, active)
+
+    def sample(self, p, n, u, active, p_prev=None, leaf=None):
+        """Algorithm 1: (light id, exact pmf); INVALID / 0 where nothing can be chosen.
+
+        ``leaf`` (optional): the sampling leaf if the caller has looked it up already (saves a traversal)."""
+        active = mi.Bool(active) & (self.L > 0)
+        leaf = self._leaf(p, p_prev, active) if leaf is None else mi.UInt32(leaf)
+        active &= leaf != INVALID
+        B = dr.gather(mi.UInt32, self.leaf_bcnt, leaf, active)
+        has = active & (B > 0)
+        frac = dr.select(has, self.fraction, 1.0)
+        u = mi.Float(u)
+        explore = u < frac
+        # exploration: a global alias-table sample (u rescaled to [0, 1))
+        k_e = self.explore.sample(dr.minimum(u / frac, 0.99999994), active & explore)
+        # VLC: bucket uniformly, then (second traversal) a light by importance
+        uv = dr.minimum((u - frac) / dr.maximum(1.0 - frac, 1e-12), 0.99999994)
+        Bf = mi.Float(B)
+        b_v = dr.minimum(mi.UInt32(uv * Bf), dr.maximum(B, 1) - 1)
+        u_l = uv * Bf - mi.Float(b_v)
+        bidx = dr.select(explore, k_e % dr.maximum(B, 1), b_v)
+        start, length = self._bucket(leaf, bidx, has)
+        length = dr.select(has, length, 0)
+        acc, w_e = self._accumulate(p, n, start, length, dr.select(explore, k_e, mi.UInt32(INVALID)), has)
+        k_v, w_v = self._select(p, n, start, length, u_l * acc, has & ~explore & (acc > 0.0))
+        k = dr.select(explore, k_e, k_v)
+        w = dr.select(explore, w_e, w_v)
+        pe = dr.gather(mi.Float, self.explore.pmf, k, active & (k != INVALID))
+        pv = dr.select(has & (acc > 0.0), w / (acc * Bf), 0.0)
+        pmf = frac * pe + (1.0 - frac) * pv
+        ok = active & (k != INVALID) & (pmf > 0.0)
+        return dr.select(ok, k, mi.UInt32(INVALID)), dr.select(ok, pmf, 0.0)
+
+    def pmf(self, p, n, light_id, active, p_prev=None, leaf=None):
+        """Exact probability that ``sample`` returns ``light_id`` at (p, n): one traversal of its bucket."""
+        light_id = mi.UInt32(light_id)
+        active = mi.Bool(active) & (self.L > 0) & (light_id < max(self.L, 1))
+        leaf = self._leaf(p, p_prev, active) if leaf is None else mi.UInt32(leaf)
+        active &= leaf != INVALID
+        B = dr.gather(mi.UInt32, self.leaf_bcnt, leaf, active)
+        has = active & (B > 0)
+        frac = dr.select(has, self.fraction, 1.0)
+        start, length = self._bucket(leaf, light_id % dr.maximum(B, 1), has)
+        length = dr.select(has, length, 0)
+        acc, w = self._accumulate(p, n, start, length, light_id, has)
+        pe = dr.gather(mi.Float, self.explore.pmf, light_id, active)
+        pv = dr.select(has & (acc > 0.0), w / (acc * mi.Float(B)), 0.0)
+        return dr.select(active, frac * pe + (1.0 - frac) * pv, 0.0)
+
+    def record(self, p, n, light_id, visible, active, leaf=None) -> None:
+        """This frame's NEE samples (light id + visibility bit), keyed by the placing leaf ``lookup(p)``."""
+        active = mi.Bool(active) & (mi.UInt32(light_id) != INVALID)
+        leaf = self._leaf(p, None, active) if leaf is None else mi.UInt32(leaf)
+        leaf = dr.select(active, leaf, mi.UInt32(INVALID))
+        vis = mi.Bool(visible) & active
+        self._records.append((leaf, mi.UInt32(light_id), vis))
+        self._rec_leaves = self._n_leaves()
+
+    def pending(self) -> list:
+        """This frame's record arrays (nee-pt evaluates them in the path-tracing kernel)."""
+        return [x for r in self._records for x in r]
+
+    def end_frame(self) -> None:
+        if self._records:
+            dr.eval(*[x for r in self._records for x in r])
+
+    def stats(self) -> dict:
+        return {"preprocess_ms": self.preprocess_ms, "explore_ms": self.explore_ms,
+                "lights_in_cache": self.last.get("lights_mean", 0.0),
+                "lights_in_cache_max": self.last.get("lights_max", 0),
+                "buckets_mean": self.last.get("buckets_mean", 0.0),
+                "leaves_with_vlc": self.last.get("leaves_with_vlc", 0),
+                "records": self.last.get("records", 0), "visible_records": self.last.get("visible", 0)}
