@@ -24,9 +24,10 @@ def test_budget_comes_from_the_scene(backend):
 
 def test_static_scene_vpls_are_bit_stable(backend):
     """Per-VPL seeds (Sec. 3.2.3): in a static scene a surviving VPL's radiosity is bit-identical from
-    frame to frame, and equal to a fresh estimate with its seed (so keeping it is exact); at most M_max
-    VPLs move per frame (Algorithm 1, line 13)."""
-    from dyngi.vpl.radiosity import estimate_radiosity
+    frame to frame, and equal to a fresh estimate with its seed (so keeping it is exact): the selection
+    estimate with stream 0, the rendering one (line 18) with stream 1; at most M_max VPLs move per frame
+    (Algorithm 1, line 13)."""
+    from dyngi.vpl.radiosity import estimate_radiosity, stream_seeds
 
     sc = load_scene("cornell-static")
     tech = create_technique("smcir", sc, {"vpls": 96, "warmup": 3, "radiosity_spp": 4, "max_moves": 8})
@@ -41,18 +42,23 @@ def test_static_scene_vpls_are_bit_stable(backend):
             same = (st.seed == prev.seed) & st.used & prev.used
             assert same.sum() >= 96 - 8
             assert np.array_equal(st.radiosity[same], prev.radiosity[same])
+            assert np.array_equal(st.sel_radiosity[same], prev.sel_radiosity[same])
             assert np.array_equal(st.pos[same], prev.pos[same])
             moved.append(int((~same).sum()))
         prev = st.copy()
     used = np.flatnonzero(prev.used)
     fresh, _ = estimate_radiosity(sc.mi_scene, prev.pos[used], prev.nrm[used], prev.seed[used], 4, 4)
-    assert np.array_equal(fresh, prev.radiosity[used])
+    assert np.array_equal(fresh, prev.sel_radiosity[used])
+    fresh1, _ = estimate_radiosity(sc.mi_scene, prev.pos[used], prev.nrm[used], stream_seeds(prev.seed[used], 1),
+                                   4, 4)
+    assert np.array_equal(fresh1, prev.radiosity[used]) and not np.array_equal(fresh1, fresh)
     assert np.all(prev.radiosity[used] >= 0) and prev.radiosity[used].max() > 0
 
 
 def test_moving_light_reestimates_every_vpl(backend):
-    """Lines 18-19: when the light moves, every VPL's radiosity is re-estimated (with its own seed)."""
-    from dyngi.vpl.radiosity import estimate_radiosity
+    """Lines 18-19: when the light moves, every VPL's radiosity is re-estimated (with its own seed: both
+    streams)."""
+    from dyngi.vpl.radiosity import estimate_radiosity, stream_seeds
 
     sc = load_scene("cornell-moving-light")
     tech = create_technique("smcir", sc, {"vpls": 64, "warmup": 2, "radiosity_spp": 4})
@@ -60,7 +66,9 @@ def test_moving_light_reestimates_every_vpl(backend):
     st = tech.store
     used = np.flatnonzero(st.used)
     fresh, _ = estimate_radiosity(sc.mi_scene, st.pos[used], st.nrm[used], st.seed[used], 4, 4)
-    assert np.array_equal(fresh, st.radiosity[used])
+    assert np.array_equal(fresh, st.sel_radiosity[used])
+    fresh1, _ = estimate_radiosity(sc.mi_scene, st.pos[used], st.nrm[used], stream_seeds(st.seed[used], 1), 4, 4)
+    assert np.array_equal(fresh1, st.radiosity[used])
 
 
 def _indirect_reference(sc, res, spp=512):

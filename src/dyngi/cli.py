@@ -193,7 +193,8 @@ def cmd_compare(args) -> int:
                       params=_parse_sets(args.set),
                       metrics=[m.strip() for m in args.metrics.split(",") if m.strip()],
                       grid_frames=_frame_list(args.grid_frames, args.frames),
-                      ref_depth=args.ref_depth, indirect=args.indirect, denoise=args.denoise)
+                      ref_depth=args.ref_depth, indirect=args.indirect, denoise=args.denoise,
+                      reference=args.reference, untextured=args.untextured, tracked=not args.no_tracked)
     print(f"wrote comparison to {out} (open {os.path.join(out, 'report.html')})")
     return _report_failures(out)
 
@@ -215,9 +216,46 @@ def cmd_reproduce(args) -> int:
     get_experiment(args.name)
     _setup(args)
     out = args.out or os.path.join("out", "reproduce", args.name + ("-quick" if args.quick else ""))
-    out = run_experiment(args.name, out, quick=args.quick, quiet=args.quiet)
+    opts = _reference_options(args)
+    if opts:       # --reference / --untextured / --no-tracked: only experiments whose function takes them
+        import inspect
+
+        from .experiments.io import check_writable
+
+        exp = get_experiment(args.name)
+        takes = inspect.signature(exp.fn).parameters
+        if not all(k in takes for k in opts):
+            raise DyngiError(f"experiment '{args.name}' takes no --reference/--untextured/--no-tracked; "
+                             "experiments that do: smcir")
+        check_writable(out)
+        out = exp.fn(os.path.abspath(out), args.quick, args.quiet, **opts)
+    else:
+        out = run_experiment(args.name, out, quick=args.quick, quiet=args.quiet)
     print(f"wrote reproduction '{args.name}' to {out} (open {os.path.join(out, 'report.html')})")
     return _report_failures(out)
+
+
+def _reference_options(args) -> dict:
+    """The reference options given on the command line (SMC-IR Sec. 5.2 / 5.4), as keyword arguments."""
+    opts = {}
+    if getattr(args, "reference", None) is not None:
+        opts["reference"] = args.reference
+    if getattr(args, "untextured", False):
+        opts["untextured"] = True
+    if getattr(args, "no_tracked", False):
+        opts["tracked"] = False
+    return opts
+
+
+def _reference_flags(s, default):
+    s.add_argument("--reference", default=default, metavar="KIND",
+                   help="path (default: path-traced) or clamped (clamped path tracing, SMC-IR Sec. 5.4; "
+                        "indirect only, clamp = the VPL techniques' clamp_distance)")
+    s.add_argument("--untextured", action="store_true",
+                   help="replace every texture by its mean colour for the techniques and the reference "
+                        "(SMC-IR Sec. 5)")
+    s.add_argument("--no-tracked", action="store_true",
+                   help="no per-pixel reference for the 8 tracked pixels (the image reference stands in)")
 
 
 def cmd_probe_view(args) -> int:
@@ -352,6 +390,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="reference max depth (default: the scene's own max depth, 12 for built-in scenes)")
     s.add_argument("--indirect", action="store_true",
                    help="compare indirect-only images against an indirect-only reference")
+    _reference_flags(s, "path")
     s.add_argument("--denoise", action="store_true",
                    help="also report every technique as <spec>+denoise: its frames denoised with Intel OIDN (pyoidn; our substitute for the OptiX denoiser "
                         "of the DDGI Resampling paper), fed with albedo and normal AOVs of the primary hits")
@@ -374,6 +413,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
                    help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
+    _reference_flags(s, None)
     s.set_defaults(fn=cmd_reproduce)
 
     s = sub.add_parser("probe-view", help="render a technique's probes as spheres shaded by their irradiance")

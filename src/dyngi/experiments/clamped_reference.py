@@ -16,6 +16,15 @@ out). The sample is ``a_x * min(1, G_max / G(x, y)) * L`` with
 clamp scales it as the VPL shading's ``min(G, G_max)`` does. With ``G_max = inf`` it
 is an unclamped indirect-only estimator (tested against the indirect reference).
 ``G_max`` comes from :func:`dyngi.vpl.shading.clamp_value` (``clamp_distance``).
+
+As a comparison reference (``dyngi compare --indirect --reference clamped``,
+``dyngi reproduce smcir --reference clamped``): :func:`collect_clamped_references`
+renders each frame as two independent halves (their difference estimates the
+reference's noise, as the path-traced references do), cached on disk
+(``$DYNGI_CACHE/clamped/``), and the 8 tracked pixels' per-pixel references with
+the same clamped estimator (:func:`clamped_indirect` with ``pixels``). The clamp is
+the compared VPL techniques' ``clamp_distance`` (:func:`reference_clamp_distance`:
+they must agree).
 """
 from __future__ import annotations
 
@@ -24,19 +33,29 @@ import math
 import numpy as np
 
 from ..backend import dr, mi
+from ..errors import DyngiError
+
+REFERENCES = ("path", "clamped")
+"""Comparison references: the path-traced one (the default) or clamped path tracing (Sec. 5.4)."""
+CLAMPED_FORMAT = 1
 
 
 def clamped_indirect(scene, t: float, res, spp: int, max_depth: int = 5, gmax: float = math.inf,
-                     seed: int = 0, chunk: int = 1 << 20) -> np.ndarray:
-    """H x W x 3 clamped indirect image (module docstring) at time ``t``, ``spp`` samples per pixel."""
+                     seed: int = 0, chunk: int = 1 << 20, pixels=None) -> np.ndarray:
+    """H x W x 3 clamped indirect image (module docstring) at time ``t``, ``spp`` samples per pixel;
+    with ``pixels`` ((n, 2) rows, columns) only those pixels: (n, 3)."""
     from ..sampling.rng import make_sampler, mix_seed
     from ..techniques.path import trace_paths_split
     from ..vpl.points import _surface
 
     scene.at(t)
     mscene = scene.mi_scene
+    from ..vpl.points import aligned
+
     w, h = res
-    npix = w * h
+    flat = None if pixels is None else (np.asarray(pixels, np.int64)[:, 0] * w +
+                                        np.asarray(pixels, np.int64)[:, 1]).astype(np.uint32)
+    npix = w * h if flat is None else len(flat)
     acc = np.zeros((npix, 3), np.float64)
     per = max(1, min(int(spp), chunk // npix))
     done, it = 0, 0
@@ -45,7 +64,10 @@ def clamped_indirect(scene, t: float, res, spp: int, max_depth: int = 5, gmax: f
         k = min(per, int(spp) - done)
         n = npix * k
         sampler = make_sampler(n, mix_seed(seed, int(round(t * 1e6)), 0xC1A), it)
-        pix = dr.arange(mi.UInt32, n) // dr.opaque(mi.UInt32, k)
+        if flat is None:
+            pix = dr.arange(mi.UInt32, n) // dr.opaque(mi.UInt32, k)
+        else:
+            pix = mi.UInt32(aligned(np.repeat(flat, k), np.uint32))
         ray = scene.camera(t).sample_rays(res, pix, sampler.next_2d())
         si, okx, nx, alb = _surface(mscene, ray, mi.Bool(True))
         d = mi.Frame3f(nx).to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
@@ -65,4 +87,105 @@ def clamped_indirect(scene, t: float, res, spp: int, max_depth: int = 5, gmax: f
         acc += arr.reshape(npix, k, 3).sum(axis=1)
         done += k
         it += 1
-    return (acc / max(int(spp), 1)).reshape(h, w, 3).astype(np.float32)
+    out = (acc / max(int(spp), 1)).astype(np.float32)
+    return out if flat is not None else out.reshape(h, w, 3)
+
+
+def check_reference(kind: str, indirect: bool) -> None:
+    """A DyngiError unless ``kind`` is one of :data:`REFERENCES` (``clamped`` needs ``indirect``)."""
+    if kind not in REFERENCES:
+        raise DyngiError(f"unknown reference '{kind}'; valid references: {', '.join(REFERENCES)}")
+    if kind == "clamped" and not indirect:
+        raise DyngiError("--reference clamped is an indirect-only reference (clamped path tracing, SMC-IR "
+                         "Sec. 5.4): add --indirect")
+
+
+def reference_clamp_distance(techs) -> float:
+    """The ``clamp_distance`` of the compared VPL techniques (``techs``: label -> technique); they must
+    agree; with none, the VPL techniques' default."""
+    from ..techniques.vpl_base import COMMON_PARAMS, VPLTechnique
+
+    vals = {lb: float(t.params["clamp_distance"]) for lb, t in techs.items() if isinstance(t, VPLTechnique)}
+    if len(set(vals.values())) > 1:
+        raise DyngiError("--reference clamped needs one clamp_distance for every VPL technique; got "
+                         + ", ".join(f"{lb}: {v:g}" for lb, v in vals.items()))
+    return next(iter(vals.values())) if vals else float(COMMON_PARAMS["clamp_distance"].default)
+
+
+def _cached(kind: str, key: dict, compute, shape):
+    """``compute()``, cached as ``$DYNGI_CACHE/clamped/<hash>.npy`` (a sibling of ``reference/``)."""
+    import hashlib
+    import json
+    import os
+
+    from .reference import default_cache_dir
+
+    key = dict(key, kind=kind, format=CLAMPED_FORMAT, mitsuba=mi.__version__, variant=mi.variant())
+    h = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
+    d = default_cache_dir().parent / "clamped"
+    p = d / f"{kind}-{h}.npy"
+    if p.exists():
+        try:
+            v = np.load(p)
+            if v.shape == tuple(shape):
+                return v.astype(np.float32)
+        except (OSError, ValueError):
+            pass
+    v = np.asarray(compute(), np.float32)
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+        tmp = d / f".{kind}-{h}.{os.getpid()}.npy"
+        np.save(tmp, v)
+        os.replace(tmp, p)
+    except OSError:
+        pass        # an unwritable cache only costs the re-render
+    return v
+
+
+def clamped_reference_halves(scene, t: float, res, spp: int, max_depth: int, gmax: float):
+    """(image, noise): the clamped reference of ``spp`` samples as two independent cached halves."""
+    from .reference import combine_halves, half_spp
+
+    n1, n2 = half_spp(spp)
+    w, h = res
+    base = {"state": scene.state_hash(float(t)), "res": [int(w), int(h)], "max_depth": int(max_depth),
+            "gmax": float(min(gmax, 3.0e38))}
+    a, b = (_cached("image", dict(base, spp=n, seed=sd),
+                    lambda n=n, sd=sd: clamped_indirect(scene, t, res, n, max_depth, gmax, seed=sd), (h, w, 3))
+            for n, sd in ((n1, 0), (n2, 1)))
+    img, noise = combine_halves(a, b, n1, n2)
+    noise.update(spp=int(spp), halves=[n1, n2], clamped=True)
+    return img.astype(np.float32), noise
+
+
+def collect_clamped_references(scene, frames: int, res, spp: int, max_depth: int, gmax: float, bar=None,
+                               tracked_spp: int | None = None):
+    """As :func:`dyngi.experiments.evaluate.collect_references`, with clamped path tracing: (references,
+    noise dicts); the tracked pixels' values from :func:`clamped_indirect` at those pixels, ``tracked_spp``
+    samples (default 16x ``spp`` as the path-traced tracked reference; 0: the image's values stand in)."""
+    from ..metrics.temporal import pick_tracked_pixels
+    from .evaluate import ReferenceList
+    from .tracked import TRACKED_SPP_FACTOR, TRACKED_SPP_MAX
+
+    refs, noise = ReferenceList(), []
+    for i in range(frames):
+        img, nz = clamped_reference_halves(scene, scene.frame_time(i), res, spp, max_depth, gmax)
+        refs.append(img)
+        noise.append(nz)
+        if bar is not None:
+            bar.update(1)
+    if refs:
+        pix = pick_tracked_pixels(refs[0])
+        tspp = min(TRACKED_SPP_MAX, TRACKED_SPP_FACTOR * int(spp)) if tracked_spp is None else int(tracked_spp)
+        if tspp > 0:
+            vals = np.stack([_cached("tracked", {"state": scene.state_hash(float(scene.frame_time(i))),
+                                                 "res": list(map(int, res)), "pixels": pix.tolist(),
+                                                 "spp": tspp, "max_depth": int(max_depth),
+                                                 "gmax": float(min(gmax, 3.0e38))},
+                                     lambda i=i: clamped_indirect(scene, scene.frame_time(i), res, tspp, max_depth,
+                                                                  gmax, seed=0x7AC4, pixels=pix), (len(pix), 3))
+                             for i in range(frames)])
+        else:
+            vals = np.stack([r[pix[:, 0], pix[:, 1]] for r in refs])
+        refs.tracked = {"pixels": pix, "values": vals, "spp": tspp if tspp > 0 else int(spp)}
+    return refs, noise

@@ -82,7 +82,8 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
                 budget: str = "equal-frames", seed: int = 0, ref_spp: int | None = None, quiet: bool = False,
                 params: dict | None = None, grid_frames: list[int] | None = None,
                 metrics: list[str] | None = None, ref_depth: int | None = None, indirect: bool = False,
-                scene=None, denoise: bool = False) -> str:
+                scene=None, denoise: bool = False, reference: str = "path", untextured: bool = False,
+                tracked: bool = True) -> str:
     """Run the comparison and write the outputs described in the module docstring; return ``out_dir``.
 
     ``techniques``: specs ``NAME[:KEY=VALUE...]``. ``metrics``: names from :data:`dyngi.metrics.METRICS`
@@ -92,11 +93,15 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
     ``indirect``: compare the techniques' indirect-only images (``FrameResult.indirect``) against an
     indirect-only reference. ``scene``: an already loaded Scene instead of ``scene_name``.
     ``denoise``: also report every technique denoised by Intel OIDN (label ``<spec>+denoise``; see
-    :func:`add_denoised`).
+    :func:`add_denoised`). ``reference``: ``'path'`` (default) or ``'clamped'`` (clamped path tracing,
+    SMC-IR Sec. 5.4, indirect only: :mod:`~dyngi.experiments.clamped_reference`). ``untextured``: every
+    texture replaced by its mean colour for the techniques and the reference (SMC-IR Sec. 5,
+    :mod:`dyngi.scene.untextured`). ``tracked=False``: no per-pixel reference for the 8 tracked pixels
+    (the image reference's values stand in).
     """
     res = tuple(res)
     run = prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, metrics, ref_depth,
-                  indirect, scene)
+                  indirect, scene, reference=reference, untextured=untextured, tracked=tracked)
     run["denoise"] = [lb for lb in run["labels"] if denoise or run["specs"][lb].denoise]
     if run["denoise"]:
         from .denoise import require
@@ -109,8 +114,9 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
 
 
 def prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, metrics, ref_depth, indirect,
-            scene=None) -> dict:
+            scene=None, reference: str = "path", untextured: bool = False, tracked: bool = True) -> dict:
     """Validate everything before any work; load the scene and create the techniques."""
+    from .clamped_reference import check_reference, reference_clamp_distance
     from .reference import DEFAULT_REF_SPP, half_spp, scene_max_depth
 
     names = check_metric_names(metrics)
@@ -127,12 +133,18 @@ def prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, me
         indirect_reference_fn()
         if ref_depth is not None and 1 <= ref_depth <= 2:
             raise DyngiError(f"--indirect needs --ref-depth > 2 (or -1): depth {ref_depth} has no indirect light")
+    check_reference(reference, indirect)
     check_writable(out_dir)
     per_tech = split_params(specs, params or {})
     scene = scene if scene is not None else load_scene(scene_name)
+    if untextured:
+        from ..scene.untextured import make_untextured
+        make_untextured(scene)
     techs = {s.label: create_technique(s.name, scene, per_tech[s.label]) for s in specs}
     warnings = _check_indirect(scene, techs, specs) if indirect else []
-    return {"scene": scene, "specs": {s.label: s for s in specs}, "labels": [s.label for s in specs],
+    clamp = reference_clamp_distance(techs) if reference == "clamped" else None
+    return {"reference": reference, "ref_clamp_distance": clamp, "untextured": bool(untextured),
+            "tracked": bool(tracked),"scene": scene, "specs": {s.label: s for s in specs}, "labels": [s.label for s in specs],
             "techs": techs, "names": names, "budget": budget, "frames": frames, "ref_spp": spp,
             "ref_depth": scene_max_depth(scene) if ref_depth is None else ref_depth, "indirect": indirect,
             "out_dir": os.path.abspath(out_dir), "warnings": warnings}
@@ -182,7 +194,15 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
         bar = tqdm(total=frames * (len(labels) + 1), desc=f"compare on {scene.name}", unit="frame",
                    file=sys.stderr)
     # -- ground truth (cached), with its own noise --
-    refs, noise = collect_references(scene, frames, res, run["ref_spp"], run["ref_depth"], run["indirect"], bar)
+    tracked_spp = None if run.get("tracked", True) else 0
+    if run.get("reference", "path") == "clamped":
+        from ..vpl.shading import clamp_value
+        from .clamped_reference import collect_clamped_references
+        refs, noise = collect_clamped_references(scene, frames, res, run["ref_spp"], run["ref_depth"],
+                                                 clamp_value(scene, run["ref_clamp_distance"]), bar, tracked_spp)
+    else:
+        refs, noise = collect_references(scene, frames, res, run["ref_spp"], run["ref_depth"], run["indirect"],
+                                         bar, tracked_spp=tracked_spp)
     # -- every technique; the first sets the budget --
     results, first = {}, None
     for label in labels:
@@ -212,6 +232,12 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
     ctx = {"frames": frames, "res": tuple(res), "budget": budget, "seed": seed, "ref_spp": run["ref_spp"],
            "ref_depth": run["ref_depth"], "indirect": run["indirect"], "ref_noise": summarize_noise(noise),
            "accounting": accounting, "warnings": warnings, "notes": []}
+    if run.get("reference", "path") == "clamped":
+        ctx["notes"].append(f"Reference: clamped path tracing (SMC-IR Sec. 5.4), geometry term from the primary "
+                            f"hits clamped at clamp_distance {run['ref_clamp_distance']:g} of the scene diagonal.")
+    if run.get("untextured"):
+        ctx["notes"].append("Untextured: every texture replaced by its mean colour (SMC-IR Sec. 5), for the "
+                            "techniques and the reference.")
     if run.get("denoise"):
         ctx["notes"].append(f"Denoised rows ({DENOISED_SUFFIX}): Intel Open Image Denoise (pyoidn), our substitute "
                             "for the OptiX denoiser of the DDGI Resampling paper, fed with albedo and normal AOVs "

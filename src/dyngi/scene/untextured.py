@@ -7,7 +7,8 @@ path traced reference images use the same approximation.").
 colour over the texels, so the techniques and the reference then see the same
 constant-albedo materials. Our choice: the plain texel mean (the texture's mean over
 its uv area, not over the surface area it covers). Built-in scenes have no textures:
-for them the mode changes nothing. Returns the number of textures replaced.
+for them the mode changes nothing. Returns the number of textures replaced. The scene's
+content hash is recomputed, so cached references of the textured scene are not reused.
 """
 from __future__ import annotations
 
@@ -33,6 +34,8 @@ def make_untextured(scene) -> int:
         n += 1
     if n:
         params.update()
+        if hasattr(scene, "_base_hash"):
+            scene._base_hash = None         # the content changed: cached references must not match
         if hasattr(scene, "params"):
             scene.params = mi.traverse(mscene)
             for an in getattr(scene, "animators", []):

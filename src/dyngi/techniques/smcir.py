@@ -20,6 +20,20 @@ and replaces at most ``M_max`` of them per frame. Algorithm 1, per frame:
 6. radiosity (per-VPL seeds) and density (k of Eq. 8 among the VPLs) of all VPLs
    re-estimated (lines 18-19); render (:mod:`dyngi.techniques.vpl_base`).
 
+Line 18, independent re-estimate (our reading, ``reestimate='independent'``, the default): the
+selection (lines 7-16) compares each VPL's estimate from stream 0 of its seed (``sel_radiosity``);
+the radiosity used for rendering is a *second* estimate from stream 1 of the same seed
+(:func:`dyngi.vpl.radiosity.stream_seeds`). Sec. 3.2.3 asks that "the path tracer generates similar
+paths for the same VPL throughout the lifetime of the VPL" (no flicker): both streams are fixed per
+VPL, so that holds; and Sec. 3.1 says Eq. 5 is unbiased "given unbiased estimates for the radiosities",
+which an estimate that was *selected* for being large is not (replacement keeps the highest candidate
+intensities and drops the lowest VPLs, a winner's curse). The paper's text does not say whether line 18
+re-uses the selection's random numbers; "the intensities are reestimated for the remaining VPLs"
+(Sec. 3.2) reads as a fresh estimate. Cost: the <= M_max new VPLs get one extra 16-path estimate per
+frame; when the lighting changes, line 18 traces both streams (2x its rays; the paper's cost:
+``reestimate='same-seed'``, one estimate for both, the pre-fix behaviour). Tested by a synthetic
+winner's curse (tests/test_smcir_reestimate.py).
+
 Initialisation: the first I candidates, then ``warmup`` (100) iterations before the first
 frame (Sec. 3.2). Radiosity paths have ``max_depth - 1`` vertices from the VPL: with the
 default ``max_depth = 5`` three bounces of indirect light in all (Sec. 5).
@@ -39,21 +53,34 @@ radiosity_spp : int = 16        paths per VPL radiosity estimate (Sec. 3.2.3)
 warmup : int = 100              iterations before the first frame (Sec. 3.2)
 quantile : float = 0.95         the M_strong threshold of Eq. 9
 density_k : int = 0             k of the rendering density (line 19); 0: Eq. 8 (k = 1 for I <= 4095)
+reestimate : str = 'independent' line 18's rendering radiosity: stream 1 of the VPL's seed, or
+                                'same-seed' (the selection's own estimate)
 
 Bias (Sec. 3.3): kNN densities make the estimate biased but consistent; clamping removes
 near-field interreflections; ray-traced visibility replaces the paper's shadow maps. Measured
-(cornell-static, exhaustive shading, against the clamped path-tracing reference of
-:mod:`dyngi.experiments.clamped_reference`): Eq. 8's k = 1 over-estimates the indirect light once
-the replacements have made the VPL set blue-noise-like (k = 1 nearest-neighbour areas ``pi r_1^2``
-exceed the VPLs' true share of the surface): mean ratio 1.41 at 2048 VPLs after 20 warm-up
-iterations (1.48 after 100); ``density_k = 16``: 1.12 at 2048, 1.01 at 8192; the initial
-candidate set alone (no replacements) is within 1-5% in the furnace. The default stays Eq. 8.
-A second, compounding bias: replacement keeps the highest-intensity candidates and drops the lowest
-VPLs, *selected on their own 16-sample radiosity estimates*, which per-VPL seeds then keep fixed
-for the VPL's life: survivors carry over-estimated radiosities (a winner's curse), worst with small
-bright lights. Measured on corridor-walk frame 0 (48x27, exhaustive, 30 warm-up iterations, vs the
-clamped reference): mean ratio 1.52 (defaults); radiosity_spp=256: 1.34; density_k=16: 1.32; both:
-1.07; no replacements (warmup=0, max_moves=0): 1.08. (mir: 0.99, ir: 0.84.)
+(exhaustive shading, 2048 VPLs, mean indirect / the clamped path-tracing reference of
+:mod:`dyngi.experiments.clamped_reference` with the same clamp, 1024 spp; mean of 3 seeds;
+/tmp/figs/smcir.md):
+
+=====================================  ==========================  ==========================
+variant                                cornell-static 48x36, 100   corridor-walk f0 48x27, 30
+                                       warm-up iterations          warm-up iterations
+=====================================  ==========================  ==========================
+``reestimate=same-seed`` (before)      1.45                        1.56
+defaults (independent re-estimate)     1.42                        1.34
+defaults, ``density_k=16``             1.08                        0.98
+defaults, ``radiosity_spp=256``        1.39                        1.24
+no replacements (warmup=0, M_max=0)    1.03                        1.12
+mir / ir (same clamp)                  1.00 / 0.99                 0.99 / 0.83
+=====================================  ==========================  ==========================
+
+What remains is Eq. 8's k = 1 for the rendering density (line 19): once the replacements (whose
+candidate density is k = 1 against the current VPLs, Sec. 3.2.4, "encourages blue-noise properties")
+have made the VPL set blue-noise-like, nearest-neighbour areas ``pi r_1^2`` exceed each VPL's true
+share of the surface (for a Poisson set E[pi r_1^2 I p] = 1 exactly; for a hexagonal packing it is
+2 pi / sqrt(3) = 3.6), so 1/p and the indirect light are over-estimated by ~1.3-1.4x. The default
+stays Eq. 8 (the paper's k = max(1, floor(sqrt(I)/32)) = 1 for I = 2048 and 512); ``density_k=16``
+removes most of it (also run by ``dyngi reproduce smcir``).
 """
 from __future__ import annotations
 
@@ -62,13 +89,14 @@ import numpy as np
 from ..sampling.rng import mix_seed
 from ..vpl.density import knn_density, knn_k
 from ..vpl.points import camera_sees, raw_candidates, segment_clear
-from ..vpl.radiosity import estimate_radiosity
+from ..vpl.radiosity import RENDER_STREAM, estimate_radiosity, stream_seeds
 from ..vpl.smc import clamp_size, grow_invalid, m_min, resample_without_replacement
 from ..vpl.store import LUMINANCE, VPLStore
 from .base import Frame, Param, StageTimer, register
 from .vpl_base import COMMON_PARAMS, VPLTechnique
 
 _S_CAND, _S_RESAMPLE, _S_SEEDS, _S_VALID = 0x5C1, 0x5C2, 0x5C3, 0x5C4
+REESTIMATE_MODES = ("independent", "same-seed")
 WARMUP_FRAME_BASE = 1 << 30
 """Frame keys of the warm-up iterations' random streams (beyond any real frame index)."""
 
@@ -92,6 +120,9 @@ class SMCIR(VPLTechnique):
         "warmup": Param(100, "algorithm iterations before the first frame", min=0, max=10000),
         "density_k": Param(0, "k of the rendering density (Eq. 7); 0: Eq. 8, max(1, floor(sqrt(I)/32))",
                            min=0, max=256),
+        "reestimate": Param("independent", "line 18's radiosity for rendering: a second per-VPL seed stream, "
+                            "independent of the estimate selection saw, or the same seed (no second estimate)",
+                            choices=REESTIMATE_MODES),
         "quantile": Param(0.95, "M_strong threshold: candidates above this quantile of the VPL intensities",
                           min=0.0, max=1.0),
     }
@@ -114,6 +145,7 @@ class SMCIR(VPLTechnique):
         return np.random.default_rng(mix_seed(seed, key, stream))
 
     def _radiosity(self, pos, nrm, seeds):
+        """Radiosity estimates (``radiosity_spp`` paths, ``max_depth - 1`` vertices) with these seeds."""
         return estimate_radiosity(self.scene.mi_scene, pos, nrm, seeds, self.params["radiosity_spp"],
                                   int(self.params["max_depth"]) - 1)
 
@@ -179,17 +211,37 @@ class SMCIR(VPLTechnique):
         return st.used & ~valid
 
     def _reestimate(self, frame: Frame, t: StageTimer, new_slots: np.ndarray):
-        """Lines 18-19: radiosity (survivors keep theirs while the lighting is static) and density."""
+        """Lines 18-19: radiosity (survivors keep theirs while the lighting is static) and density.
+
+        ``reestimate='independent'``: the rendering radiosity comes from stream 1 of each VPL's seed
+        (:func:`~dyngi.vpl.radiosity.stream_seeds`), the selection radiosity (``sel_radiosity``, what
+        lines 7-16 compare) from stream 0; when the lighting changes both are re-estimated (one kernel,
+        twice the lanes of the paper's line 18). ``'same-seed'``: one estimate serves both."""
         st = self.store
         sig = lighting_signature(self.scene, frame.time)
         redo = st.used.copy() if sig != self._light_sig else np.zeros(st.capacity, bool)
         redo[new_slots] = False          # new VPLs carry their candidate estimate (same seed, same scene)
         self._light_sig = sig
         idx = np.flatnonzero(redo)
+        indep = self.params["reestimate"] == "independent"
         with t.stage("radiosity"):
-            if len(idx):
-                st.radiosity[idx], r = self._radiosity(st.pos[idx], st.nrm[idx], st.seed[idx])
-                t.add_rays("radiosity", r)
+            if indep:
+                # survivors under changed lighting: both streams; new VPLs: the rendering stream only
+                new = np.asarray(new_slots, np.int64)
+                both = np.concatenate([idx, idx, new])
+                seeds = np.concatenate([st.seed[idx], stream_seeds(st.seed[idx], RENDER_STREAM),
+                                        stream_seeds(st.seed[new], RENDER_STREAM)])
+                if len(both):
+                    L, r = self._radiosity(st.pos[both], st.nrm[both], seeds)
+                    t.add_rays("radiosity", r)
+                    st.sel_radiosity[idx] = L[:len(idx)]
+                    st.radiosity[idx] = L[len(idx):2 * len(idx)]
+                    st.radiosity[new] = L[2 * len(idx):]
+            else:
+                if len(idx):
+                    st.sel_radiosity[idx], r = self._radiosity(st.pos[idx], st.nrm[idx], st.seed[idx])
+                    t.add_rays("radiosity", r)
+                st.radiosity[st.used] = st.sel_radiosity[st.used]
         with t.stage("knn"):
             used = np.flatnonzero(st.used)
             k = self.params["density_k"] or knn_k(self.budget)
@@ -222,8 +274,8 @@ class SMCIR(VPLTechnique):
             slots = free[: len(order)]
             if len(slots):
                 st.put(slots, pos=cand["pos"][order], nrm=cand["nrm"][order], albedo=cand["albedo"][order],
-                       radiosity=cand["radiosity"][order], mailbox=cand["mailbox"][order],
-                       mailbox_n=cand["mailbox_n"][order], seed=cand["seed"][order])
+                       sel_radiosity=cand["radiosity"][order], radiosity=cand["radiosity"][order],
+                       mailbox=cand["mailbox"][order], mailbox_n=cand["mailbox_n"][order], seed=cand["seed"][order])
         self._reestimate(frame, t, slots)
         return {"invalid": n_invalid, "m_min": mm, "replaced": int(len(slots)), "candidates": n_c}
 

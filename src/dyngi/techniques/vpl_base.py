@@ -15,7 +15,8 @@ vpls : int = 0          VPL budget I; 0: the scene's (512 for ``maze``, else 204
 max_depth : int = 5     path vertices, Mitsuba's count (camera hit x = 1): 5 = three bounces of
                         indirect light (Sec. 5); 2 = direct light only, 3 = one bounce
 shading : str = 'interleaved'  'interleaved' (4x4 tiles + cross-bilateral filter) or 'exhaustive'
-clamp_distance : float = 0.05  geometry-term clamp G_max = 1 / (c * diagonal)^2 (0: no clamp)
+clamp_distance : float = 0.05  geometry-term clamp G_max = 1 / (c * diagonal)^2 (0: no clamp), the same
+                               for every budget (the rule: :mod:`dyngi.vpl.shading`)
 direct_samples : int = 1       NEE samples per pixel for the direct light
 """
 from __future__ import annotations

@@ -10,6 +10,11 @@ subtracted exactly. The random numbers of sample ``s`` of a VPL come from
 ``PCG32(initstate=seed, initseq=s)``: the estimate depends only on the VPL's seed
 and the scene, so a VPL's radiosity does not flicker while it lives and a static
 scene's VPLs are bit-stable across frames.
+
+:func:`stream_seeds` derives further fixed per-VPL seeds from a VPL's seed (our
+choice): ``smcir`` selects VPLs on the estimate of stream 0 (the seed itself) and
+renders with an estimate of stream 1 (Algorithm 1, line 18), statistically
+independent of the one the selection saw, still fixed for the VPL's life.
 """
 from __future__ import annotations
 
@@ -34,6 +39,24 @@ class PCGSampler:
 
     def next_2d(self, active=True):
         return mi.Point2f(self.rng.next_float32(), self.rng.next_float32())
+
+
+RENDER_STREAM = 1
+"""Stream of the rendering estimate (line 18) in :func:`stream_seeds`; stream 0 is the seed itself."""
+
+
+def stream_seeds(seeds: np.ndarray, stream: int) -> np.ndarray:
+    """Per-VPL seeds of random stream ``stream`` (0: ``seeds`` unchanged): a splitmix64 finaliser of
+    ``seed + stream * golden``, elementwise on uint64 (deterministic, fixed per VPL; our choice)."""
+    s = np.asarray(seeds, np.uint64)
+    if int(stream) == 0:
+        return s.copy()
+    with np.errstate(over="ignore"):
+        x = s + np.uint64((int(stream) * 0x9E3779B97F4A7C15) & ((1 << 64) - 1))
+        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        x = x ^ (x >> np.uint64(31))
+    return x >> np.uint64(2)          # 62 bits, as the seeds smcir draws
 
 
 def per_lane_sampler(seeds: np.ndarray, spp: int) -> PCGSampler:

@@ -6,7 +6,11 @@ from), diffuse ``albedo``, ``radiosity`` L(y) (outgoing radiance of the diffuse
 surface, RGB: light reflected at least once, never its own emission), surface
 ``density`` p(y) (per unit area, Eq. 7) and a ``mailbox`` point (with its normal)
 that both the camera and the VPL saw (Sec. 3.2.2), and a per-VPL ``seed`` for its
-radiosity estimate (Sec. 3.2.3). Its *intensity* is I(y) = lum(L(y)) / p(y) (Eq. 6).
+radiosity estimate (Sec. 3.2.3). ``sel_radiosity`` is the estimate the selection
+steps see (Algorithm 1, lines 7, 9-16: stream 0 of the seed); ``radiosity`` the
+one shading uses (line 18: ``smcir`` traces it with an independent stream,
+:func:`dyngi.vpl.radiosity.stream_seeds`, so that the selection does not bias it).
+Its *intensity* is I(y) = lum(L_sel(y)) / p(y) (Eq. 6).
 
 Shading sums ``flux_i * G * V`` with ``flux_i = L_i / (I p_i)`` (Eq. 5 with the
 camera path fixed at the primary hit; :mod:`dyngi.vpl.shading`). Techniques that
@@ -35,11 +39,15 @@ class VPLStore:
     mailbox_n: np.ndarray = field(default=None)
     seed: np.ndarray = field(default=None)
     used: np.ndarray = field(default=None)
+    sel_radiosity: np.ndarray = field(default=None)
+
+    FIELDS = ("pos", "nrm", "albedo", "radiosity", "density", "mailbox", "mailbox_n", "seed", "used",
+              "sel_radiosity")
 
     def __post_init__(self):
         c = int(self.capacity)
         z3 = lambda: np.zeros((c, 3), np.float32)  # noqa: E731
-        for k in ("pos", "nrm", "albedo", "radiosity", "mailbox", "mailbox_n"):
+        for k in ("pos", "nrm", "albedo", "radiosity", "mailbox", "mailbox_n", "sel_radiosity"):
             if getattr(self, k) is None:
                 setattr(self, k, z3())
         if self.density is None:
@@ -54,8 +62,8 @@ class VPLStore:
         return int(self.used.sum())
 
     def intensity(self) -> np.ndarray:
-        """I(y) = lum(L(y)) / p(y) (Eq. 6); 0 for empty slots."""
-        lum = self.radiosity.astype(np.float64) @ LUMINANCE
+        """I(y) = lum(L_sel(y)) / p(y) (Eq. 6) with the selection estimate; 0 for empty slots."""
+        lum = self.sel_radiosity.astype(np.float64) @ LUMINANCE
         return np.where(self.used, lum / np.maximum(self.density, 1e-30), 0.0)
 
     def flux(self, budget: int | None = None) -> np.ndarray:
@@ -73,8 +81,7 @@ class VPLStore:
     def clear(self, slots: np.ndarray) -> None:
         self.used[slots] = False
         self.radiosity[slots] = 0.0
+        self.sel_radiosity[slots] = 0.0
 
     def copy(self) -> "VPLStore":
-        return VPLStore(self.capacity, *(getattr(self, k).copy() for k in
-                                         ("pos", "nrm", "albedo", "radiosity", "density", "mailbox",
-                                          "mailbox_n", "seed", "used")))
+        return VPLStore(self.capacity, **{k: getattr(self, k).copy() for k in self.FIELDS})

@@ -1,0 +1,107 @@
+"""CLI exposure of SMC-IR's measurement options (Sec. 5, 5.2, 5.4): ``--reference clamped``,
+``--untextured``, ``--no-tracked`` on ``dyngi compare`` and ``dyngi reproduce smcir``."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dyngi.cli import build_parser, main
+
+TINY = ["--frames", "1", "--res", "16x12", "--ref-spp", "8", "--metrics", "mse", "--ref-depth", "5"]
+TECH = "smcir:vpls=48:warmup=1:radiosity_spp=2"
+
+
+def test_flags_parse():
+    a = build_parser().parse_args(["compare", "maze", "--techniques", "smcir", "--out", "x", "--indirect",
+                                   "--reference", "clamped", "--untextured", "--no-tracked"])
+    assert (a.reference, a.untextured, a.no_tracked) == ("clamped", True, True)
+    a = build_parser().parse_args(["compare", "maze", "--techniques", "smcir", "--out", "x"])
+    assert (a.reference, a.untextured, a.no_tracked) == ("path", False, False)
+    a = build_parser().parse_args(["reproduce", "smcir", "--reference", "clamped", "--no-tracked"])
+    assert (a.reference, a.untextured, a.no_tracked) == ("clamped", False, True)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["compare", "cornell-static", "--techniques", "smcir", "--indirect", "--reference", "bogus"],
+     "unknown reference 'bogus'; valid references: path, clamped"),
+    (["compare", "cornell-static", "--techniques", "smcir", "--reference", "clamped"],
+     "--reference clamped is an indirect-only reference"),
+    (["compare", "cornell-static", "--techniques", "smcir,ir:clamp_distance=0.1", "--indirect",
+      "--reference", "clamped"], "needs one clamp_distance for every VPL technique"),
+    (["reproduce", "ddgi", "--quick", "--reference", "clamped"], "experiment 'ddgi' takes no --reference"),
+    (["reproduce", "smcir", "--quick", "--reference", "bogus"], "unknown reference 'bogus'"),
+])
+def test_bad_values_give_one_clear_error(backend, tmp_path, capsys, argv, message):
+    out = ["--out", str(tmp_path / "o")]
+    assert main(argv + out) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("dyngi: error: ") and message in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def _summary(out):
+    return json.load(open(out / "summary.json"))["techniques"]
+
+
+def test_clamped_reference_and_no_tracked_reach_the_reference(backend, tmp_path, monkeypatch):
+    """``--reference clamped`` renders the clamped reference with the technique's clamp (G_max of its
+    clamp_distance) and its tracked pixels with 16x the samples; ``--no-tracked`` leaves the tracked pixels
+    to the image reference (tracked_spp = ref spp); the clamped image is darker than the unclamped one."""
+    import dyngi.experiments.clamped_reference as cr
+    from dyngi.scene import load_scene
+    from dyngi.vpl.shading import clamp_value
+
+    monkeypatch.setenv("DYNGI_CACHE", str(tmp_path / "cache"))
+    calls = []
+    real = cr.collect_clamped_references
+
+    def spy(scene, frames, res, spp, max_depth, gmax, bar=None, tracked_spp=None):
+        calls.append((gmax, tracked_spp, max_depth))
+        r = real(scene, frames, res, spp, max_depth, gmax, bar, tracked_spp)
+        calls.append(r[0][0])
+        return r
+
+    monkeypatch.setattr(cr, "collect_clamped_references", spy)
+    base = ["compare", "cornell-static", "--techniques", TECH + ":clamp_distance=0.2", "--indirect"] + TINY
+    assert main(base + ["--reference", "clamped", "--out", str(tmp_path / "c")]) == 0
+    gmax = clamp_value(load_scene("cornell-static"), 0.2)
+    assert calls[0] == (gmax, None, 5)
+    s = _summary(tmp_path / "c")[TECH + ":clamp_distance=0.2"]
+    assert s["tracked_spp"] == 16 * 8 and np.isfinite(s["E_tracked"])
+    assert main(base + ["--reference", "clamped", "--no-tracked", "--out", str(tmp_path / "n")]) == 0
+    assert calls[2] == (gmax, 0, 5)
+    assert _summary(tmp_path / "n")[TECH + ":clamp_distance=0.2"]["tracked_spp"] == 8
+    assert main(base + ["--no-tracked", "--out", str(tmp_path / "p")]) == 0       # the path reference
+    assert len(calls) == 4 and _summary(tmp_path / "p")[TECH + ":clamp_distance=0.2"]["tracked_spp"] == 8
+    sc = load_scene("cornell-static")
+    free = cr.clamped_indirect(sc, 0.0, (16, 12), 64, 5)
+    assert calls[1].mean() < 0.97 * free.mean()        # the clamp removed energy: it is the clamped one
+
+
+def test_untextured_reaches_the_scene(backend, tmp_path, monkeypatch):
+    import dyngi.scene.untextured as ut
+
+    monkeypatch.setenv("DYNGI_CACHE", str(tmp_path / "cache"))
+    seen = []
+    real = ut.make_untextured
+    monkeypatch.setattr(ut, "make_untextured", lambda s: seen.append(s.name) or real(s))
+    argv = ["compare", "cornell-static", "--techniques", TECH, "--indirect", "--untextured"] + TINY
+    assert main(argv + ["--out", str(tmp_path / "u")]) == 0
+    assert seen == ["cornell-static"]
+
+
+def test_untextured_scene_gets_a_new_content_hash(backend):
+    """Cached references of the textured scene must not be reused for the untextured one."""
+    from dyngi.backend import mi
+    from dyngi.scene.core import Scene
+    from dyngi.scene.untextured import make_untextured
+
+    tex = np.random.default_rng(3).random((4, 4, 3)).astype(np.float32)
+    ms = mi.load_dict({"type": "scene", "r": {"type": "rectangle", "bsdf": {
+        "type": "diffuse", "reflectance": {"type": "bitmap", "bitmap": mi.Bitmap(tex), "raw": True}}}})
+    sc = Scene("textured", ms, None)
+    before = sc.content_hash()
+    assert make_untextured(sc) == 1
+    assert sc.content_hash() != before
