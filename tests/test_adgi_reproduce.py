@@ -1,6 +1,6 @@
 """``dyngi reproduce adgi`` (issue 12 item 8): its pieces (recovery criterion, the equal-rays protocol) and,
 slow, an end-to-end run on a micro configuration that checks the files and that the paper's figures are
-quoted beside ours."""
+quoted beside ours (Figs. 7-10, Table 4; Fig. 10's glossy-floor with both techniques' glossy probe lookup)."""
 import json
 import os
 
@@ -74,15 +74,19 @@ def test_reproduce_adgi_micro_run(rep, tmp_path, monkeypatch):
     out = run_experiment("adgi", str(tmp_path / "adgi"), quick=True)
     md = open(os.path.join(out, "summary.md")).read()
     for s in ("0.920/0.005", "0.868/0.012", "4.01 + 2.23 + 4.73 = 11.0", "adgi@equal-rays", "probes-reference",
-              "Fig. 10"):
+              "Fig. 10", "0.996/0.017", "4.83 + 2.11 + 4.33 = 11.27", "adgi:glossy=true", "qddgi:glossy=true"):
         assert s in md, s
     pj = json.load(open(os.path.join(out, "paper.json")))
-    assert len(pj["rows"]) == 4 + 3 + 4 + 6
+    assert len(pj["rows"]) == 4 + 3 + 4 + 6 + (3 + 1 + 3)      # + glossy-floor (Fig. 10): 3 marks, means, Table 4
+    gl = pj["glossy"]["figures"]
+    assert set(gl) == {"adgi", "qddgi"}
+    assert all(np.isfinite(m["ssim"]) for f in gl.values() for m in f["at"])
     sj = json.load(open(os.path.join(out, "summary.json")))
     assert sj["techniques"] and not any(v["failed"] for v in sj["techniques"].values())
     n_tunnel = int(round(rep.GATE_END / cfg["dt"])) + 1 + cfg["hold"]
     assert sum(1 for _ in open(os.path.join(out, "tunnel.csv"))) == 1 + n_tunnel
     assert os.path.exists(os.path.join(out, "plots", "tunnel_error.png"))
+    assert "glossy-floor/adgi" in sj["techniques"]
     rec = pj["tunnel"]["figures"]
     assert set(rec) == {"adgi", "adgi@equal-rays", "qddgi", "probes-reference"}
     assert all(np.isfinite(v["steady_relmse"]) for v in rec.values())

@@ -232,7 +232,7 @@ def plus_params():
     """
     from ..techniques.base import Param
     from ..techniques.ddgi import DDGITechnique
-    skip = ("jitter", "direct_samples", "encoding")
+    skip = ("jitter", "direct_samples", "encoding", "glossy")
     out = {k: v for k, v in DDGITechnique.PARAMS.items() if k not in skip}
     out.update({
         "emission_attenuation": Param(DEFAULT_ATTENUATION, "DDGI+ emission heuristic (Sec. 3.3): 'ratio' "

@@ -9,6 +9,24 @@ and the probes' irradiance times the diffuse lobe's albedo
 part of DDGI). NEE evaluates the full BSDF (``bsdf.eval``): direct light on a
 metal is its true glossy reflection.
 
+Glossy indirect light (``glossy=True``; the probe techniques' ``glossy`` parameter, default off):
+the primary vertex adds DDGI Resampling's Eq. 6 glossy term (Majercik et al. 2022, Sec. 3.4;
+:mod:`dyngi.probes.glossy`) to the indirect part, one sample of the BSDF's glossy lobes and the
+probe irradiance read along the sampled direction, over pi (the normalisation settled by
+``tests/test_ddgi_plus.py::test_glossy_furnace_pi_normalisation``):
+
+``L += T * E(x, wi) / pi * f_g(wo, wi) cos(n, wi) / p(wi)``.
+
+Only the *rough* lobes are sampled (:data:`PRIMARY_GLOSSY_LOBES`: glossy reflection and
+transmission), not the delta ones (our choice, unlike :data:`dyngi.probes.glossy.GLOSSY_LOBES`): a
+mirror or a smooth dielectric keeps today's handling (a mirror's indirect light is black, clear glass
+is passed through), since an 8x8 cosine-prefiltered texel read along a mirror direction is a blur, not
+a reflection; and a BSDF with a delta and a rough lobe (a coated conductor) does not lose the rough
+lobe's share to the delta one. The sample's numbers come from the primary sampler after the NEE
+draws (one 1D + one 2D draw per pixel), so ``glossy=False`` draws nothing more and its image is
+bit-identical to the diffuse-only shading. ``volume_query.irradiance`` must accept ``direction=``
+(:class:`~dyngi.probes.query.ProbeQuery` does).
+
 Surfaces face the camera by :func:`~dyngi.probes.trace.shading_side` (the back of a
 ``twosided`` surface is shaded like its front, as Mitsuba shades it).
 
@@ -26,12 +44,19 @@ from ..sampling.diffuse import diffuse_albedo
 from ..sampling.lights import sample_traced
 from ..sampling.passthrough import intersect_through_glass, scene_has_glass
 from ..sampling.rng import make_sampler
+from .glossy import GLOSSY_NORMALISATION
 from .trace import light_routing, shading_side
+
+PRIMARY_GLOSSY_LOBES = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.GlossyTransmission
+"""The lobes the primary vertex's glossy term samples: the rough ones, not delta (module docstring)."""
 
 
 def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direct: str, jitter: bool,
-                  lights=None, direct_samples: int = 1):
+                  lights=None, direct_samples: int = 1, glossy: bool = False):
     """Primary-vertex shading (the consumer): emission + NEE direct + albedo/pi * probe irradiance.
+
+    ``glossy``: also Eq. 6's glossy probe lookup at the primary vertex (module docstring), added to the
+    indirect part; False (default) is the diffuse-only shading, bit for bit.
 
     Direct light: ``direct_samples`` NEE samples per pixel over the light the
     probes do not carry (:func:`dyngi.probes.trace.nee_lights`), unless a
@@ -83,6 +108,8 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     albedo = diffuse_albedo(bsdf, si, front)
     E = volume_query.irradiance(si.p, n_side, -ray.d, active=front)
     ind = dr.select(front, albedo * dr.inv_pi * E, 0.0)
+    if glossy:
+        ind += glossy_term(volume_query, si, bsdf, n_side, -ray.d, sampler, front)
     L += ind
     if glass:
         L *= throughput
@@ -90,3 +117,31 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     L = dr.select(dr.isfinite(L), L, 0.0)
     dr.eval(L, ind, shadow_rays)
     return L, ind, dr.sum(shadow_rays) + n + dr.sum(passes)
+
+
+def glossy_context_rough() -> "mi.BSDFContext":
+    """A BSDF context with only :data:`PRIMARY_GLOSSY_LOBES` enabled."""
+    ctx = mi.BSDFContext()
+    ctx.type_mask = int(PRIMARY_GLOSSY_LOBES)
+    return ctx
+
+
+def glossy_term(volume_query, si, bsdf, n, wo, sampler, active):
+    """Eq. 6's glossy term at the primary vertex ``si`` towards ``wo`` (world, towards the camera): Color3f.
+
+    One sample of the rough glossy lobes (:data:`PRIMARY_GLOSSY_LOBES`; ``si.wi`` is the camera
+    direction in the local frame, as ``ray_intersect`` leaves it), weight ``f cos / pdf``, times the
+    probe irradiance along the sampled direction over :data:`~dyngi.probes.glossy.GLOSSY_NORMALISATION`.
+    Lanes without such a lobe, or whose sample fails or comes from a delta lobe, give 0. Draws one
+    1D and one 2D number from ``sampler`` (for every lane: the draws do not depend on the surface).
+    """
+    u1 = sampler.next_1d()
+    u2 = sampler.next_2d()
+    flags = bsdf.flags()
+    has = mi.Bool(active) & (bsdf != None) & ((flags & mi.UInt32(int(PRIMARY_GLOSSY_LOBES))) != 0)  # noqa: E711
+    bs, w = bsdf.sample(glossy_context_rough(), si, u1, u2, has)
+    w = mi.Color3f(w)
+    ok = has & (bs.pdf > 0.0) & dr.all(dr.isfinite(w)) & dr.any(w > 0.0) & \
+        ~mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    E = volume_query.irradiance(si.p, n, wo, direction=si.to_world(bs.wo), active=ok)
+    return dr.select(ok, w * E * (1.0 / GLOSSY_NORMALISATION), 0.0)

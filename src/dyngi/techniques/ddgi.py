@@ -37,6 +37,8 @@ update_offscreen : bool = True  False: only probes in the extended camera frustu
 relocate, classify : bool = True
 jitter : bool = True            jitter primary rays inside the pixel (else pixel centres); True matches
                                 the reference's box pixel filter, so edge aliasing is not counted as GI error
+glossy : bool = False           primary hit adds Eq. 6's glossy probe lookup of DDGI Resampling (Majercik
+                                et al. 2022; :mod:`dyngi.probes.primary`); False: DDGI's diffuse-only shading
 
 Budgets (``dyngi compare --budget equal-rays|equal-time``): ``ddgi`` and
 ``qddgi`` spend what the frame's budget leaves after primary shading on
@@ -106,7 +108,7 @@ class _ProbeTechniqueBase(Technique):
         with t.stage("primary"):
             L, ind, rays = shade_primary(self.scene, frame.camera, frame.res, self.query, frame.seed,
                                          frame.index, p["direct"], p["jitter"],
-                                         direct_samples=p["direct_samples"])
+                                         direct_samples=p["direct_samples"], glossy=p["glossy"])
         t.add_rays("primary", rays)
         return to_image(L, frame.res), to_image(ind, frame.res)
 
@@ -128,6 +130,9 @@ COMMON_PARAMS = {
     "jitter": Param(True, "jitter primary rays uniformly inside the pixel, as the box-filtered reference "
                     "integrates (False: pixel centres, which counts aliasing at edges as error)"),
     "direct_samples": Param(1, "NEE samples per pixel for direct light at the primary hit", min=1, max=64),
+    "glossy": Param(False, "add the glossy probe lookup (DDGI Resampling Eq. 6: one glossy-lobe BSDF sample, "
+                    "the probe irradiance along it / pi) at the primary hit; False: diffuse indirect only, "
+                    "as DDGI (dyngi.probes.primary)"),
 }
 
 
@@ -138,7 +143,8 @@ class DDGITechnique(_ProbeTechniqueBase):
     name = "ddgi"
     BUDGETS = ("equal-rays", "equal-time")
     description = ("DDGI irradiance probes (Majercik et al. 2019): NEE direct + probe indirect at the primary "
-                   "hit; indirect light is diffuse only (glossy surfaces get no indirect reflections)")
+                   "hit; indirect light is diffuse only (glossy surfaces get no indirect reflections) unless "
+                   "glossy=true (Eq. 6 glossy probe lookup)")
     PARAMS = {
         **COMMON_PARAMS,
         "rays_per_probe": Param(256, "rays per active probe per frame", min=1, max=1 << 14),

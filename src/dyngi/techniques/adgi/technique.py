@@ -5,7 +5,9 @@ a guide over probe position x direction says rays matter, sampled by
 persistent Metropolis chains (:mod:`dyngi.sampling.metropolis`); each sample
 updates the probe texels it lands in with Algorithm 3's moving average
 (:mod:`.moving_average`). Primary shading and the frame-0 warm-up are
-``ddgi``'s (:mod:`dyngi.techniques.ddgi`).
+``ddgi``'s (:mod:`dyngi.techniques.ddgi`), with its ``glossy`` parameter (default off): the primary
+vertex adds the Eq. 6 glossy probe lookup of DDGI Resampling (:mod:`dyngi.probes.primary`), which
+Fig. 10's glossy floor needs (``dyngi reproduce adgi``).
 
 One frame, in the paper's stages (Table 4; ``stats['ms']`` keys ``P``, ``S``, ``D``):
 
