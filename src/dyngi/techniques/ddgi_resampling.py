@@ -91,14 +91,33 @@ proportional to the inverse camera footprint), ``'none'`` the constant ``G_max =
 ``tests/test_ddgi_resampling.py`` compares against).
 
 Control variate (Sec. 5.1), ``control_variate=True`` (``ddgi-resampling`` only): the primary vertex
-gets ``rho_1 / pi * E_DDGI+(x_1)`` (its diffuse lobe, probes read at the primary vertex with DDGI's
-biases), and the diffuse lobe's part of the secondary-vertex light is replaced by its difference to a
-control variate ``g``: our ``g`` is the constant radiance ``E_DDGI+(x_1) / pi`` over the hemisphere,
-whose diffuse integral is exactly that primary term (the paper uses the nearest probe update ray, a
-piecewise-constant ``g`` of the same integral; ours needs no access to last frame's probe rays -- our
-choice). Part 1's target becomes ``|L_y - g|`` for the diffuse lobe; shading adds the signed
-difference, so pixels can be negative (the paper's "negative fireflies"). It applies to the probe part
-(part 1 and the residual); directions that miss the scene carry ``-g`` through the residual sample.
+gets the exact integral of a control variate ``g`` against its diffuse lobe, and the diffuse lobe's
+part of the secondary-vertex light is replaced by its difference to ``g``. Part 1's target becomes
+``|L_y - g(w_y)|`` (plus the floor); shading adds the signed difference, so pixels can be negative (the
+paper's "negative fireflies"). It applies to the probe part (part 1 and the residual); directions that
+miss the scene carry ``-g`` through the residual sample. ``cv_kind`` chooses ``g``:
+
+* ``'constant'`` (default): the constant radiance ``E_DDGI+(x_1) / pi`` over the hemisphere (probes read
+  at the primary vertex with DDGI's biases, interpolated), whose diffuse integral is exactly
+  ``rho_1 / pi * E_DDGI+(x_1)``, the paper's primary term (our choice: needs no probe rays);
+* ``'nearest-ray'``: the paper's spatio-directionally piecewise-constant ``g``
+  (:class:`NearestRayCV`): nearest probe of ``x_1`` without interpolation, and per direction the mean
+  radiance of that probe's most recent update rays in a cube-map bin (24 bins; the issue's "binning per
+  texel" approximation of the nearest ray, with cube texels instead of octahedral ones because their
+  edges are great circles); its integral ``rho_1 / pi sum_t g_t C_t(n)`` is computed exactly (Lambert's
+  formula on the horizon-clipped texels) instead of the paper's "their average, E_DDGI+", which is an
+  exact integral only in the limit. Rays that hit an emitter or miss the scene enter their bins with
+  radiance 0 (one extra ray per probe ray finds them, counted in ``shade secondary``; our choice): they
+  carry ``L_e`` (or the environment), which our part 1 never does (emission is part 0's); with their
+  radiance the CV run was 5x noisier than plain resampling on cornell-static (per-frame image-mean std
+  0.0132 vs 0.0024; as 0: 0.0029), and leaving them out of the bins instead raised the 1-spp MAPE
+  (cornell-static 64x48: 0.310 vs 0.265; /tmp/figs/cv.md).
+
+Both keep the mean of plain resampling given the same probes ("converges to the same (biased)
+solution", Sec. 5.1): ``tests/test_ddgi_cv.py`` (Welch t-tests on frozen probes, and the rejection of a
+control variate whose integral is scaled by 1.5). The exact integral assumes a Lambertian diffuse lobe
+(``rho = diffuse_albedo``); for lobes whose diffuse part is not ``rho / pi`` (e.g. plastic's
+Fresnel-weighted one) the correction is approximate.
 
 Test hook ``exact_radiance=True``: ``S(x_n)`` is replaced by a path-traced estimate of the reflected
 radiance at ``x_n`` (Mitsuba-style path tracing with NEE and MIS from ``x_{n-1}`` along the segment,
@@ -108,8 +127,8 @@ convergence test checks against Mitsuba's ``path``.
 Stats: per stage (``ms``/``rays``) and ``table2_ms`` = {trace & shade, resampling, update} as the
 paper's Table 2 groups them.
 
-Parameters (both; ``ddgi-resampling`` adds ``gmax``, ``gmax_scale``, ``control_variate``)
-------------------------------------------------------------------------------------------
+Parameters (both; ``ddgi-resampling`` adds ``gmax``, ``gmax_scale``, ``control_variate``, ``cv_kind``)
+-----------------------------------------------------------------------------------------------------
 candidates, temporal, m_cap, spatial, radius, combine, progressive : as ``restir-pt``
 footprint_c : float = 0.2      Eq. 8 threshold c
 max_glossy : int = 3           most glossy recursion steps after the secondary vertex
@@ -199,6 +218,183 @@ def bounded_fraction(J, gmax):
     ok = J > 0.0
     res = dr.select(ok, dr.maximum(1.0 - gmax / dr.maximum(J, 1e-30), 0.0), 0.0)
     return dr.select(ok, 1.0 - res, 0.0), res
+
+
+CV_FACE_RES = 2
+"""Texels per cube-face edge of the nearest-ray control variate's direction bins (``6 K^2`` per probe;
+K = 2: 24 bins, about 2.7 rays of 64 each; our choice)."""
+
+
+def _cube_face_axes(face):
+    """(major axis, sign, u axis, v axis) of cube face ``face`` (0..5: +x, -x, +y, -y, +z, -z)."""
+    a = face // 2
+    return a, (1.0 if face % 2 == 0 else -1.0), (a + 1) % 3, (a + 2) % 3
+
+
+def cube_bin(w, K=CV_FACE_RES):
+    """Cube-map bin ``face K^2 + iv K + iu`` of the direction ``w`` (cube texels: their edges are
+    great-circle arcs, so the cosine integral over a texel is Lambert's polygon formula)."""
+    a = dr.abs(w)
+    fx = (a.x >= a.y) & (a.x >= a.z)
+    fy = ~fx & (a.y >= a.z)
+    face = dr.select(fx, dr.select(w.x > 0.0, 0, 1),
+                     dr.select(fy, dr.select(w.y > 0.0, 2, 3), dr.select(w.z > 0.0, 4, 5)))
+    m = dr.maximum(dr.select(fx, a.x, dr.select(fy, a.y, a.z)), 1e-30)
+    u = dr.select(fx, w.y, dr.select(fy, w.z, w.x)) / m
+    v = dr.select(fx, w.z, dr.select(fy, w.x, w.y)) / m
+    iu = dr.clip(mi.Int32(dr.floor((u + 1.0) * (0.5 * K))), 0, K - 1)
+    iv = dr.clip(mi.Int32(dr.floor((v + 1.0) * (0.5 * K))), 0, K - 1)
+    return mi.UInt32(mi.Int32(face) * (K * K) + iv * K + iu)
+
+
+def cube_texel_corners(K=CV_FACE_RES):
+    """(6 K^2, 4, 3) float64 unit corner directions of every bin of :func:`cube_bin`, in order."""
+    out = []
+    for face in range(6):
+        ax, sgn, au, av = _cube_face_axes(face)
+        for iv in range(K):
+            for iu in range(K):
+                quad = []
+                for du, dv in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                    d = np.zeros(3)
+                    d[ax] = sgn
+                    d[au] = -1.0 + 2.0 * (iu + du) / K
+                    d[av] = -1.0 + 2.0 * (iv + dv) / K
+                    quad.append(d / np.linalg.norm(d))
+                out.append(quad)
+    return np.asarray(out)
+
+
+def _safe_normalize(v):
+    ln = dr.norm(v)
+    return dr.select(ln > 1e-12, v / dr.maximum(ln, 1e-30), 0.0)
+
+
+def clipped_cosine_integral(n, corners):
+    """``int_{texel} max(0, n . w) dw`` exactly, for the spherical quadrilateral ``corners`` (4 unit
+    vectors, host constants, edges great-circle arcs) and unit normals ``n`` (per lane): Lambert's
+    formula ``1/2 |sum_e theta_e n . u_e|`` over the texel clipped by the horizon ``n . w = 0``
+    (an edge crossing the horizon is cut at its crossing, the horizon arc between the exit and the
+    entry point closes the polygon)."""
+    h = [dr.dot(n, mi.Vector3f(*map(float, c))) for c in corners]
+    total = mi.Float(0.0)
+    c_exit = dr.zeros(mi.Vector3f, dr.width(n))
+    c_entry = dr.zeros(mi.Vector3f, dr.width(n))
+    crossed = mi.Bool(False)
+
+    def edge(a, b):
+        return dr.acos(dr.clip(dr.dot(a, b), -1.0, 1.0)) * dr.dot(n, _safe_normalize(dr.cross(a, b)))
+
+    for i in range(4):
+        a = mi.Vector3f(*map(float, corners[i]))
+        b = mi.Vector3f(*map(float, corners[(i + 1) % 4]))
+        ha, hb = h[i], h[(i + 1) % 4]
+        up_a, up_b = ha > 0.0, hb > 0.0
+        out = up_a & ~up_b
+        into = ~up_a & up_b
+        # the edge's horizon crossing (signs differ), the positive combination of a and b
+        c = _safe_normalize(dr.select(out, b * ha - a * hb, a * hb - b * ha))
+        theta = float(np.arccos(np.clip(np.dot(corners[i], corners[(i + 1) % 4]), -1, 1)))
+        u = np.cross(corners[i], corners[(i + 1) % 4])
+        u = u / np.linalg.norm(u)
+        e_ab = theta * dr.dot(n, mi.Vector3f(*map(float, u)))
+        total += dr.select(up_a & up_b, e_ab, dr.select(out, edge(a, c), dr.select(into, edge(c, b), 0.0)))
+        c_exit = dr.select(out, c, c_exit)
+        c_entry = dr.select(into, c, c_entry)
+        crossed |= out
+    total += dr.select(crossed, edge(c_exit, c_entry), 0.0)
+    return 0.5 * dr.abs(total)
+
+
+class NearestRayCV:
+    """The paper's piecewise-constant control variate (Sec. 5.1), ``cv_kind='nearest-ray'``.
+
+    "the spatio-directionally nearest DDGI update ray among those that were traced while rendering the
+    last frame": nearest probe of the primary vertex without interpolation (the grid cell's lattice
+    probe: relocation offsets ignored), and, as an approximation of "nearest ray direction" (our choice,
+    as the issue allows), the mean radiance of that probe's most recent update rays in the cube-map bin
+    (:func:`cube_bin`, ``6 K^2`` bins) of the direction (rays that hit an emitter or miss count as 0:
+    module docstring); a bin no ray fell in holds 0. The most recent
+    update is this frame's (our probe update runs before shading). Its exact integral against a
+    Lambertian lobe, ``rho / pi sum_t g_t C_t(n)`` with ``C_t`` :func:`clipped_cosine_integral`, replaces
+    the paper's ``E_DDGI+`` (which is exact only in the limit of many rays), so the estimator's mean is
+    plain resampling's."""
+
+    def __init__(self, volume: DDGIPlusVolume, K: int = CV_FACE_RES, exclude_emitters: bool = True):
+        self.vol = volume
+        self.exclude_emitters = bool(exclude_emitters)
+        self.extra_rays = 0
+        self.K = K
+        self.B = 6 * K * K
+        self.corners = cube_texel_corners(K)
+        g = volume.volume.grid
+        self.origin = [float(v) for v in g.origin]
+        self.inv_spacing = [1.0 / float(v) for v in g.spacing]
+        self.counts = [int(c) for c in g.counts]
+        self.P = g.n_probes
+        self.table = dr.zeros(mi.Color3f, self.P * self.B)
+        self.lum = dr.zeros(mi.Float, self.P * self.B)
+
+    def refresh(self):
+        """Bin the updater's most recent rays (per-ray radiance, direction, probe) into the table."""
+        res = self.vol.updater.last_results
+        if res is None:
+            return
+        plan = res.plan
+        idx = plan.probe * self.B + cube_bin(plan.direction, self.K)
+        ray_bin = idx % self.B
+        rad = mi.Color3f(res.radiance)
+        if self.exclude_emitters:   # rays that hit an emitter (or the sky) carry L_e, which part 1 does not
+            mscene = self.vol.scene.mi_scene
+            o = dr.gather(mi.Point3f, self.vol.volume.device.positions, plan.probe)
+            si = mscene.ray_intersect(mi.Ray3f(o, plan.direction), ray_flags=mi.RayFlags.Minimal,
+                                      coherent=False)
+            rad = dr.select(si.is_valid() & (si.shape.emitter() == None), rad, 0.0)    # noqa: E711
+            self.extra_rays = dr.width(plan.probe)
+        # per (traced probe, bin) lane a loop over that probe's rays (CSR): a fixed summation order, so
+        # reruns are bit-identical (a float scatter-add into the bins is not, test_battery's note)
+        B = self.B
+        slots = len(plan.probe_ids)
+        lane = dr.arange(mi.UInt32, slots * B)
+        slot, b = lane // B, lane % B
+        offs = mi.UInt32(np.asarray(plan.offsets, np.uint32))
+        start = dr.gather(mi.UInt32, offs, slot)
+        end = dr.gather(mi.UInt32, offs, slot + 1)
+
+        def body(k, acc, cnt):
+            m = dr.gather(mi.UInt32, ray_bin, k) == b
+            acc += dr.gather(mi.Color3f, rad, k, m)
+            cnt += dr.select(m, 1.0, 0.0)
+            return k + 1, acc, cnt
+
+        state = (mi.UInt32(start), dr.zeros(mi.Color3f, slots * B), dr.zeros(mi.Float, slots * B))
+        _, acc, cnt = dr.while_loop(state, lambda k, acc, cnt: k < end, body)
+        table = dr.zeros(mi.Color3f, self.P * B)
+        probe = mi.UInt32(np.asarray(plan.probe_ids, np.uint32))
+        dr.scatter(table, acc / dr.maximum(cnt, 1.0), dr.gather(mi.UInt32, probe, slot) * B + b)
+        self.table = table
+        self.lum = mi.luminance(self.table)
+        dr.eval(self.table, self.lum)
+
+    def nearest_probe(self, pos):
+        c = []
+        for k in range(3):
+            f = dr.round((pos[k] - self.origin[k]) * self.inv_spacing[k])
+            c.append(dr.clip(mi.Int32(f), 0, self.counts[k] - 1))
+        return mi.UInt32(c[0] + self.counts[0] * (c[1] + self.counts[1] * c[2]))
+
+    def value(self, probe, w, active=True):
+        """``g(w)`` (Color3f) of the lanes' probes towards the world directions ``w``."""
+        return dr.gather(mi.Color3f, self.table, probe * self.B + cube_bin(w, self.K), active)
+
+    def integral(self, probe, n, active=True):
+        """``sum_t g_t C_t(n)`` (Color3f): the cosine integral of ``g`` over the hemisphere of ``n``."""
+        out = mi.Color3f(0.0)
+        base = probe * self.B
+        for t in range(self.B):
+            gt = dr.gather(mi.Color3f, self.table, base + t, active)
+            out += gt * clipped_cosine_integral(n, self.corners[t])
+        return out
 
 
 def _probe_params():
@@ -496,6 +692,9 @@ def _resampling_params():
                               min=1e-6, max=1e3),
         "control_variate": Param(False, "Sec. 5.1: DDGI+ irradiance at the primary vertex as a control "
                                  "variate of the diffuse transport (may give negative pixels)"),
+        "cv_kind": Param("constant", "control variate g of control_variate: 'constant' E_DDGI+(x_1)/pi, "
+                         "'nearest-ray' the nearest probe's last update rays binned by direction (Sec. 5.1's "
+                         "piecewise-constant one)", choices=("constant", "nearest-ray")),
     })
     return out
 
@@ -519,6 +718,8 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
         self.prev_g = None
         self.prev_eps = 0.0
         self._vis_rays = []
+        p = self.params
+        self.cvnr = NearestRayCV(self.vol) if p["control_variate"] and p["cv_kind"] == "nearest-ray" else None
 
     # -- G_max (Sec. 3.6) ---------------------------------------------------------------------------
     def _gmax(self, gb):
@@ -558,13 +759,53 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
         cx = dr.dot(n, wdir)
         cx = dr.select(two, dr.abs(cx), dr.maximum(cx, 0.0))
         J = dr.maximum(dr.dot(ny, -wdir), 0.0) / dr.maximum(r2, 1e-30)
-        val = (mi.luminance(Ly) if g is None else dr.abs(mi.luminance(Ly) - g)) + eps
+        if g is None:
+            val = mi.luminance(Ly) + eps
+        else:   # |L_y - g| (Sec. 5.1); nearest-ray: g = (luminance table, probe) looked up towards y
+            gl = g if not isinstance(g, tuple) else \
+                dr.gather(mi.Float, g[0], g[1] * self.cvnr.B + cube_bin(wdir, self.cvnr.K), p1)
+            val = dr.abs(mi.luminance(Ly) - gl) + eps
         ph1 = val * cx * dr.minimum(J, gmax)
         ok1 = p1 & (r2 > 0.0) & dr.isfinite(ph1) & (ph1 > 0.0)
         if ng is not None and self.params["reuse_visibility"]:
             ok1 = self._visible(pos, ng, y, ok1)
             self._vis_rays.append(dr.count(ok1))
         return dr.select(ok1, ph1, dr.select(p1, 0.0, ph))
+
+    def _cv_primary(self, gb, bsdf):
+        """The control variate of Sec. 5.1 at the primary vertex: (``g``, its exact diffuse integral).
+
+        ``g = E_DDGI+(x_1) / pi``, a constant radiance over the hemisphere (probes read at the primary
+        vertex with DDGI's default biases, 0.05 / 0.2 smallest spacings along the normal / towards the
+        viewer); its integral against the diffuse lobe is ``rho_1 g`` exactly for a Lambertian lobe
+        (``rho_1`` :func:`~dyngi.sampling.diffuse.diffuse_albedo`). ``tests/test_ddgi_cv.py`` checks that
+        the estimator's mean does not move with the control variate, and that a wrong integral (this
+        method's second value scaled) is detected."""
+        n = gb.n_sh
+        albedo1 = diffuse_albedo(bsdf, gb.si, gb.valid)
+        if self.cvnr is not None:   # nearest-ray: g is looked up per direction; first value the probe
+            probe = self.cvnr.nearest_probe(gb.pos)
+            return probe, dr.select(gb.valid, albedo1 * dr.inv_pi * self.cvnr.integral(probe, n, gb.valid), 0.0)
+        E1 = self.query.irradiance(gb.pos + n * (0.05 * self.s_min) - gb.ray.d * (0.2 * self.s_min),
+                                   n, -gb.ray.d, active=gb.valid)
+        g_col = mi.Color3f(E1 * dr.inv_pi)
+        return g_col, dr.select(gb.valid, albedo1 * g_col, 0.0)
+
+    def _cv_value(self, g, w, active):
+        """``g(w)`` (Color3f) of the lanes' control variate (``g``: :meth:`_cv_primary`'s first value)."""
+        return g if self.cvnr is None else self.cvnr.value(g, w, active)
+
+    def _cv_target_g(self, g):
+        """The control variate in the form :meth:`_target` takes (luminance, or (table, probe))."""
+        return mi.luminance(g) if self.cvnr is None else (self.cvnr.lum, g)
+
+    @staticmethod
+    def _gather_g(g, idx, active):
+        if g is None:
+            return None
+        if isinstance(g, tuple):
+            return (g[0], dr.gather(mi.UInt32, g[1], idx, active))
+        return dr.gather(mi.Float, g, idx, active)
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
@@ -578,16 +819,16 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
         cv = p["control_variate"]
 
         # -- control variate at the primary vertex (Sec. 5.1): g = E_DDGI+(x_1) / pi --
-        g_lum, L_cv, albedo1 = None, mi.Color3f(0.0), None
+        g_lum, L_cv = None, mi.Color3f(0.0)
         if cv:
             with t.stage("shade secondary"):
-                albedo1 = diffuse_albedo(bsdf, si, gb.valid)
-                E1 = self.query.irradiance(gb.pos + n * (0.05 * self.s_min) - gb.ray.d * (0.2 * self.s_min),
-                                           n, -gb.ray.d, active=gb.valid)
-                g_col = mi.Color3f(E1 * dr.inv_pi)
-                g_lum = mi.luminance(g_col)
-                L_cv = dr.select(gb.valid, albedo1 * g_col, 0.0)
-                dr.eval(L_cv, g_lum)
+                if self.cvnr is not None:
+                    self.cvnr.refresh()
+                g_col, L_cv = self._cv_primary(gb, bsdf)
+                g_lum = self._cv_target_g(g_col)
+                dr.eval(L_cv, g_col)
+            if self.cvnr is not None:
+                t.add_rays("shade secondary", self.cvnr.extra_rays)
 
         # -- the BSDF sample y: secondary hit, S(y) (cached L_y), the part-1 candidate --
         with t.stage("bsdf sample"):
@@ -649,7 +890,7 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
                 pn = dr.gather(mi.Vector3f, prev.n_sh, reproj.prev_pixel, okp)
                 ptwo = dr.gather(mi.Bool, prev.transmissive, reproj.prev_pixel, okp)
                 pg = dr.gather(mi.Float, self.prev_gmax, reproj.prev_pixel, okp)
-                pcv = dr.gather(mi.Float, self.prev_g, reproj.prev_pixel, okp) if cv else None
+                pcv = self._gather_g(self.prev_g, reproj.prev_pixel, okp) if cv else None
                 png = dr.gather(mi.Vector3f, prev.n_geo, reproj.prev_pixel, okp)
                 ph_prev = self._target(ppos, pn, ptwo, pg, r.sample, time, okp, pcv, self.prev_eps, png)
                 finalize(r, p["combine"], [mi.Float(M), m_prev], [r.p_hat, ph_prev], [True, okp])
@@ -695,7 +936,8 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
             if cv:   # the diffuse lobe's share carries the difference to g (Sec. 5.1)
                 f1d = bsdf.eval(mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.DiffuseReflection),
                                 si, si.to_local(wz), vis_z)
-                L_z -= dr.select(vis_z, mi.Color3f(f1d) * dr.minimum(J_z, gmax) * r.W * g_col, 0.0)
+                L_z -= dr.select(vis_z, mi.Color3f(f1d) * dr.minimum(J_z, gmax) * r.W
+                                 * self._cv_value(g_col, wz, vis_z), 0.0)
             dr.eval(L_z, rays_z)
         t.add_rays("shade z", dr.sum(rays_z))
 
@@ -711,7 +953,7 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
                 f_d = bsdf.eval(mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.DiffuseReflection),
                                 si, bs.wo, ok & ~delta)
                 diff_w = dr.select(ok & ~delta, mi.Color3f(f_d) / dr.maximum(bs.pdf, 1e-30), 0.0)
-                L_res -= diff_w * share_cv * g_col
+                L_res -= diff_w * share_cv * self._cv_value(g_col, si.to_world(bs.wo), ok & ~delta)
             dr.eval(L_res, L_res_d)
 
         if self.record_debug:
@@ -753,7 +995,7 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
             ndepth = dr.gather(mi.Float, gb.depth, nid, active)
             ngmax = dr.gather(mi.Float, gmax, nid, active)
             nng = dr.gather(mi.Vector3f, gb.n_geo, nid, active)
-            ng = dr.gather(mi.Float, g_lum, nid, active) if g_lum is not None else None
+            ng = self._gather_g(g_lum, nid, active)
             ok = active & (nid != idx) & similar(gb.depth, gb.n_sh, ndepth, nn, nvalid)
             rn = r_t.gather(nid, ok)
             ok &= rn.M > 0.0
@@ -772,4 +1014,5 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
 
 
 __all__ = ["DDGISecondaryTechnique", "DDGIResamplingTechnique", "camera_footprint", "footprint_term",
-           "footprint_np", "bounded_fraction"]
+           "footprint_np", "bounded_fraction", "NearestRayCV", "cube_bin", "cube_texel_corners",
+           "clipped_cosine_integral"]
