@@ -505,6 +505,22 @@ def warehouse_lights():
                    probe_box=((0.3, 0.3, 0.3), (X - 0.3, H - 0.3, Z - 0.3)), probe_counts=(32, 4, 16))
 
 
+def sky_pit_geometry(b: SceneBuilder) -> tuple[float, float]:
+    """The meshes of ``sky-pit`` (shared by its variants): returns (pit half width P, depth D)."""
+    P, D, G = 3.0, 6.0, 25.0  # pit half width, depth, ground half size
+    ground = merge([_floor(-G, G, -G, -P), _floor(-G, G, P, G), _floor(-G, -P, -P, P), _floor(P, G, -P, P)])
+    b.mesh("ground", ground, diffuse((0.45, 0.4, 0.33)))
+    rock = merge([box((-P - 0.5, -D, -P - 0.5), (-P, 0, P + 0.5)), box((P, -D, -P - 0.5), (P + 0.5, 0, P + 0.5)),
+                  box((-P, -D, -P - 0.5), (P, 0, -P)), box((-P, -D, P), (P, 0, P + 0.5))])
+    b.mesh("pit_walls", rock, diffuse((0.5, 0.42, 0.34)))
+    b.mesh("pit_floor", _floor(-P, P, -P, P, -D), diffuse((0.4, 0.38, 0.33)))
+    b.mesh("overhang", box((-P, -0.4, -P), (0.0, 0.0, P)), diffuse((0.5, 0.42, 0.34)))
+    # rubble and a beam under the overhang for some local occlusion
+    b.mesh("rubble", merge([box((-2.5, -D, -2.2), (-1.3, -D + 1.0, -0.8)), box((1.2, -D, 1.0), (2.4, -D + 0.6, 2.6)),
+                            box((-P, -3.2, -0.2), (0.0, -2.9, 0.2))]), diffuse((0.55, 0.5, 0.45)))
+    return P, D
+
+
 @builtin("sky-pit", "Pit open to the sky, half roofed by an overhang, under a moving sun and a sky",
          "VLC/CDQ scene (b): Quake 2 RTX mine open to the sky (path guiding)")
 def sky_pit():
@@ -519,17 +535,7 @@ def sky_pit():
     guiding (CDQ) and its readaptation. The probe volume is the pit only.
     """
     b = SceneBuilder("sky-pit")
-    P, D, G = 3.0, 6.0, 25.0  # pit half width, depth, ground half size
-    ground = merge([_floor(-G, G, -G, -P), _floor(-G, G, P, G), _floor(-G, -P, -P, P), _floor(P, G, -P, P)])
-    b.mesh("ground", ground, diffuse((0.45, 0.4, 0.33)))
-    rock = merge([box((-P - 0.5, -D, -P - 0.5), (-P, 0, P + 0.5)), box((P, -D, -P - 0.5), (P + 0.5, 0, P + 0.5)),
-                  box((-P, -D, -P - 0.5), (P, 0, -P)), box((-P, -D, P), (P, 0, P + 0.5))])
-    b.mesh("pit_walls", rock, diffuse((0.5, 0.42, 0.34)))
-    b.mesh("pit_floor", _floor(-P, P, -P, P, -D), diffuse((0.4, 0.38, 0.33)))
-    b.mesh("overhang", box((-P, -0.4, -P), (0.0, 0.0, P)), diffuse((0.5, 0.42, 0.34)))
-    # rubble and a beam under the overhang for some local occlusion
-    b.mesh("rubble", merge([box((-2.5, -D, -2.2), (-1.3, -D + 1.0, -0.8)), box((1.2, -D, 1.0), (2.4, -D + 0.6, 2.6)),
-                            box((-P, -3.2, -0.2), (0.0, -2.9, 0.2))]), diffuse((0.55, 0.5, 0.45)))
+    P, D = sky_pit_geometry(b)
     b.add("sun", _sun(_sun_dir(70.0, 200.0), (10.0, 9.4, 8.4)))
     b.add("sky", _sky((0.55, 0.65, 0.85)))
     times = [0.0, 2.0, 4.0]

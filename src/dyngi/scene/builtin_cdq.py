@@ -24,9 +24,8 @@ import numpy as np
 
 from .animation import ParamTrack, Track
 from .builder import SceneBuilder
-from .builtin import _floor, _sun_dir, _sunsky, rotating_hidden_light
+from .builtin import _sun_dir, _sunsky, rotating_hidden_light, sky_pit_geometry
 from .camera import Camera
-from .geometry import box, diffuse, merge
 from .library import builtin
 
 SUN_DISC_SCALE, SKY_SCALE = 7.0, 4.0
@@ -58,17 +57,7 @@ def sky_pit_sun_disc(sun_aperture_deg: float | None = None, name: str = "sky-pit
     default its 0.5358 degrees); the sun's irradiance stays the same.
     """
     b = SceneBuilder(name)
-    # -- geometry: identical to builtin.sky_pit (kept in sync by test_cdq) --
-    P, D, G = 3.0, 6.0, 25.0
-    ground = merge([_floor(-G, G, -G, -P), _floor(-G, G, P, G), _floor(-G, -P, -P, P), _floor(P, G, -P, P)])
-    b.mesh("ground", ground, diffuse((0.45, 0.4, 0.33)))
-    rock = merge([box((-P - 0.5, -D, -P - 0.5), (-P, 0, P + 0.5)), box((P, -D, -P - 0.5), (P + 0.5, 0, P + 0.5)),
-                  box((-P, -D, -P - 0.5), (P, 0, -P)), box((-P, -D, P), (P, 0, P + 0.5))])
-    b.mesh("pit_walls", rock, diffuse((0.5, 0.42, 0.34)))
-    b.mesh("pit_floor", _floor(-P, P, -P, P, -D), diffuse((0.4, 0.38, 0.33)))
-    b.mesh("overhang", box((-P, -0.4, -P), (0.0, 0.0, P)), diffuse((0.5, 0.42, 0.34)))
-    b.mesh("rubble", merge([box((-2.5, -D, -2.2), (-1.3, -D + 1.0, -0.8)), box((1.2, -D, 1.0), (2.4, -D + 0.6, 2.6)),
-                            box((-P, -3.2, -0.2), (0.0, -2.9, 0.2))]), diffuse((0.55, 0.5, 0.45)))
+    P, D = sky_pit_geometry(b)   # the meshes of builtin.sky_pit
     # -- the environment: sun disc + sky, both out of nee-pt's NEE --
     env = _sunsky(SUN_DISC_SCALE, SKY_SCALE, _sun_dir(SUN_ELEVATION, SUN_AZIMUTH))
     if sun_aperture_deg is not None:
