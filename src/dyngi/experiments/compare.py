@@ -142,12 +142,35 @@ def prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, me
         make_untextured(scene)
     techs = {s.label: create_technique(s.name, scene, per_tech[s.label]) for s in specs}
     warnings = _check_indirect(scene, techs, specs) if indirect else []
+    ref_depth, depth_notes = _reference_depth(scene, techs, specs, ref_depth, scene_max_depth)
+    warnings += depth_notes
     clamp = reference_clamp_distance(techs) if reference == "clamped" else None
     return {"reference": reference, "ref_clamp_distance": clamp, "untextured": bool(untextured),
             "tracked": bool(tracked),"scene": scene, "specs": {s.label: s for s in specs}, "labels": [s.label for s in specs],
             "techs": techs, "names": names, "budget": budget, "frames": frames, "ref_spp": spp,
-            "ref_depth": scene_max_depth(scene) if ref_depth is None else ref_depth, "indirect": indirect,
+            "ref_depth": ref_depth, "indirect": indirect,
             "out_dir": os.path.abspath(out_dir), "warnings": warnings}
+
+
+def _reference_depth(scene, techs, specs, ref_depth, scene_max_depth) -> tuple[int, list[str]]:
+    """The reference's path depth and notes about it.
+
+    A technique of fixed depth declares ``REFERENCE_DEPTH`` (Mitsuba's vertex count; ``nee-pt``: 3, the
+    VLC paper's 5-ray path). Without ``--ref-depth``, when every compared technique declares the same
+    depth, the reference is rendered at it (so the error measures noise, not truncation) and a note says
+    so; when only some declare one, the scene's depth is kept and a note names the techniques whose error
+    then includes their truncation. An explicit ``--ref-depth`` always wins."""
+    declared = {s.label: getattr(type(techs[s.label]), "REFERENCE_DEPTH", None) for s in specs}
+    fixed = {k: v for k, v in declared.items() if v is not None}
+    if ref_depth is not None or not fixed:
+        return (scene_max_depth(scene) if ref_depth is None else ref_depth), []
+    if len(fixed) == len(declared) and len(set(fixed.values())) == 1:
+        d = next(iter(fixed.values()))
+        return d, [f"reference rendered at depth {d}, the fixed path depth of {', '.join(fixed)} "
+                   f"(--ref-depth overrides)"]
+    d = scene_max_depth(scene)
+    return d, [f"{k}: fixed path depth {v} against a depth-{d} reference: its error includes the light "
+               f"of longer paths (compare it alone, or pass --ref-depth {v})" for k, v in fixed.items()]
 
 
 def _check_indirect(scene, techs, specs) -> list[str]:

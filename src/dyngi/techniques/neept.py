@@ -142,6 +142,7 @@ class NeePT(Technique):
     description = ("VLC paper's evaluation path tracer: 5 rays/path, diffuse after the primary hit, "
                    "NEE by lights=uniform|lighttree|sll|vlc, directions=bsdf|cdq, balance MIS")
     HAS_INDIRECT = True
+    REFERENCE_DEPTH = 3   # compare renders its reference at this depth without --ref-depth (Sec. 7's 5-ray path)
     PARAMS = {
         "lights": Param("vlc", "NEE light selection", choices=("uniform", "lighttree", "sll", "vlc")),
         "directions": Param("bsdf", "indirect-ray sampling", choices=("bsdf", "cdq")),
