@@ -123,3 +123,32 @@ def test_reproduce_vlc_quick(backend, tmp_path):
             f = figs[scene][spec]
             assert not f["failed"] and np.isfinite(f["mse"]) and len(f["mse_per_frame"]) == 6
         assert "preprocess" in figs[scene]["nee-pt:lights=vlc"]["stage_ms"]
+
+
+def test_vlc_with_lighttree_explorer_converges_to_uniform(backend, uniform_covered):
+    """explorer=lighttree (our extension) is unbiased: z-test against lights=uniform, image and indirect."""
+    pytest.importorskip("dyngi.sampling.lighttree")
+    imgs, ind, _, _ = frames_of("nee-pt:lights=vlc:explorer=lighttree", "covered-lights", 12, 16, seed=13)
+    ok, info = z_test_images(imgs, uniform_covered[0])
+    assert ok, info
+    ok, info = z_test_images(ind, uniform_covered[1])
+    assert ok, ("indirect", info)
+
+
+def test_vlc_lighttree_explorer_steady_state_compiles_nothing(backend):
+    """explorer=lighttree on a static-light scene with a moving occluder: after the warm-up frames no frame
+    compiles a new kernel. (With moving lights the explorer rebuilds the light tree, which, like
+    lights=lighttree itself on cornell-moving-light, still compiles 1-2 kernels per rebuild: known, H2's.)"""
+    pytest.importorskip("dyngi.sampling.lighttree")
+    from helpers import assert_steady_state_compiles_nothing
+
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+    sc = load_scene("covered-lights")
+    tech = create_technique("nee-pt:lights=vlc:explorer=lighttree", sc)
+
+    def step(f):
+        t = sc.frame_time(f)
+        sc.at(t)
+        tech.step(Frame(f, t, sc.camera(t), (24, 16), seed=0))
+    assert_steady_state_compiles_nothing(step, 6, 3, nonempty=True)

@@ -288,3 +288,67 @@ def test_emitter_triangle_ids_are_stable_when_lights_move(backend):
     assert not np.allclose(h0["centroid"], h1["centroid"])        # the light moved
     assert np.array_equal(ids_hit(), np.arange(tris.count))        # ... and kept its ids
     assert np.allclose(h0["area"], h1["area"], rtol=1e-5)
+
+
+# -- explorer=lighttree (our extension: a light tree as the exploration strategy) -------------------
+
+@pytest.fixture(scope="module")
+def vlc_lh_tech(backend):
+    """As ``vlc_tech`` with ``explorer=lighttree``."""
+    from dyngi.techniques import create_technique
+    sc = many_lights_scene(10)
+    tech = create_technique("nee-pt", sc, {"lights": "vlc", "capacity": 8, "explorer": "lighttree"})
+    _run(tech, sc, 5)
+    tech.selector.begin_frame(_ctx(tech))
+    return tech
+
+
+def test_lighttree_explorer_pmf_is_the_exact_mixture(vlc_lh_tech):
+    """sum_k pmf(k) = f * sum_k p_LH(k) + (1 - f) * (1 - zero-importance buckets / B) per point (f = 1 where
+    the leaf's VLC is empty), and pmf(k) = f p_LH(k) + (1 - f) p_VLC(k) light by light, with p_LH the
+    light tree's own pmf and p_VLC recomputed here from the host buckets and the importances."""
+    tech = vlc_lh_tech
+    sel, tris, oc = tech.selector, tech.tris, tech.octree
+    assert sel._lh is not None and sel.last["leaves_with_vlc"] > 0
+    rng = np.random.default_rng(5)
+    p, n = _points(30, rng)
+    pm = _all_pmfs(sel, tris, p, n)
+    plh = _all_pmfs(sel._lh, tris, p, n)
+    imp = _importances(tris, p, n)
+    leaves = np.asarray(oc.lookup(_arr(p, mi.Point3f)))
+    assert np.all(plh.sum(1) <= 1.0 + 1e-4) and np.all(plh.sum(1) > 0.5)
+    checked = 0
+    for i in range(len(p)):
+        buckets = sel.host_buckets(int(leaves[i]))
+        B = len(buckets)
+        f = sel.fraction if B else 1.0
+        pv = np.zeros(tris.count)
+        for b in buckets:
+            acc = imp[i, b].sum()
+            if acc > 0:
+                pv[b] = imp[i, b] / (acc * B)
+        want = f * plh[i] + (1.0 - f) * pv
+        assert np.allclose(pm[i], want, rtol=2e-3, atol=1e-7), i
+        checked += B > 0
+    assert checked >= 10
+
+
+def test_lighttree_explorer_sampling_frequencies_match_pmf(vlc_lh_tech):
+    """Combined VLC + light-tree exploration sampling against the exact mixture pmf (chi^2 per point)."""
+    tech = vlc_lh_tech
+    sel, tris = tech.selector, tech.tris
+    rng = np.random.default_rng(6)
+    p, n = _points(3, rng)
+    pm = _all_pmfs(sel, tris, p, n)
+    m = 60_000
+    for i in range(len(p)):
+        k, pmf = sel.sample(_arr(np.repeat(p[i:i + 1], m, 0), mi.Point3f),
+                            _arr(np.repeat(n[i:i + 1], m, 0), mi.Vector3f),
+                            mi.Float(rng.random(m).astype(np.float32)), mi.Bool(True))
+        k = np.asarray(k).astype(np.int64)
+        valid = k != 0xFFFFFFFF
+        counts = np.append(np.bincount(k[valid], minlength=tris.count), (~valid).sum())
+        expected = m * np.append(pm[i], max(0.0, 1.0 - pm[i].sum()))
+        ok, pv = chi2_uniform(counts, expected)
+        assert ok, (i, pv)
+        assert np.allclose(np.asarray(pmf)[valid], pm[i][k[valid]], rtol=1e-4, atol=1e-9)

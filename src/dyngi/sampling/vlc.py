@@ -64,6 +64,24 @@ Extension (ours, off by default: ``memory = 1`` is the paper's last-frame-only c
 visible sample there (ages carried through ``prev_leaf``; the neighbour merge is
 applied afresh each frame, so lights do not diffuse further over time).
 
+Exploration by a light tree (ours, ``explorer = "lighttree"``; default ``"global"``, the paper's and the
+issue's global alias table): the exploration strategy is the light hierarchy of ``lights=lighttree``
+(:class:`dyngi.sampling.lighttree.LightTreeSelector`, rebuilt only when a light moved or changed), i.e. a
+*local* exploration strategy that knows the shading point, as the paper's Sec. 8 (limitation 3) suggests
+("local exploration strategies per leaf, e.g. through clustering"). The pmf stays exact:
+``fraction * p_LH(k) + (1 - fraction) * p_VLC(k)``; ``sample`` draws the light-tree sample in the exploration
+lanes and evaluates ``p_LH`` of the VLC's light in the others (one more tree traversal per NEE and per
+BSDF-hit pmf). Lights with zero light-tree importance at a point (behind it) then have exploration pmf 0:
+unbiased for the same reason as above (they send nothing to a diffuse receiver; behind a transmissive
+primary BSDF BSDF sampling reaches them). Why (vlctune ablation, /tmp/figs/vlctune.md): at our resolutions
+the octree leaves hold ~256-512 samples (the issue's floor; the paper's 1080p leaves 2048-4096), far
+regions seen through doors sit in coarse leaves (a depth-1 leaf on warehouse-lights at 160x90) whose VLC
+misses visible lights; the global table reaches a missing light with pmf ~0.1/256, so its NEE or BSDF hit
+is a firefly: 54% of the VLC's squared error in 0.1% of the pixels. With the light-tree explorer:
+warehouse-lights 160x90, frames 1..19, MSE 0.00477 -> 0.00174 (SLL 0.00125, LH 0.00337; firefly share
+54% -> 25%); covered-lights 0.00312 -> 0.00271 (SLL 0.00445, LH 0.00471). Not the default: the issue
+specifies the global alias table.
+
 Sampling uses the shading point's previous-frame position (Sec. 6.3) to find the
 leaf when the caller passes ``p_prev``; ``nee-pt`` passes the current position (no
 motion vectors: the geometry of our scenes is static where it matters, our choice).
@@ -83,6 +101,7 @@ CAPACITY = 32          # bucket capacity (Sec. 7)
 HYSTERESIS = 0.75      # capacity factor when the bucket count would drop (Sec. 4.2: "e.g., 75%")
 EXPLORATION = 0.1      # exploration fraction (Sec. 7)
 EXPLORE_WEIGHTS = (0.6, 0.2, 0.2)   # energy, change, camera distance (our choice)
+EXPLORERS = ("global", "lighttree")   # exploration strategy: the paper's global alias table, or (ours) a light tree
 
 
 # ---------------------------------------------------------------------------------------------
@@ -210,7 +229,8 @@ class VLCSelector:
 
     Parameters: ``tris`` (EmitterTriangles), ``octree`` (AdaptiveOctree; else taken from the FrameCtx),
     ``exploration`` (fraction, 0.1), ``capacity`` (32), ``hysteresis`` (0.75), ``merge_neighbours``
-    (True), ``explore_weights`` ((energy, change, distance) = (0.6, 0.2, 0.2)).
+    (True), ``explore_weights`` ((energy, change, distance) = (0.6, 0.2, 0.2)), ``memory`` (1),
+    ``explorer`` ("global" | "lighttree", module docstring).
     """
 
     name = "vlc"
@@ -218,7 +238,8 @@ class VLCSelector:
 
     def __init__(self, tris: EmitterTriangles, mi_scene=None, bounds=None, octree=None,
                  exploration: float = EXPLORATION, capacity: int = CAPACITY, hysteresis: float = HYSTERESIS,
-                 merge_neighbours: bool = True, explore_weights=EXPLORE_WEIGHTS, memory: int = 1, **_ignored):
+                 merge_neighbours: bool = True, explore_weights=EXPLORE_WEIGHTS, memory: int = 1,
+                 explorer: str = "global", **_ignored):
         if not 0.0 < float(exploration) <= 1.0:
             raise DyngiError(f"VLC exploration fraction {exploration} is out of range (0, 1]")
         if int(capacity) < 1:
@@ -232,6 +253,14 @@ class VLCSelector:
         self.merge = bool(merge_neighbours)
         self.explore_weights = tuple(float(w) for w in explore_weights)
         self.memory = max(1, int(memory))
+        if explorer not in EXPLORERS:
+            raise DyngiError(f"VLC explorer '{explorer}' is unknown; valid choices: {', '.join(EXPLORERS)}")
+        self.explorer = explorer
+        self._lh = None
+        if explorer == "lighttree" and self.L:
+            from .lighttree import LightTreeSelector
+            self._lh = LightTreeSelector(tris)
+        self._lights_changed = False
         self._carry = None
         self.bounds = bounds
         self._records: list = []
@@ -277,9 +306,12 @@ class VLCSelector:
         if power.sum() <= 0:
             power = np.ones_like(power)
         parts, ws = [power / power.sum()], [self.explore_weights[0]]
-        if self._prev_power is not None and self.explore_weights[1] > 0:
+        moved = None
+        if self._prev_power is not None:
             moved = (np.abs(power - self._prev_power) > 1e-6 * (power + 1e-30)) | \
                     np.any(np.abs(h["centroid"] - self._prev_cen) > 1e-6, axis=1)
+        self._lights_changed = bool(moved is not None and np.any(moved))
+        if moved is not None and self.explore_weights[1] > 0:
             ch = np.where(moved, power, 0.0)
             if ch.sum() > 0:
                 parts.append(ch / ch.sum())
@@ -308,6 +340,9 @@ class VLCSelector:
             if getattr(ctx, "octree", None) is not None:
                 self.octree = ctx.octree
         self._build_exploration(ctx)
+        if self._lh is not None and self._lights_changed:    # the explorer's hierarchy follows moving lights
+            self._lh.tris = self.tris
+            self._lh.build()
         Nc = self._n_leaves()
         oc = self.octree
         if not self._records or not self.L:
@@ -466,8 +501,12 @@ class VLCSelector:
         frac = dr.select(has, self.fraction, 1.0)
         u = mi.Float(u)
         explore = u < frac
-        # exploration: a global alias-table sample (u rescaled to [0, 1))
-        k_e = self.explore.sample(dr.minimum(u / frac, 0.99999994), active & explore)
+        # exploration: a global alias-table sample (u rescaled to [0, 1)), or a light-tree sample (explorer)
+        u_e = dr.minimum(u / frac, 0.99999994)
+        if self._lh is not None:
+            k_e, pe_e = self._lh.sample(p, n, u_e, active & explore)
+        else:
+            k_e = self.explore.sample(u_e, active & explore)
         # VLC: bucket uniformly, then (second traversal) a light by importance
         uv = dr.minimum((u - frac) / dr.maximum(1.0 - frac, 1e-12), 0.99999994)
         Bf = mi.Float(B)
@@ -480,7 +519,10 @@ class VLCSelector:
         k_v, w_v = self._select(p, n, start, length, u_l * acc, has & ~explore & (acc > 0.0))
         k = dr.select(explore, k_e, k_v)
         w = dr.select(explore, w_e, w_v)
-        pe = dr.gather(mi.Float, self.explore.pmf, k, active & (k != INVALID))
+        if self._lh is not None:
+            pe = dr.select(explore, pe_e, self._lh.pmf(p, n, k, active & ~explore & (k != INVALID)))
+        else:
+            pe = dr.gather(mi.Float, self.explore.pmf, k, active & (k != INVALID))
         pv = dr.select(has & (acc > 0.0), w / (acc * Bf), 0.0)
         pmf = frac * pe + (1.0 - frac) * pv
         ok = active & (k != INVALID) & (pmf > 0.0)
@@ -498,7 +540,10 @@ class VLCSelector:
         start, length = self._bucket(leaf, light_id % dr.maximum(B, 1), has)
         length = dr.select(has, length, 0)
         acc, w = self._accumulate(p, n, start, length, light_id, has)
-        pe = dr.gather(mi.Float, self.explore.pmf, light_id, active)
+        if self._lh is not None:
+            pe = self._lh.pmf(p, n, light_id, active)
+        else:
+            pe = dr.gather(mi.Float, self.explore.pmf, light_id, active)
         pv = dr.select(has & (acc > 0.0), w / (acc * mi.Float(B)), 0.0)
         return dr.select(active, frac * pe + (1.0 - frac) * pv, 0.0)
 

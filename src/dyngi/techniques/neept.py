@@ -67,6 +67,11 @@ emitter triangle is also recorded as a visible sample of that light at its origi
 leaf's cache for that many frames after its last visible sample.
 ``explore_weights``: the exploration blend (energy, change, camera distance;
 default 0.6, 0.2, 0.2, our choice: the paper gives no weights).
+``explorer=lighttree`` (ours; default ``global``, the paper's alias table): the VLC explores with the
+light tree of ``lights=lighttree`` (exact mixture pmf; warehouse-lights 160x90: MSE 0.00477 -> 0.00174,
+:mod:`dyngi.sampling.vlc`). ``leaf_samples`` (0 = the scaled paper thresholds): octree split threshold
+raised to this many samples per leaf, collapse half of it (an ablation knob; 2048 / 4096 did not lower
+the VLC's error on warehouse-lights at 160x90: 0.00462 / 0.00472 vs 0.00477).
 The selectors' importance is the diffuse irradiance above the (side-corrected)
 shading normal, so behind a rough *transmissive* primary BSDF lights are reached by
 exploration / BSDF sampling only (unbiased, noisier; LTC-like glossy importance is
@@ -117,7 +122,7 @@ def _make_selector(kind: str, tris, mi_scene, bounds, octree, params, dynamic_sh
     opts = dict(octree=octree, dynamic_shapes=list(dynamic_shapes), exploration=params["exploration"],
                 capacity=params["capacity"],
                 hysteresis=params["hysteresis"], merge_neighbours=params["merge_neighbours"], memory=params["memory"],
-                explore_weights=_weights(params["explore_weights"]))
+                explore_weights=_weights(params["explore_weights"]), explorer=params["explorer"])
     if kind == "uniform":
         return UniformSelector(tris, mi_scene=mi_scene, bounds=bounds, **opts)
     if kind == "vlc":
@@ -155,10 +160,14 @@ class NeePT(Technique):
         "cdq_bits": Param(128, "CDQ bit count (directions=cdq)", choices=(32, 64, 96, 128)),
         "cdq_stability": Param(0.1, "CDQ migration stability factor (Sec. 5.1)", min=1e-3, max=1.0),
         "cdq_memory": Param(0.0, "CDQ statistics memory per frame (0 = paper: last frame only)", min=0.0, max=0.99),
+        "explorer": Param("global", "VLC exploration strategy: the paper's global alias table, or a light tree "
+                          "(our extension)", choices=("global", "lighttree")),
         "explore_weights": Param("0.6,0.2,0.2", "VLC exploration blend 'energy,change,camera-distance' (Sec. 4.3)"),
         "memory": Param(1, "VLC: frames a visible light stays in its leaf's cache (1: the paper's last frame only)",
                         min=1, max=64),
         "record_hits": Param(False, "VLC: also learn the lights that indirect rays hit (our extension)"),
+        "leaf_samples": Param(0, "octree split threshold per leaf (collapse: half); 0 = the paper's 4096 scaled "
+                              "to the resolution, floored at 512", min=0, max=1 << 20),
         "progressive": Param(False, "accumulate over frames while the scene is static"),
     }
     BATTERY_PARAMS = {"spp": 1}
@@ -216,6 +225,8 @@ class NeePT(Technique):
         if need_octree:
             from ..sampling.octree import AdaptiveOctree, scaled_thresholds
             split, collapse = scaled_thresholds(MAX_DEPTH * res[0] * res[1] * spp)
+            if p["leaf_samples"] > 0:
+                split, collapse = max(split, int(p["leaf_samples"])), max(collapse, int(p["leaf_samples"]) // 2)
             self.octree = AdaptiveOctree(self.bounds[0], self.bounds[1], split, collapse)
         if p["directions"] == "cdq":
             from ..sampling.cdq import CDQDirections
