@@ -98,7 +98,6 @@ DEFAULT_ATTENUATION = "ratio"
 DEFAULT_EMISSION_SCALE = 1.0
 ATTENUATION_CLIP = 1.0
 """The probe boundary of the emission heuristic: the box probe +- ATTENUATION_CLIP x spacing (module docstring)."""
-WARMUP_FRAME_BASE = 1 << 24   # warm-up updates use frame indices of their own (distinct RNG streams)
 
 
 def _is_delta(e) -> bool:
@@ -329,23 +328,10 @@ class DDGIPlusVolume:
 
     def _warm_up(self, frame, mask, t: StageTimer) -> None:
         """``warmup`` updates before the first image, blended without hysteresis (as ``ddgi`` does):
-        after k updates the cache holds k bounces."""
-        self._warmed = True
-        n = self.params["warmup"]
-        if n <= 0:
-            return
-        b = self.blender
-        saved = (b.hysteresis, b.brightness_threshold)
-        b.hysteresis, b.brightness_threshold = 0.0, float("inf")
-        try:
-            wt = StageTimer()
-            with t.stage("warmup"):
-                for k in range(n):
-                    self.updater.update(self.scene, WARMUP_FRAME_BASE + k, frame.seed, mask, wt,
-                                        force_reclassify=(k == 0))
-            t.add_rays("warmup", sum(wt.as_dict()["rays"].values()))
-        finally:
-            b.hysteresis, b.brightness_threshold = saved
+        after k updates the cache holds k bounces. The same routine as ``ddgi``'s (imported when called:
+        :mod:`dyngi.probes` does not depend on :mod:`dyngi.techniques` at import time)."""
+        from ..techniques.ddgi import _warm_up_volume
+        _warm_up_volume(self, frame, mask, t)
 
     def stats(self) -> dict:
         """The last update's stats."""

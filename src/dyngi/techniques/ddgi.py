@@ -311,7 +311,8 @@ def _warm_up_volume(tech, frame: Frame, mask, t: StageTimer) -> None:
                                     force_reclassify=(k == 0))
         rays = wt.as_dict()["rays"]
         t.add_rays("warmup", sum(rays.values()))
-        tech._learn_shadow_rate(rays)
+        if hasattr(tech, "_learn_shadow_rate"):   # techniques with ray budgets (DDGIPlusVolume has none)
+            tech._learn_shadow_rate(rays)
     finally:
         b.hysteresis, b.brightness_threshold = saved
 
