@@ -170,7 +170,7 @@ from ..sampling.reservoir import Reservoir, finalize, finalize_single, merge
 from ..sampling.rng import make_sampler
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 from .path import trace_paths
-from .restir import ReSTIRPTTechnique, initial_candidates, target
+from .restir import ReSTIRPTTechnique, initial_candidates, spatial_reuse, target
 
 _SHADE_STREAM = 0x5EC0
 """RNG stream of the secondary-vertex shading (the ReSTIR stages use stream 0)."""
@@ -972,45 +972,23 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
         return self._finish(frame, t, Le0 + direct + L_res_d + L_ind, L_ind)
 
     def _spatial_r(self, gb, r_t, active, sampler, time, gmax, g_lum, eps):
-        """Spatial reuse over ``spatial`` neighbours in a disk (Bitterli Alg. 4/5/6) with this target."""
+        """Spatial reuse over ``spatial`` neighbours in a disk (Bitterli Alg. 4/5/6) with this target
+        (restir-pt's :func:`~dyngi.techniques.restir.spatial_reuse`)."""
         p = self.params
-        w, h = gb.res
-        npix = w * h
-        idx = dr.arange(mi.UInt32, npix)
-        x = mi.Int32(idx % w)
-        y = mi.Int32(idx // w)
-        out = Reservoir.empty(r_t.sample, npix)
-        merge(out, r_t, r_t.p_hat, sampler.next_1d(), active, src=0)
-        counts, domains, masks = [r_t.M], [], [active]
-        radius = dr.opaque(mi.Float, p["radius"])
-        for j in range(p["spatial"]):
-            off = mi.warp.square_to_uniform_disk_concentric(sampler.next_2d()) * radius
-            nx = dr.clip(x + mi.Int32(dr.round(off.x)), 0, w - 1)
-            ny = dr.clip(y + mi.Int32(dr.round(off.y)), 0, h - 1)
-            nid = mi.UInt32(ny * w + nx)
-            nvalid = dr.gather(mi.Bool, gb.valid, nid, active)
-            npos = dr.gather(mi.Point3f, gb.pos, nid, active)
-            nn = dr.gather(mi.Vector3f, gb.n_sh, nid, active)
-            ntwo = dr.gather(mi.Bool, gb.transmissive, nid, active)
-            ndepth = dr.gather(mi.Float, gb.depth, nid, active)
-            ngmax = dr.gather(mi.Float, gmax, nid, active)
-            nng = dr.gather(mi.Vector3f, gb.n_geo, nid, active)
-            ng = self._gather_g(g_lum, nid, active)
-            ok = active & (nid != idx) & similar(gb.depth, gb.n_sh, ndepth, nn, nvalid)
-            rn = r_t.gather(nid, ok)
-            ok &= rn.M > 0.0
-            ph_here = self._target(gb.pos, gb.n_sh, gb.transmissive, gmax, rn.sample, time, ok, g_lum, eps,
-                                   gb.n_geo)
-            merge(out, rn, ph_here, sampler.next_1d(), ok, src=j + 1)
-            counts.append(rn.M)
-            domains.append((npos, nn, ntwo, ngmax, ng, nng))
-            masks.append(ok)
-        p_hats = [out.p_hat]
-        for (npos, nn, ntwo, ngmax, ng, nng), ok in zip(domains, masks[1:]):
-            p_hats.append(self._target(npos, nn, ntwo, ngmax, out.sample, time, ok, ng, eps, nng))
-        finalize(out, p["combine"], counts, p_hats, masks)
-        dr.eval(*out.arrays())
-        return out
+
+        def here(sample, ok):
+            return self._target(gb.pos, gb.n_sh, gb.transmissive, gmax, sample, time, ok, g_lum, eps, gb.n_geo)
+
+        def domain(nid, npos, nn, ntwo, act):
+            return (npos, nn, ntwo, dr.gather(mi.Float, gmax, nid, act), self._gather_g(g_lum, nid, act),
+                    dr.gather(mi.Vector3f, gb.n_geo, nid, act))
+
+        def there(dom, sample, ok):
+            npos, nn, ntwo, ngmax, ng, nng = dom
+            return self._target(npos, nn, ntwo, ngmax, sample, time, ok, ng, eps, nng)
+
+        return spatial_reuse(gb, r_t, active, sampler, p["radius"], p["spatial"], p["combine"], here, domain,
+                             there)
 
 
 __all__ = ["DDGISecondaryTechnique", "DDGIResamplingTechnique", "camera_footprint", "footprint_term",

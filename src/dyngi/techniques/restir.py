@@ -333,37 +333,56 @@ class ReSTIRPTTechnique(Technique):
     def _spatial(self, gb, r_t, active, sampler, time):
         """Spatial reuse over ``spatial`` neighbours in a disk (Bitterli Alg. 4/5, unbiased Alg. 6)."""
         p = self.params
-        w, h = gb.res
-        npix = w * h
-        idx = dr.arange(mi.UInt32, npix)
-        x = mi.Int32(idx % w)
-        y = mi.Int32(idx // w)
-        out = Reservoir.empty(r_t.sample, npix)
-        merge(out, r_t, r_t.p_hat, sampler.next_1d(), active, src=0)
-        counts, domains, masks = [r_t.M], [], [active]
-        radius = dr.opaque(mi.Float, p["radius"])
-        for j in range(p["spatial"]):
-            off = mi.warp.square_to_uniform_disk_concentric(sampler.next_2d()) * radius
-            nx = dr.clip(x + mi.Int32(dr.round(off.x)), 0, w - 1)
-            ny = dr.clip(y + mi.Int32(dr.round(off.y)), 0, h - 1)
-            nid = mi.UInt32(ny * w + nx)
-            nvalid = dr.gather(mi.Bool, gb.valid, nid, active)
-            npos = dr.gather(mi.Point3f, gb.pos, nid, active)
-            nn = dr.gather(mi.Vector3f, gb.n_sh, nid, active)
-            ntwo = dr.gather(mi.Bool, gb.transmissive, nid, active)
-            ndepth = dr.gather(mi.Float, gb.depth, nid, active)
-            ok = active & (nid != idx) & similar(gb.depth, gb.n_sh, ndepth, nn, nvalid)
-            rn = r_t.gather(nid, ok)
-            ok &= rn.M > 0.0
-            _, ph_here = self._eval_at(gb.pos, gb.n_sh, gb.transmissive, rn.sample, time, ok)
-            merge(out, rn, ph_here, sampler.next_1d(), ok, src=j + 1)
-            counts.append(rn.M)
-            domains.append((npos, nn, ntwo))
-            masks.append(ok)
-        p_hats = [out.p_hat]
-        for (npos, nn, ntwo), ok in zip(domains, masks[1:]):
-            _, ph = self._eval_at(npos, nn, ntwo, out.sample, time, ok)
-            p_hats.append(ph)
-        finalize(out, p["combine"], counts, p_hats, masks)
-        dr.eval(*out.arrays())
-        return out
+
+        def here(sample, ok):
+            return self._eval_at(gb.pos, gb.n_sh, gb.transmissive, sample, time, ok)[1]
+
+        def there(dom, sample, ok):
+            return self._eval_at(*dom, sample, time, ok)[1]
+
+        return spatial_reuse(gb, r_t, active, sampler, p["radius"], p["spatial"], p["combine"], here,
+                             lambda nid, npos, nn, ntwo, act: (npos, nn, ntwo), there)
+
+
+def spatial_reuse(gb, r_t, active, sampler, radius, count: int, combine: str, eval_here, gather_domain,
+                  eval_there):
+    """Spatial reuse of ``r_t`` over ``count`` neighbours in a disk of ``radius`` pixels (Bitterli et al.
+    Alg. 4/5, the unbiased combination of Alg. 6), for any target function.
+
+    ``eval_here(sample, ok)``: the target of a neighbour's sample at this pixel; ``gather_domain(nid, npos,
+    nn, ntwo, ok)``: what the target needs of neighbour ``nid`` (a tuple); ``eval_there(domain, sample,
+    ok)``: the target of this pixel's chosen sample at that neighbour (for the MIS / 1/Z weights).
+    Shared by ``restir-pt`` and ``ddgi-resampling``."""
+    w, h = gb.res
+    npix = w * h
+    idx = dr.arange(mi.UInt32, npix)
+    x = mi.Int32(idx % w)
+    y = mi.Int32(idx // w)
+    out = Reservoir.empty(r_t.sample, npix)
+    merge(out, r_t, r_t.p_hat, sampler.next_1d(), active, src=0)
+    counts, domains, masks = [r_t.M], [], [active]
+    radius = dr.opaque(mi.Float, radius)
+    for j in range(count):
+        off = mi.warp.square_to_uniform_disk_concentric(sampler.next_2d()) * radius
+        nx = dr.clip(x + mi.Int32(dr.round(off.x)), 0, w - 1)
+        ny = dr.clip(y + mi.Int32(dr.round(off.y)), 0, h - 1)
+        nid = mi.UInt32(ny * w + nx)
+        nvalid = dr.gather(mi.Bool, gb.valid, nid, active)
+        npos = dr.gather(mi.Point3f, gb.pos, nid, active)
+        nn = dr.gather(mi.Vector3f, gb.n_sh, nid, active)
+        ntwo = dr.gather(mi.Bool, gb.transmissive, nid, active)
+        ndepth = dr.gather(mi.Float, gb.depth, nid, active)
+        dom = gather_domain(nid, npos, nn, ntwo, active)
+        ok = active & (nid != idx) & similar(gb.depth, gb.n_sh, ndepth, nn, nvalid)
+        rn = r_t.gather(nid, ok)
+        ok &= rn.M > 0.0
+        merge(out, rn, eval_here(rn.sample, ok), sampler.next_1d(), ok, src=j + 1)
+        counts.append(rn.M)
+        domains.append(dom)
+        masks.append(ok)
+    p_hats = [out.p_hat]
+    for dom, ok in zip(domains, masks[1:]):
+        p_hats.append(eval_there(dom, out.sample, ok))
+    finalize(out, combine, counts, p_hats, masks)
+    dr.eval(*out.arrays())
+    return out
