@@ -30,7 +30,7 @@ def pytest_collection_modifyitems(session, config, items):
     """The battery's 200-frame runs on every built-in scene (``test_finite_slow``: techniques x scenes,
     the bulk of ``-m slow``) run after every other test, so a time-capped slow run (CI stops it after
     45 minutes) always covers the statistical tests first. Stable: the order within each group is kept."""
-    last = [it for it in items if it.nodeid.startswith("tests/test_battery.py::test_finite_slow")]
+    last = [it for it in items if it.nodeid.startswith("tests/techniques/test_battery.py::test_finite_slow")]
     if last:
-        keep = [it for it in items if not it.nodeid.startswith("tests/test_battery.py::test_finite_slow")]
+        keep = [it for it in items if not it.nodeid.startswith("tests/techniques/test_battery.py::test_finite_slow")]
         items[:] = keep + last

@@ -23,7 +23,7 @@ sample) left out and everything from the second vertex on kept. Why:
   estimator;
 * validated against Mitsuba: per-pixel z-tests against ``Mitsuba(D) -
   Mitsuba(2)`` and ``indirect + Mitsuba(2) == Mitsuba(D)``
-  (``tests/test_path.py``, ``tests/test_indirect_reference.py``), and the
+  (``tests/techniques/test_path.py``, ``tests/experiments/test_indirect_reference.py``), and the
   full-image mode of the same tracer is z-tested against Mitsuba on the
   built-in and real scenes.
 

@@ -45,7 +45,7 @@ probe shades can be along ``-w`` -- giving ``d``; then
   literally; it has units 1/m^2 and changes with the scene's unit of length);
 * ``'none'``: no attenuation (the probe-centre value).
 
-Which one: decided by ``tests/test_ddgi_plus.py::test_attenuation_ratio_matches_exact_irradiance``
+Which one: decided by ``tests/probes/test_ddgi_plus.py::test_attenuation_ratio_matches_exact_irradiance``
 (a probe 0.6 m above a floor and 1.4 m below a 0.6 x 0.6 m emitter: the
 floor's query must return the floor's exact irradiance (closed-form form
 factor). Measured: ``'ratio'`` -2% in the scene and in the scene scaled by 10;

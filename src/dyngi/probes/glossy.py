@@ -19,7 +19,7 @@ constant radiance ``L`` holds ``E = pi L`` (our texels store ``E / pi = L``,
 :mod:`dyngi.probes.volume`; :class:`~dyngi.probes.query.ProbeQuery` returns
 ``E``). Prefiltered radiance is therefore ``E / pi``, and the glossy lookup in a
 furnace returns ``albedo_g x L`` with ``/ pi`` and half of it with ``/ 2 pi``:
-``tests/test_ddgi_plus.py::test_glossy_furnace_pi_normalisation`` checks the
+``tests/probes/test_ddgi_plus.py::test_glossy_furnace_pi_normalisation`` checks the
 first and that the second fails. :data:`GLOSSY_NORMALISATION` is the divisor.
 """
 from __future__ import annotations

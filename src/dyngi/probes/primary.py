@@ -13,7 +13,7 @@ Glossy indirect light (``glossy=True``; the probe techniques' ``glossy`` paramet
 the primary vertex adds DDGI Resampling's Eq. 6 glossy term (Majercik et al. 2022, Sec. 3.4;
 :mod:`dyngi.probes.glossy`) to the indirect part, one sample of the BSDF's glossy lobes and the
 probe irradiance read along the sampled direction, over pi (the normalisation settled by
-``tests/test_ddgi_plus.py::test_glossy_furnace_pi_normalisation``):
+``tests/probes/test_ddgi_plus.py::test_glossy_furnace_pi_normalisation``):
 
 ``L += T * E(x, wi) / pi * f_g(wo, wi) cos(n, wi) / p(wi)``.
 

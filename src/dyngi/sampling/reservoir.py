@@ -21,7 +21,7 @@ the domain index the sample came from (for MIS).
                 boundary): those ``M_i`` dilute the estimate and the result is
                 *darker* there (geometric edges, normal discontinuities, and
                 disocclusions when temporal reuse is on) -- measured in
-                ``tests/test_restir.py``;
+                ``tests/techniques/test_restir.py``;
   ``'1/z'``     ``m = 1 / Z``, ``Z = sum_i M_i [p_hat_i(y) > 0]`` (Alg. 6):
                 unbiased;
   ``'mis'``     ``m = p_hat_c(y) / sum_i M_i p_hat_i(y)`` with ``c`` the domain

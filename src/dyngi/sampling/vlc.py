@@ -41,7 +41,7 @@ Frame protocol (driven by ``nee-pt``)
    Fig. 9 "initial state"). A VLC-chosen bucket whose lights all have importance 0
    at the point yields no light (``INVALID``, pmf 0): unbiased, since such lights
    send nothing to a diffuse receiver there; the pmf over the lights then sums to
-   ``1 - (1 - fraction) * (#such buckets) / B`` (tested exactly in tests/test_vlc.py).
+   ``1 - (1 - fraction) * (#such buckets) / B`` (tested exactly in tests/sampling/test_vlc.py).
 
 Importance ``w_k``: the unoccluded irradiance (luminance) of triangle k at the
 shading point, analytic for a diffuse receiver

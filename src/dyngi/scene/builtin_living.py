@@ -30,7 +30,7 @@ sun outside and the interior lit through a window.
 Static for the first second (the leak tests hold t = 0 and measure converged probes); then the sun
 moves (elevation 35 -> 45 deg, azimuth 10 -> -15 deg) between t = 1 and 2 s, so the lit patch moves
 across the floor; duration 4 s.
-``tests/test_living_room.py`` records the leak of ``ddgi`` (and ``ddgi-primary``)
+``tests/scene/test_living_room.py`` records the leak of ``ddgi`` (and ``ddgi-primary``)
 against Mitsuba's ``path``.
 """
 from __future__ import annotations

@@ -28,7 +28,7 @@ column of its Fig. 3 / 8 and Table 1):
 Unlike ``ddgi`` (diffuse indirect only), glossy surfaces reflect indirect
 light (through the recursion). On a scene without any diffuse lobe the
 technique is an unbiased path tracer of depth ``glossy_depth + 2`` (Mitsuba's
-``max_depth``; ``tests/test_ddgi_plus.py`` z-tests it against Mitsuba's ``path``).
+``max_depth``; ``tests/probes/test_ddgi_plus.py`` z-tests it against Mitsuba's ``path``).
 
 Conventions as ``ddgi``: the first frame warms the probes up (``warmup``
 updates without hysteresis), one jittered primary ray per pixel, no

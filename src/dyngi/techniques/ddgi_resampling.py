@@ -88,7 +88,7 @@ which the probes cannot resolve anyway, go to the BSDF sample; scales with the s
 ``'a0'`` ``G_max = gmax * 4 pi / a0(x_1) = gmax cos_1 / |x_0 - x_1|^2`` (the paper's suggestion,
 proportional to the inverse camera footprint), ``'none'`` the constant ``G_max = gmax`` (the paper's 1).
 ``gmax = 0`` sends all probe light through the BSDF sample (the unpartitioned estimate the z-test in
-``tests/test_ddgi_resampling.py`` compares against).
+``tests/techniques/test_ddgi_resampling.py`` compares against).
 
 Control variate (Sec. 5.1), ``control_variate=True`` (``ddgi-resampling`` only): the primary vertex
 gets the exact integral of a control variate ``g`` against its diffuse lobe, and the diffuse lobe's
@@ -114,7 +114,7 @@ miss the scene carry ``-g`` through the residual sample. ``cv_kind`` chooses ``g
   (cornell-static 64x48: 0.310 vs 0.265; /tmp/figs/cv.md).
 
 Both keep the mean of plain resampling given the same probes ("converges to the same (biased)
-solution", Sec. 5.1): ``tests/test_ddgi_cv.py`` (Welch t-tests on frozen probes, and the rejection of a
+solution", Sec. 5.1): ``tests/techniques/test_ddgi_cv.py`` (Welch t-tests on frozen probes, and the rejection of a
 control variate whose integral is scaled by 1.5). The exact integral assumes a Lambertian diffuse lobe
 (``rho = diffuse_albedo``); for lobes whose diffuse part is not ``rho / pi`` (e.g. plastic's
 Fresnel-weighted one) the correction is approximate.
@@ -778,7 +778,7 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
         ``g = E_DDGI+(x_1) / pi``, a constant radiance over the hemisphere (probes read at the primary
         vertex with DDGI's default biases, 0.05 / 0.2 smallest spacings along the normal / towards the
         viewer); its integral against the diffuse lobe is ``rho_1 g`` exactly for a Lambertian lobe
-        (``rho_1`` :func:`~dyngi.sampling.diffuse.diffuse_albedo`). ``tests/test_ddgi_cv.py`` checks that
+        (``rho_1`` :func:`~dyngi.sampling.diffuse.diffuse_albedo`). ``tests/techniques/test_ddgi_cv.py`` checks that
         the estimator's mean does not move with the control variate, and that a wrong integral (this
         method's second value scaled) is detected."""
         n = gb.n_sh

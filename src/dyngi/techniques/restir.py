@@ -50,7 +50,7 @@ as they are now (its emitter may have changed since), (b) a reservoir's ``W``
 from the previous frame is reused although the lights may have moved; both
 vanish on static frames. ``combine='biased'`` darkens where neighbours or the
 previous pixel cannot see the sample (normal/depth edges, disocclusions); its
-bias is measured in ``tests/test_restir.py`` (Cornell box, direct light: image mean -1.3 % +- 0.7 %,
+bias is measured in ``tests/techniques/test_restir.py`` (Cornell box, direct light: image mean -1.3 % +- 0.7 %,
 30 of 432 pixels rejected by the per-pixel test). Shadow rays do not pass through
 glass (unlike the DDGI family's NEE), so the reference is Mitsuba's ``path``.
 

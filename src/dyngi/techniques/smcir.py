@@ -32,7 +32,7 @@ re-uses the selection's random numbers; "the intensities are reestimated for the
 (Sec. 3.2) reads as a fresh estimate. Cost: the <= M_max new VPLs get one extra 16-path estimate per
 frame; when the lighting changes, line 18 traces both streams (2x its rays; the paper's cost:
 ``reestimate='same-seed'``, one estimate for both, the pre-fix behaviour). Tested by a synthetic
-winner's curse (tests/test_smcir_reestimate.py).
+winner's curse (tests/techniques/test_smcir_reestimate.py).
 
 Initialisation: the first I candidates, then ``warmup`` (100) iterations before the first
 frame (Sec. 3.2). Radiosity paths have ``max_depth - 1`` vertices from the VPL: with the

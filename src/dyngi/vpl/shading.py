@@ -57,7 +57,7 @@ TILE = 4
 def clamp_value(scene, clamp_distance: float) -> float:
     """G_max = 1 / (clamp_distance * bbox diagonal)^2 (module docstring); inf for clamp_distance 0.
 
-    Independent of the VPL budget; scales as 1 / D^2 with the scene (tests/test_smcir_clamp.py)."""
+    Independent of the VPL budget; scales as 1 / D^2 with the scene (tests/vpl/test_smcir_clamp.py)."""
     lo, hi = (np.asarray(a, np.float64) for a in scene.meta.bounds)
     diag = float(np.linalg.norm(hi - lo))
     return math.inf if clamp_distance <= 0 else 1.0 / (clamp_distance * diag) ** 2

@@ -15,7 +15,7 @@ reference of 16x the image reference's samples (``E_tracked`` / ``E_prime_tracke
 ``summary.json``), and over all pixels against the image reference. Our sequences are shorter (6 s
 instead of 20-30 s) and our images smaller; the paper's numbers are beside ours for the ranking, not
 for the values. Also ``smcir:density_k=16``: Eq. 8's k = 1 over-estimates 1/p on the blue-noise-like
-VPL set that replacements produce (tests/test_smcir.py), so the table shows what a larger k changes.
+VPL set that replacements produce (tests/techniques/test_smcir.py), so the table shows what a larger k changes.
 ``--quick``: two sequences, 4 frames at 32x24, few warm-up iterations (well under 3 minutes).
 ``--reference clamped`` (Sec. 5.4), ``--untextured`` (Sec. 5) and ``--no-tracked`` reach every sequence.
 

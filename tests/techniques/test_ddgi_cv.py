@@ -131,7 +131,7 @@ def test_control_variate_steady_state_and_reruns(backend, kind):
     """With every reuse on (temporal, spatial, accumulation) on an animated scene: finite frames, no new
     kernel after the warm-up frames (the battery's check, which runs only the default parameters), and
     two runs with the same seed bit-identical (the nearest-ray bins sum in a fixed order)."""
-    from test_battery import jit_hashes, run_frames
+    from tests.techniques.test_battery import jit_hashes, run_frames
 
     sc = load_scene("cornell-moving-light")
     params = {"probe_counts": "4", "rays_per_probe": 64, "warmup": 2, "candidates": 4, "spatial": 2,
@@ -165,9 +165,9 @@ def test_control_variate_with_exact_radiance_matches_mitsuba(backend, kind):
     """With the exact-radiance hook (S(x) path-traced, so plain resampling is unbiased) the control
     variate must keep the estimator unbiased although ``g`` comes from the (biased) probes: the image
     mean over 40 independent frames agrees with a 256-spp Mitsuba ``path`` render (|z| < 3.3, the
-    hook's own test in tests/test_ddgi_resampling.py). Power, measured: the CV integral scaled by 1.5
+    hook's own test in tests/techniques/test_ddgi_resampling.py). Power, measured: the CV integral scaled by 1.5
     gives z = 3.7 (nearest-ray); the frozen-probe test above is the sharper check of that sabotage."""
-    from test_ddgi_resampling import RES as R2, _mitsuba, _run
+    from tests.techniques.test_ddgi_resampling import RES as R2, _mitsuba, _run
 
     scene = load_scene("cornell-static")
     D = 5

@@ -54,7 +54,7 @@ attribute always wins over it.
 
 Measured (2-core box shared with other jobs, load average 3-4, 2026-12-01, 4
 techniques registered): the fast part of this module 25-40 s wall
-(``pytest -q tests/test_battery.py``), ~6-9 s per technique, most of it the
+(``pytest -q tests/techniques/test_battery.py``), ~6-9 s per technique, most of it the
 3 x 200 frames at 32x24 (1-2.3 s per scene); the slow part (the 10 other
 built-in scenes) 7 min 17 s (``-m slow``).
 """

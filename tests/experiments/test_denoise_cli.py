@@ -35,7 +35,7 @@ def test_compare_reports_raw_and_denoised_side_by_side(cache):
     # the denoised row is the same run's frames denoised, not a new run: same time per frame
     assert js["techniques"]["path+denoise"]["ms_per_frame"] == js["techniques"]["path"]["ms_per_frame"]
     # a 1-spp path frame is far noisier than the denoiser leaves it (relMSE: the light's edge pixels
-    # dominate MSE, see tests/test_restir_denoise.py for the error away from them)
+    # dominate MSE, see tests/techniques/test_restir_denoise.py for the error away from them)
     assert js["techniques"]["path+denoise"]["mean"]["relmse"] < js["techniques"]["path"]["mean"]["relmse"]
     assert "substitute for the OptiX denoiser" in (out / "summary.md").read_text()
 
