@@ -26,11 +26,43 @@ def shared_scene(rel: str) -> str:
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 
+BATTERY_SLOW = "tests/techniques/test_battery.py::test_finite_slow"
+
+
 def pytest_collection_modifyitems(session, config, items):
     """The battery's 200-frame runs on every built-in scene (``test_finite_slow``: techniques x scenes,
-    the bulk of ``-m slow``) run after every other test, so a time-capped slow run (CI stops it after
-    45 minutes) always covers the statistical tests first. Stable: the order within each group is kept."""
-    last = [it for it in items if it.nodeid.startswith("tests/techniques/test_battery.py::test_finite_slow")]
+    the bulk of ``-m slow``) run after every other test, so a time-capped slow run always covers the
+    statistical tests first. Stable: the order within each group is kept. With
+    ``DYNGI_SLOW_SUBSET=ci`` (``.ci/run``) only a fixed sample of them runs (:func:`_ci_battery_sample`)."""
+    if os.environ.get("DYNGI_SLOW_SUBSET") == "ci":
+        kept, dropped = _ci_battery_sample(items)
+        if dropped:
+            config.hook.pytest_deselected(items=dropped)
+        items[:] = kept
+    last = [it for it in items if it.nodeid.startswith(BATTERY_SLOW)]
     if last:
-        keep = [it for it in items if not it.nodeid.startswith("tests/techniques/test_battery.py::test_finite_slow")]
+        keep = [it for it in items if not it.nodeid.startswith(BATTERY_SLOW)]
         items[:] = keep + last
+
+
+def _ci_battery_sample(items):
+    """The fixed, representative slow subset CI runs every time (``DYNGI_SLOW_SUBSET=ci``, set by
+    ``.ci/run``): every slow test except the battery's 200-frame ``test_finite_slow`` runs; of those
+    (techniques x scenes) each technique keeps one scene, rotated over the scene list by the
+    technique's sorted position so that the sample covers as many scenes as techniques. Deterministic:
+    the same commit always runs the same subset."""
+    battery = [it for it in items if it.nodeid.startswith(BATTERY_SLOW)]
+    if not battery:
+        return items, []
+    pairs = {}
+    for it in battery:
+        name, scene = it.callspec.params["name"], it.callspec.params["scene_name"]
+        pairs.setdefault(name, []).append((scene, it))
+    keep, drop = [], []
+    for i, name in enumerate(sorted(pairs)):
+        scenes = sorted(pairs[name], key=lambda p: p[0])
+        chosen = scenes[i % len(scenes)][1]
+        keep.append(chosen)
+        drop.extend(it for _, it in scenes if it is not chosen)
+    rest = [it for it in items if not it.nodeid.startswith(BATTERY_SLOW)]
+    return rest + keep, drop
