@@ -198,8 +198,28 @@ def register(cls: type[Technique]) -> type[Technique]:
     return cls
 
 
+_DISCOVERED = False
+
+
+def _discover() -> None:
+    """Import every module of the ``techniques`` package (and of its sub-packages) once, so that each
+    technique registers itself with :func:`register`: a new technique is one new module (or package)
+    and needs no edit elsewhere, as scenes and reproductions are discovered."""
+    global _DISCOVERED
+    if _DISCOVERED:
+        return
+    import importlib
+    import pkgutil
+
+    package = importlib.import_module(__package__)
+    for m in sorted(pkgutil.walk_packages(package.__path__, prefix=f"{__package__}."), key=lambda m: m.name):
+        if not m.name.rsplit(".", 1)[-1].startswith("_"):
+            importlib.import_module(m.name)
+    _DISCOVERED = True
+
+
 def technique_names() -> list[str]:
-    from . import _all  # noqa: F401  (imports every technique module)
+    _discover()
     return sorted(REGISTRY)
 
 

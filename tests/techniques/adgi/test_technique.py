@@ -1,8 +1,7 @@
 """The ``adgi`` technique (Datta et al. 2022): static convergence to ``ddgi`` within a recorded bound, finite
 over an animated sequence, per-stage stats P/S/D, dynamic chains that fire on a moving object, determinism.
 
-The technique module is imported inside the tests (not at collection): until ``adgi`` is listed in
-``dyngi.techniques._all`` the battery must not see it (see the report of engineer H6)."""
+The technique module is imported inside the tests (not at collection), as a user script would."""
 import numpy as np
 import pytest
 
