@@ -1,0 +1,189 @@
+"""Imports go one way, down DESIGN.md's list of layers (issue 23, item 2):
+
+    errors, backend, timing -> metrics, sampling -> scene -> lights, directions -> transport
+    -> probes, vpl -> techniques -> experiments -> viewer -> cli
+
+Read statically from the source (every ``import`` and ``from ... import``, also inside functions,
+relative ones resolved), so a hidden import inside a function counts as much as one at the top.
+A module may import its own layer's package and any layer below it; an import of a higher layer
+is an *upward* import. Among the layer packages the import graph must have no cycle. A technique
+module never imports another technique (DESIGN: techniques compose the layers below).
+
+``KNOWN`` lists the violations that exist today, each with the issue that removes it: the test
+fails on any violation not in it (a new upward import), and on an entry that no longer occurs (so
+the list only shrinks)."""
+from __future__ import annotations
+
+import ast
+import os
+
+import pytest
+
+SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "src", "dyngi")
+
+# layer of each top-level module/package of dyngi, lowest first (DESIGN.md, "Layout by concept")
+LAYERS = {
+    "errors": 0, "backend": 0, "timing": 0, "__init__": 0,
+    "metrics": 1, "sampling": 1,
+    "scene": 2,
+    "lights": 3, "directions": 3,
+    "transport": 4,
+    "probes": 5, "vpl": 5,
+    "techniques": 6,
+    "experiments": 7,
+    "viewer": 8,
+    "cli": 9, "__main__": 9,
+}
+
+# (importer module, imported module) pairs that break the rule today, with the issue that removes them
+KNOWN: dict[tuple[str, str], str] = {
+    # the DDGI+ volume reads ddgi's parameter table and warm-up: moves with the one probe pipeline
+    ("dyngi.probes.ddgi_plus", "dyngi.techniques.base"): "issue 23 (one probe pipeline)",
+    ("dyngi.probes.ddgi_plus", "dyngi.techniques.ddgi"): "issue 23 (one probe pipeline)",
+    ("dyngi.techniques.adgi.technique", "dyngi.techniques.ddgi"): "issue 23 (one probe pipeline)",
+    ("dyngi.techniques.isddgi", "dyngi.techniques.ddgi"): "issue 23 (one probe pipeline)",
+    # the path walk and ReSTIR DI live in techniques: they move to transport/
+    ("dyngi.techniques.ddgi_primary", "dyngi.techniques.restir"): "issue 24 (one transport core)",
+    ("dyngi.techniques.ddgi_resampling", "dyngi.techniques.path"): "issue 24 (one transport core)",
+    ("dyngi.techniques.ddgi_resampling", "dyngi.techniques.restir"): "issue 24 (one transport core)",
+    ("dyngi.techniques.restir", "dyngi.techniques.path"): "issue 24 (one transport core)",
+    ("dyngi.vpl.radiosity", "dyngi.techniques.path"): "issue 24 (one transport core)",
+}
+
+
+def _modules():
+    for root, _, files in os.walk(SRC):
+        for f in files:
+            if f.endswith(".py"):
+                path = os.path.join(root, f)
+                rel = os.path.relpath(path, os.path.dirname(SRC))[:-3].replace(os.sep, ".")
+                if rel.endswith(".__init__"):
+                    rel = rel[: -len(".__init__")]
+                yield rel, path
+
+
+def _is_module(name: str) -> bool:
+    rel = os.path.join(os.path.dirname(SRC), *name.split("."))
+    return os.path.exists(rel + ".py") or os.path.exists(os.path.join(rel, "__init__.py"))
+
+
+def _imports(mod: str, path: str):
+    """Every dyngi module that ``mod`` imports (absolute names)."""
+    tree = ast.parse(open(path, encoding="utf-8").read(), path)
+    is_pkg = path.endswith("__init__.py")
+    pkg = mod if is_pkg else mod.rsplit(".", 1)[0]
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names if a.name.split(".")[0] == "dyngi")
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = pkg.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            if target.split(".")[0] != "dyngi":
+                continue
+            # ``from pkg import a``: ``a`` is a submodule when one of that name exists, else a name of pkg
+            for a in node.names:
+                sub = f"{target}.{a.name}"
+                out.add(sub if _is_module(sub) else target)
+    return out
+
+
+def _top(mod: str) -> str:
+    parts = mod.split(".")
+    return parts[1] if len(parts) > 1 else "__init__"
+
+
+def _technique_unit(mod: str) -> str | None:
+    """The technique a module belongs to (``techniques.ddgi``, ``techniques.adgi``), None for the
+    shared ``techniques`` modules (``base``, ``vpl_base``: the VPL techniques' common base, the package)."""
+    parts = mod.split(".")
+    if len(parts) < 3 or parts[1] != "techniques" or parts[2] in ("base", "vpl_base", "__init__"):
+        return None
+    return parts[2]
+
+
+def violations():
+    found: dict[tuple[str, str], str] = {}
+    graph: dict[str, set[str]] = {}
+    for mod, path in _modules():
+        a = _top(mod)
+        for imp in _imports(mod, path):
+            b = _top(imp)
+            if a not in LAYERS or b not in LAYERS:
+                found[(mod, imp)] = f"layer not declared in DESIGN.md: {a if a not in LAYERS else b}"
+                continue
+            if a != b:
+                graph.setdefault(a, set()).add(b)
+            if LAYERS[b] > LAYERS[a]:
+                found[(mod, imp)] = f"upward import: {a} (layer {LAYERS[a]}) imports {b} (layer {LAYERS[b]})"
+            ta, tb = _technique_unit(mod), _technique_unit(imp)
+            if ta and tb and ta != tb:
+                found[(mod, imp)] = f"technique imports technique: {ta} -> {tb}"
+    return found, graph
+
+
+def _cycles(graph):
+    """Package-level cycles (each as a sorted tuple of its members), by Tarjan's SCC."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+    counter = [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(tuple(sorted(comp)))
+
+    for v in list(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_parser_sees_relative_and_function_level_imports(tmp_path):
+    """The checker itself can fail: a module with an upward import hidden in a function is caught."""
+    f = tmp_path / "x.py"
+    f.write_text("def f():\n    from ..techniques import ddgi\n    from dyngi.experiments import compare\n")
+    got = _imports("dyngi.sampling.x", str(f))
+    assert got == {"dyngi.techniques.ddgi", "dyngi.experiments.compare"}
+
+
+def test_no_new_upward_import():
+    found, _ = violations()
+    new = {k: v for k, v in found.items() if k not in KNOWN}
+    assert not new, "imports against DESIGN.md's layer order:\n" + "\n".join(
+        f"  {a} -> {b}: {why}" for (a, b), why in sorted(new.items()))
+
+
+def test_known_violations_are_still_real():
+    """An entry of KNOWN that no longer occurs must be removed (the list only shrinks)."""
+    found, _ = violations()
+    stale = sorted(k for k in KNOWN if k not in found)
+    assert not stale, "fixed, remove from KNOWN: " + ", ".join(f"{a} -> {b}" for a, b in stale)
+
+
+def test_no_package_cycle():
+    found, graph = violations()
+    known_edges = {(_top(a), _top(b)) for a, b in KNOWN}
+    pruned = {a: {b for b in bs if (a, b) not in known_edges} for a, bs in graph.items()}
+    cycles = _cycles(pruned)
+    assert not cycles, f"import cycles among packages: {cycles}"
