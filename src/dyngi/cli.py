@@ -168,11 +168,19 @@ def cmd_reference(args) -> int:
 
 
 def _report_failures(out) -> int:
-    """Print the techniques that returned NaN/Inf pixels (from summary.json); 1 if any, else 0."""
+    """Print the techniques that returned NaN/Inf pixels (from summary.json, or merged from the
+    sub-folders' when the top level has none); 1 if any, else 0."""
     import json
 
-    with open(os.path.join(out, "summary.json")) as f:
-        techs = json.load(f)["techniques"]
+    from .experiments.reproductions._summary import merged_techniques
+
+    try:
+        with open(os.path.join(out, "summary.json")) as f:
+            techs = json.load(f).get("techniques")
+    except (OSError, ValueError):
+        techs = None
+    if techs is None:
+        techs = merged_techniques(out)
     bad = [f"{t} ({s['nonfinite_pixels']} NaN/Inf pixels in {s['nonfinite_frames']} frame(s))"
            for t, s in techs.items() if s.get("failed")]
     if bad:

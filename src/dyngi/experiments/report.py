@@ -316,12 +316,14 @@ def _side_by_side(path, images, refs, fps):
     write_mp4(path, frames, fps=fps)
 
 
-def _b64(path, mime):
+def data_uri(path: str, mime: str) -> str:
+    """The file at ``path`` as a ``data:`` URI (reports embed their images, so one file is the report)."""
     with open(path, "rb") as f:
         return f"data:{mime};base64," + base64.b64encode(f.read()).decode()
 
 
-def _md_table_to_html(md: str) -> str:
+def md_to_html(md: str) -> str:
+    """The subset of Markdown our summaries use (headings, bullets, paragraphs, pipe tables) as HTML."""
     out, in_table = [], False
     for line in md.splitlines():
         if line.startswith("|"):
@@ -354,18 +356,18 @@ def _report_html(tmp, scene, md, plots, grids, video):
     parts = ["<!doctype html><html><head><meta charset='utf-8'><title>dyngi compare: "
              f"{html.escape(scene.name)}</title><style>body{{font-family:sans-serif;max-width:1200px;margin:auto}}"
              "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}"
-             "img{max-width:100%}</style></head><body>", _md_table_to_html(md)]
+             "img{max-width:100%}</style></head><body>", md_to_html(md)]
     if scene.description:
         parts.append(f"<p><i>Scene:</i> {html.escape(scene.description)}"
                      + (f" (stands for {html.escape(scene.stands_for)})" if scene.stands_for else "") + "</p>")
     parts.append("<h2>Errors and timing</h2>")
-    parts += [f"<img src='{_b64(p, 'image/png')}'>" for p in plots]
+    parts += [f"<img src='{data_uri(p, 'image/png')}'>" for p in plots]
     parts.append("<h2>Images and FLIP error maps</h2>")
-    parts += [f"<img src='{_b64(p, 'image/png')}'>" for p in grids]
+    parts += [f"<img src='{data_uri(p, 'image/png')}'>" for p in grids]
     if video:
         vp = os.path.join(tmp, "side_by_side.mp4")
         if os.path.getsize(vp) < 30 * 1024 * 1024:
-            parts.append(f"<h2>Side by side</h2><video controls loop src='{_b64(vp, 'video/mp4')}'></video>")
+            parts.append(f"<h2>Side by side</h2><video controls loop src='{data_uri(vp, 'video/mp4')}'></video>")
         else:
             parts.append("<h2>Side by side</h2><video controls loop src='side_by_side.mp4'></video>")
     parts.append("</body></html>")

@@ -42,7 +42,6 @@ frame 38.8 vs 36.4 ms (trace 28.4 vs 27.4, migration 2.1 ms).
 from __future__ import annotations
 
 import csv
-import html
 import os
 import time
 
@@ -272,9 +271,6 @@ def reproduce_cdq(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
                     f"step; references: Mitsuba path, {cfg['ref_spp']} spp, max depth 3. 1 spp everywhere. Per-frame "
                     "MSE in a_mse.csv / b_mse.csv. Part (b) uses medians over frames (heavy-tailed 1-spp MSE).", "", paper_table(rows), ""])
     techs = {k: {"failed": v > 0, "nonfinite_pixels": v, "nonfinite_frames": int(v > 0)} for k, v in _NONFINITE.items()}
-    with open(os.path.join(out_dir, "report.html"), "w") as f:
-        f.write("<html><body><pre>" + html.escape(md) + "</pre>" + "".join(
-            f'<img src="{n}" width="320">' for n in sorted(os.listdir(out_dir)) if n.endswith(".png")) + "</body></html>")
     return write_summary(out_dir, md, {"summary.json": {"experiment": "cdq", "techniques": techs}, "paper.json": {"experiment": "cdq", "quick": quick, "paper": PAPER,
                                                       "a": a, "b": b,
                                                       "rows": [{"quantity": q, "paper": p, "ours": o}
