@@ -39,54 +39,37 @@ def run_with_budget(scene, tech, frames, res, seed, budget, first: SequenceResul
                     label: str | None = None) -> SequenceResult:
     """``run_sequence``, with the first technique's per-frame rays or time as this technique's budget.
 
-    ``first`` None (or ``budget == 'equal-frames'``): a plain run. Otherwise each frame is run on its
-    own with the budget set on its :class:`Frame`, the frame index and the static flag restored as
-    ``run_sequence`` sets them.
+    ``first`` None (or ``budget == 'equal-frames'``): a plain run. Otherwise frame ``i`` gets
+    :func:`frame_budget`'s budget on its :class:`Frame` (one run, the runner's frame loop).
     """
     if first is None or budget == "equal-frames":
         seq = run_sequence(scene, tech, frames, res, seed=seed, progress=bar)
-        if label is not None:
-            seq.technique = label
-        return seq
-    merged = SequenceResult(label or tech.name)
-    wrapped = _Budgeted(tech, None, None)
-    tb = time_budget_ms(first)
-    balance = 0.0     # rays spent minus rays budgeted over the steady frames so far
-    for i in range(frames):
-        if budget == "equal-rays":
-            b = first.stats[i].get("total_rays")
-            wrapped.rb = None if b is None else max(1, int(round(b - balance)))
-        else:
-            wrapped.rb = None
-        wrapped.tb = tb if budget == "equal-time" else None
-        seq = run_sequence(scene, wrapped, 1, res, seed=seed, t0=scene.frame_time(i))
-        if budget == "equal-rays" and i > 0 and first.stats[i].get("total_rays") is not None:
-            balance += seq.stats[0].get("total_rays", 0) - first.stats[i]["total_rays"]
-        merged.times += seq.times
-        merged.images += seq.images
-        merged.indirect += seq.indirect
-        merged.stats += seq.stats
-        merged.wall_ms += seq.wall_ms
-        if bar is not None:
-            bar.update(1)
-    return merged
+    else:
+        seq = run_sequence(scene, tech, frames, res, seed=seed, progress=bar,
+                           frame_budget=frame_budget(budget, [s.get("total_rays") for s in first.stats],
+                                                     time_budget_ms(first)))
+    if label is not None:
+        seq.technique = label
+    return seq
 
 
-class _Budgeted:
-    """Wraps a technique so each step receives a ray or time budget (frame index restored)."""
+def frame_budget(budget: str, rays: list, ms: float | None = None):
+    """The per-frame budget callback of :func:`~dyngi.experiments.runner.run_sequence` for ``budget``.
 
-    def __init__(self, tech, ray_budget, time_budget):
-        self.tech, self.rb, self.tb = tech, ray_budget, time_budget
-        self.name = tech.name
-        self.prev_sig = None
+    ``equal-rays``: frame ``i`` gets ``rays[i]`` minus what the run overspent (plus what it left unspent)
+    on its earlier steady frames (frame 0 is not repaid: it holds one-off work); a frame whose budget is
+    unknown (``rays[i]`` None) gets none. ``equal-time``: every frame gets ``ms``.
+    """
+    def budget_of(i: int, so_far: SequenceResult):
+        if budget == "equal-time":
+            return None, ms
+        if i >= len(rays) or rays[i] is None:
+            return None, None
+        balance = sum(st.get("total_rays", 0) - rays[j] for j, st in enumerate(so_far.stats)
+                      if j > 0 and rays[j] is not None)
+        return max(1, int(round(rays[i] - balance))), None
 
-    def step(self, frame):
-        frame.ray_budget, frame.time_budget_ms = self.rb, self.tb
-        frame.index = int(round(frame.time * self.tech.scene.fps))
-        sig = self.tech.scene.signature(frame.time)   # static as in run_sequence: nothing moved since the last frame
-        frame.static = sig == self.prev_sig
-        self.prev_sig = sig
-        return self.tech.step(frame)
+    return budget_of
 
 
 def budget_accounting(seq: SequenceResult, first: SequenceResult, budget: str) -> dict | None:

@@ -138,26 +138,22 @@ def ddgi_reconvergence(scene, res, before: int, after: int, ref_spp: int, ref_de
     from ..metrics import relmse
     from ..techniques.base import Frame, create_technique
     from .reference import reference_halves
-    import time
 
     t_a, t_b = scene.frame_time(0), 0.25 * scene.duration
     ref_a, _ = reference_halves(scene, t_a, res, ref_spp, ref_depth)
     ref_b, _ = reference_halves(scene, t_b, res, ref_spp, ref_depth)
+    from .runner import run_sequence
+
     tech = create_technique("ddgi", scene, params or {})
-    errs, ms = [], []
-    prev = None
-    for i in range(before + after):
-        t = t_a if i < before else t_b
-        scene.at(t)
-        frame = Frame(index=i, time=t, camera=scene.camera(t), res=tuple(res), seed=seed, static=(t == prev))
-        prev = t
-        w0 = time.perf_counter()
-        r = tech.step(frame)
-        ms.append(1e3 * (time.perf_counter() - w0))
+    errs = []
+
+    def on_frame(i, frame, r):
         img = np.asarray(r.image)
         errs.append(relmse(img, ref_a if i < before else ref_b) if np.all(np.isfinite(img)) else float("nan"))
-        if bar is not None:
-            bar.update(1)
+
+    seq = run_sequence(scene, tech, 0, res, seed=seed, times=[t_a] * before + [t_b] * after, progress=bar,
+                       on_frame=on_frame, keep_images=False)
+    ms = seq.wall_ms
     e_after = np.asarray(errs[before:])
     tail = max(1, len(e_after) // 4)
     conv_after = float(np.median(e_after[-tail:]))

@@ -52,18 +52,38 @@ def parse_res(text: str) -> tuple[int, int]:
 
 
 def run_sequence(scene, technique, frames: int, res: tuple[int, int], seed: int = 0, t0: float = 0.0,
-                 ray_budget: int | None = None, progress=None, on_frame=None, keep_images=True) -> SequenceResult:
-    """Run ``technique`` over ``frames`` frames of ``scene`` starting at time ``t0``."""
+                 ray_budget: int | None = None, progress=None, on_frame=None, keep_images=True,
+                 times=None, frame_budget=None) -> SequenceResult:
+    """Run ``technique`` over ``frames`` frames of ``scene`` starting at time ``t0``: the one frame loop
+    that comparisons, budgets, reproductions and tests share.
+
+    ``times``: the scene time of each frame (a sequence; ``frames`` is then its length), for protocols
+    that hold or jump the scene (a static view accumulated, a light that jumps); default
+    ``t0 + scene.frame_time(i)``. ``frame_budget(i, out)``: called before frame ``i`` with the result so
+    far, returns ``(ray_budget, time_budget_ms)`` for that frame (either None), for budgets that depend
+    on what earlier frames spent; otherwise every frame gets ``ray_budget``. ``on_frame(i, frame,
+    result)`` is called after each frame; returning True stops the run there (a protocol that stops
+    once a target error is reached).
+
+    A frame is *static* when the scene's signature equals the previous frame's (nothing moved); frame
+    0 never is. This is the only place that decides it.
+    """
+    if times is not None:
+        times = list(times)
+        frames = len(times)
     if frames < 1:
         raise DyngiError(f"number of frames must be >= 1, got {frames}")
     out = SequenceResult(technique.name)
     prev_sig = None
     for i in range(frames):
-        t = t0 + scene.frame_time(i)
+        t = times[i] if times is not None else t0 + scene.frame_time(i)
         scene.at(t)
         sig = scene.signature(t)
-        frame = Frame(index=i, time=t, camera=scene.camera(t), res=res, seed=seed,
-                      ray_budget=ray_budget, static=(sig == prev_sig))
+        rb, tb = (ray_budget, None) if frame_budget is None else frame_budget(i, out)
+        frame = Frame(index=i, time=t, camera=scene.camera(t), res=tuple(res), seed=seed,
+                      ray_budget=rb, static=(sig == prev_sig))
+        if tb is not None:
+            frame.time_budget_ms = tb
         prev_sig = sig
         w0 = time.perf_counter()
         r: FrameResult = technique.step(frame)
@@ -77,8 +97,8 @@ def run_sequence(scene, technique, frames: int, res: tuple[int, int], seed: int 
         if keep_images:
             out.images.append(r.image)
             out.indirect.append(r.indirect)
-        if on_frame is not None:
-            on_frame(i, frame, r)
         if progress is not None:
             progress.update(1)
+        if on_frame is not None and on_frame(i, frame, r):
+            break
     return out

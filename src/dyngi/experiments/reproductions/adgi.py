@@ -127,32 +127,23 @@ def run_frames(scene, tech, times, res, seed: int = 0, budgets=None, keep=True) 
     """Step ``tech`` over scene ``times`` (frame ``i`` at ``times[i]``); ``budgets``: per-frame ray budgets
     set by another run (``{'rays': [...]}``), with the over-spend of earlier steady frames repaid as in
     :func:`dyngi.experiments.budgets.run_with_budget`. Returns images, indirect images, stats, wall ms."""
-    from ...techniques.base import Frame
+    from ..budgets import frame_budget
+    from ..runner import run_sequence
 
     out = {"times": list(times), "images": [], "indirect": [], "stats": [], "ms": [], "nonfinite_pixels": 0,
            "nonfinite_frames": 0}
-    prev, balance = None, 0.0
-    for i, t in enumerate(times):
-        scene.at(t)
-        sig = scene.signature(t)
-        rb = None
-        if budgets is not None:
-            rb = max(1, int(round(budgets[i] - balance)))
-        frame = Frame(index=i, time=t, camera=scene.camera(t), res=tuple(res), seed=seed, static=(sig == prev),
-                      ray_budget=rb)
-        prev = sig
-        w0 = time.perf_counter()
-        r = tech.step(frame)
-        out["ms"].append(1e3 * (time.perf_counter() - w0))
-        out["stats"].append(r.stats)
-        if budgets is not None and i > 0:
-            balance += r.stats.get("total_rays", 0) - budgets[i]
+
+    def on_frame(i, frame, r):
         bad = int(np.sum(~np.isfinite(np.asarray(r.image))))
         out["nonfinite_pixels"] += bad
         out["nonfinite_frames"] += int(bad > 0)
         if keep:
             out["images"].append(np.asarray(r.image))
             out["indirect"].append(None if r.indirect is None else np.asarray(r.indirect))
+
+    seq = run_sequence(scene, tech, 0, res, seed=seed, times=times, on_frame=on_frame, keep_images=False,
+                       frame_budget=None if budgets is None else frame_budget("equal-rays", list(budgets)))
+    out["stats"], out["ms"] = seq.stats, seq.wall_ms
     return out
 
 

@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import csv
 import os
-import time
 
 import numpy as np
 
@@ -69,24 +68,18 @@ def _has_param(name: str) -> bool:
 
 def _run(scene, spec: str, frames: int, res, t_of, on_image, seed: int = 0):
     """Run ``spec`` for ``frames`` frames (scene time ``t_of(i)``); ``on_image(i, img)``; return (wall ms, stats)."""
-    from ...techniques.base import Frame, create_technique
+    from ...techniques.base import create_technique
+    from ..runner import run_sequence
 
     tech = create_technique(spec, scene)
-    walls, stats, prev_sig = [], [], None
-    for i in range(frames):
-        t = t_of(i)
-        scene.at(t)
-        sig = scene.signature(t)
-        fr = Frame(index=i, time=t, camera=scene.camera(t), res=tuple(res), seed=seed, ray_budget=None,
-                   static=(sig == prev_sig))
-        prev_sig = sig
-        w0 = time.perf_counter()
-        r = tech.step(fr)
-        walls.append(1e3 * (time.perf_counter() - w0))
-        stats.append(r.stats)
+
+    def on_frame(i, frame, r):
         _NONFINITE[spec] = _NONFINITE.get(spec, 0) + int((~np.isfinite(r.image)).sum())
         on_image(i, np.asarray(r.image, np.float64))
-    return walls, stats
+
+    seq = run_sequence(scene, tech, 0, res, seed=seed, times=[t_of(i) for i in range(frames)], on_frame=on_frame,
+                       keep_images=False)
+    return seq.wall_ms, seq.stats
 
 
 def _mse(img, ref, mask=None):

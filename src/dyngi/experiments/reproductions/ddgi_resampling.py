@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import csv
 import os
-import time
 
 import numpy as np
 
@@ -73,18 +72,14 @@ def run_technique(scene, name: str, res, frames: int, ref, aux=None, stop_at=Non
 
     Stops early once both targets (``stop_at``, ``stop_at_dn``) are reached. Returns
     ``{'mape', 'mape_dn', 'ms', 'table2'}`` (per frame)."""
-    from ...techniques import Frame, create_technique
+    from ...techniques import create_technique
     from ..denoise import denoise
+    from ..runner import run_sequence
 
     tech = create_technique(name, scene, {})
-    t0 = scene.frame_time(0)
-    scene.at(t0)
     out = {"mape": [], "mape_dn": [], "ms": [], "table2": []}
-    for i in range(frames):
-        f = Frame(index=i, time=t0, camera=scene.camera(t0), res=tuple(res), seed=seed, static=i > 0)
-        w0 = time.perf_counter()
-        r = tech.step(f)
-        out["ms"].append(1e3 * (time.perf_counter() - w0))
+
+    def on_frame(i, frame, r):
         out["table2"].append(r.stats.get("table2_ms"))
         img = np.asarray(r.image)
         out["mape"].append(_mape(img, ref) if np.all(np.isfinite(img)) else float("nan"))
@@ -92,8 +87,11 @@ def run_technique(scene, name: str, res, frames: int, ref, aux=None, stop_at=Non
             out["mape_dn"].append(_mape(denoise(img, *aux), ref))
         done = stop_at is not None and out["mape"][-1] <= stop_at
         done_dn = aux is None or (stop_at_dn is not None and out["mape_dn"][-1] <= stop_at_dn)
-        if done and done_dn and i + 1 >= MIN_FRAMES:
-            break
+        return done and done_dn and i + 1 >= MIN_FRAMES
+
+    seq = run_sequence(scene, tech, 0, res, seed=seed, times=[scene.frame_time(0)] * frames, on_frame=on_frame,
+                       keep_images=False)
+    out["ms"] = seq.wall_ms
     return out
 
 
