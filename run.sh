@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # dyngi launcher: sets up .venv (packages + the libLLVM runtime Dr.Jit needs) on first use, then
 #   bash run.sh demo [--out DIR] [...]   the main job (frames, video, metrics table, report)
-#   bash run.sh test [pytest args]       the test suite
+#   bash run.sh test [pytest args]       the test suite (installs Debian's chromium for the browser tests)
 #   bash run.sh dyngi ARGS...            any dyngi command
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")"
@@ -30,6 +30,20 @@ fi
 
 cmd="${1:-demo}"
 shift || true
+
+# Debian's chromium drives the viewer's browser tests (tests/viewer): installed for `test` when missing,
+# as root where apt-get exists; tried once per .venv, and a failure only skips those tests
+chrome_stamp=".venv/.dyngi-chromium-tried"
+if [ "$cmd" = test ] && ! command -v chromium >/dev/null 2>&1 && [ ! -e "$chrome_stamp" ] \
+   && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+  echo "run.sh: installing Debian's chromium for the viewer's browser tests (apt-get, once) ..." >&2
+  if (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium) >/dev/null 2>&1; then
+    echo "run.sh: chromium installed" >&2
+  else
+    echo "run.sh: warning: could not install chromium (apt-get failed); the browser tests will skip (under CI=true they fail)" >&2
+  fi
+  touch "$chrome_stamp" 2>/dev/null || true
+fi
 case "$cmd" in
   demo)  exec .venv/bin/dyngi demo "$@" ;;
   test)  exec .venv/bin/python -m pytest -q "$@" ;;

@@ -7,6 +7,7 @@
     dyngi compare SCENE --techniques a,b:key=v   metrics, plots, report.html
     dyngi reproduce NAME [--quick]     a paper's comparison on the analog scenes, beside its figures
     dyngi probe-view SCENE             the probe volume of ddgi as spheres
+    dyngi view SCENE [--techniques a,b]  interactive browser viewer (camera, techniques, probes, error view)
     dyngi demo                         the main job on a built-in scene
 
 Errors caused by input print one line (``dyngi: error: ...``) and exit 2.
@@ -293,6 +294,14 @@ def cmd_probe_view(args) -> int:
     return 0
 
 
+def cmd_view(args) -> int:
+    from .experiments.runner import parse_res
+    from .viewer.server import run_viewer
+
+    return run_viewer(args.scene, args.techniques, host=args.host, port=args.port, res=parse_res(args.res),
+                      device=args.device, ref_spp=args.ref_spp)
+
+
 def cmd_demo(args) -> int:
     from .experiments.compare import run_compare
     from .experiments.runner import parse_res
@@ -433,6 +442,22 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", required=True, help="output folder (probes.png, probes.exr, frame.png)")
     common(s, frames_default=1, res_default="320x240")
     s.set_defaults(fn=cmd_probe_view)
+
+    s = sub.add_parser("view", help="interactive browser viewer: camera, animation, techniques side by side, "
+                                    "probes, live stats, error view")
+    s.add_argument("scene", help="built-in scene name or path to a scene file")
+    s.add_argument("--techniques", default="ddgi",
+                   help="comma-separated specs offered on the page (default ddgi); the first is shown, a second "
+                        "beside it in the split view")
+    s.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    s.add_argument("--port", type=int, default=None,
+                   help="port (default 8765, or a free one when it is taken; 0: any free port)")
+    s.add_argument("--res", default="320x180", help="render size WxH (default 320x180)")
+    s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=128,
+                   help="samples per pixel of the error view's reference (default 128)")
+    s.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
+                   help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
+    s.set_defaults(fn=cmd_view)
 
     s = sub.add_parser("demo", help="the main job: compare techniques on an animated Cornell box")
     s.add_argument("--out", default="out/demo")
