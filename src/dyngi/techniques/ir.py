@@ -6,10 +6,18 @@ point, spot, directional, environment); each diffuse hit of the first
 ``N = floor(I / bounces)`` photons fill at most ``I`` slots; photons that leave
 the scene or hit a non-diffuse surface leave fewer VPLs, so IR may not use its
 whole budget (Sec. 5.1): ``stats['vpls_used']`` reports how many it used. No view
-adaptivity and no temporal coherence mechanism; the photon set's random numbers
-are fixed per photon and seed (frame-independent: Keller's deterministic point
-set; a moving light moves the whole set). Shading as every VPL technique
-(:mod:`dyngi.techniques.vpl_base`). Parameters: the common ones only.
+adaptivity and "no special consideration for temporal coherence" (Sec. 5.1).
+Shading as every VPL technique (:mod:`dyngi.techniques.vpl_base`).
+
+Parameters (besides the common ones of :mod:`~dyngi.techniques.vpl_base`)
+-------------------------------------------------------------------------
+photons : str = 'per-frame'   'per-frame': a new photon set every frame (random numbers from
+                              ``(seed, frame)``): the paper's IR baseline, which flickers even under
+                              static lights; 'fixed': one photon set for the whole sequence
+                              (Keller's deterministic point set, frame-independent random numbers):
+                              on static lights and geometry it cannot flicker -- a temporal-coherence
+                              device the paper's IR lacks, so it is reported as its own row
+                              (``ir:photons=fixed``), never as the paper's baseline (issue 29).
 
 Bias: clamping (the geometry term, ``clamp_distance``) and the finite bounce count.
 """
@@ -19,14 +27,19 @@ import numpy as np
 
 from ..sampling.rng import mix_seed
 from ..vpl.points import trace_photons
-from .base import Frame, StageTimer, register
-from .vpl_base import VPLTechnique
+from .base import Frame, Param, StageTimer, register
+from .vpl_base import COMMON_PARAMS, VPLTechnique
+
+PHOTON_MODES = ("per-frame", "fixed")
 
 
 @register
 class InstantRadiosity(VPLTechnique):
     name = "ir"
     description = "instant radiosity (Keller 1997): photons from the lights, a VPL at each diffuse bounce"
+    PARAMS = {**COMMON_PARAMS,
+              "photons": Param("per-frame", "photon set: 'per-frame' (new random numbers each frame, the paper's "
+                               "IR) or 'fixed' (one set for the sequence)", choices=PHOTON_MODES)}
     BATTERY_PARAMS = {"vpls": 48}
     FURNACE_PARAMS = {"vpls": 6144, "shading": "exhaustive"}
     FURNACE_TOL = 0.04
@@ -39,7 +52,8 @@ class InstantRadiosity(VPLTechnique):
             return z, z, z, {"vpls_used": 0, "vpl_budget": self.budget}
         n_ph = max(1, self.budget // b)
         with t.stage("photons"):
-            v, rays = trace_photons(self.scene, n_ph, b, mix_seed(frame.seed, 0, 0x1A))
+            key = frame.index if self.params["photons"] == "per-frame" else 0
+            v, rays = trace_photons(self.scene, n_ph, b, mix_seed(frame.seed, 0, 0x1A), frame=key)
         t.add_rays("photons", rays)
         flux = np.where(v["used"][:, None], v["radiosity"] / n_ph, 0.0).astype(np.float32)
         return v["pos"], v["nrm"], flux, {"vpls_used": int(v["used"].sum()), "vpl_budget": self.budget}

@@ -14,7 +14,7 @@ selection of :mod:`dyngi.techniques.smcir` works on them).
 * :func:`camera_sees` -- a point lies in the view frustum and the camera ray to it is unoccluded.
 * :func:`trace_photons` -- Keller's instant radiosity (1997): photons from the
   lights (``scene.sample_emitter_ray``: area, point, spot, directional, environment),
-  a VPL at each diffuse bounce.
+  a VPL at each diffuse bounce; the photon set is drawn per ``frame`` key.
 """
 from __future__ import annotations
 
@@ -176,7 +176,7 @@ def camera_sees(scene, camera, res, pts: np.ndarray, nrm: np.ndarray | None = No
     return out, int(inside.sum())
 
 
-def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 0x1A):
+def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 0x1A, frame: int = 0):
     """Keller's instant radiosity: ``n_photons`` light paths, a VPL at each of the first ``bounces``
     diffuse hits. Slot ``b * n_photons + j`` is bounce ``b + 1`` of photon ``j``.
 
@@ -185,9 +185,13 @@ def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 
     radiance-like value ``L = beta rho / pi`` (beta: w_j times the albedos before y), to be weighted by
     ``1 / n_photons`` in shading. It continues by cosine sampling (weight rho). Returns dict of NumPy
     arrays (``pos``, ``nrm``, ``albedo``, ``radiosity``, ``used``) and the rays traced.
+
+    The random numbers come from ``(seed, frame, stream)`` (an opaque seed: a new ``frame`` compiles
+    nothing): ``ir`` passes the frame index (a new photon set per frame, the paper's IR) or 0 (one
+    fixed set for the whole sequence, ``photons='fixed'``).
     """
     mscene = _mscene(scene)
-    sampler = make_sampler(n_photons, seed, 0, stream)     # frame-independent: a fixed photon set
+    sampler = make_sampler(n_photons, seed, frame, stream)
     ray, w, _ = mscene.sample_emitter_ray(0.0, sampler.next_1d(), sampler.next_2d(), sampler.next_2d(),
                                           mi.Bool(True))
     beta = mi.Color3f(w)
