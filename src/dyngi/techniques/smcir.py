@@ -10,7 +10,7 @@ and replaces at most ``M_max`` of them per frame. Algorithm 1, per frame:
    (2) rounds in which up to I points of X each cast rays to V (16) random invalid
    VPLs: a clear, mutually facing segment validates the VPL and becomes its mailbox;
 3. candidates: one cosine ray from each point of X (16 I raw hits), their kNN density
-   among themselves (Eq. 7, k of Eq. 8 for the raw count), I drawn by weighted
+   among themselves (Eq. 7 with k = 1, Sec. 3.2.4: lines 6 and 8 use k = 1), I drawn by weighted
    resampling without replacement toward uniform area density (weights 1 / p, Sec. 3.2.1);
 4. candidate radiosities (``radiosity_spp`` = 16 paths with NEE, per-candidate seed,
    Sec. 3.2.3) and densities (k = 1 against the current VPLs, Sec. 3.2.4);
@@ -97,6 +97,9 @@ from .vpl_base import COMMON_PARAMS, VPLTechnique
 
 _S_CAND, _S_RESAMPLE, _S_SEEDS, _S_VALID = 0x5C1, 0x5C2, 0x5C3, 0x5C4
 REESTIMATE_MODES = ("independent", "same-seed")
+CANDIDATE_K = 1
+"""k of the candidates' densities, lines 6 and 8 (Sec. 3.2.4: "For candidates ... We set k=1"): the raw
+hits' density among themselves for the resampling of line 6, and against the current VPLs for line 8."""
 WARMUP_FRAME_BASE = 1 << 30
 """Frame keys of the warm-up iterations' random streams (beyond any real frame index)."""
 
@@ -132,7 +135,8 @@ class SMCIR(VPLTechnique):
     """Eq. 8's k = 1 over-estimates the furnace's indirect light once replacements have made the set
     blue-noise-like (measured, 2048 VPLs, 4-30 warm-up iterations: +28% sphere, +26% ellipsoid; with no
     replacements: +5% / +1%; density_k=8: +7%; density_k=32: +2% / +3%): the furnace checks the rest of
-    the machinery with k = 32 (the kNN bias of Sec. 3.3, documented, not hidden)."""
+    the machinery with k = 32 (the kNN bias of Sec. 3.3, documented, not hidden); the defaults' own
+    bias (~1.4x on cornell-static) is bounded by tests/techniques/test_smcir_bias.py."""
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
@@ -159,7 +163,7 @@ class SMCIR(VPLTechnique):
         with t.stage("resampling"):
             m = len(cand["pos"])
             if m > I:
-                p_raw = knn_density(cand["pos"], k=knn_k(m))
+                p_raw = knn_density(cand["pos"], k=CANDIDATE_K)
                 with np.errstate(divide="ignore"):
                     wts = np.where(p_raw > 0, 1.0 / np.maximum(p_raw, 1e-300), np.inf)
                 sel = resample_without_replacement(wts, I, self._rng(frame.seed, key, _S_RESAMPLE))
@@ -258,7 +262,7 @@ class SMCIR(VPLTechnique):
         with t.stage("candidates"):
             used = np.flatnonzero(st.used)
             n_c = len(cand["pos"])
-            dens = knn_density(st.pos[used], cand["pos"], k=1, n_total=max(len(used), 1)) if len(used) else \
+            dens = knn_density(st.pos[used], cand["pos"], k=CANDIDATE_K, n_total=max(len(used), 1)) if len(used) else \
                 np.zeros(n_c)
             lum = cand["radiosity"].astype(np.float64) @ LUMINANCE
             with np.errstate(divide="ignore", invalid="ignore"):
