@@ -55,6 +55,7 @@ FIXED_SCALE = float(1 << FIXED_POINT_BITS)
 MAX_TERM = float(1 << 27)               # a term w * x above this saturates (2^57 of 2^64: room for 128 of them)
 ESTIMATORS = ("auto", "matrix", "scatter")
 SCATTER_MODES = ("auto", "kernel", "bin")
+LOCAL = dr.ReduceMode.Local           # see fixed_point_sum
 
 
 @dataclass
@@ -253,6 +254,10 @@ def fixed_point_sum(values, weight, entry, n: int, active):
     per lane. Terms are rounded to ``FIXED_POINT_BITS`` fractional bits and added
     as UInt64 (associative: the same bits whatever the order of the atomics).
     Returns (list of Float64 sums, Float64 weight sum, UInt32 counts).
+
+    ``ReduceMode.Local``: on the LLVM backend ``Auto`` picks ``Expand`` for targets of up to
+    ``dr.expand_threshold()`` entries, which bakes ``n`` into the kernel as a literal; ``n`` follows the
+    probes a frame traces (ragged plans, budgets), so that would compile new kernels on steady frames.
     """
     active = active & (weight > 0.0)
 
@@ -260,14 +265,14 @@ def fixed_point_sum(values, weight, entry, n: int, active):
         return mi.UInt64(dr.round(dr.select(x > 0.0, dr.minimum(x, MAX_TERM), 0.0) * FIXED_SCALE))
 
     sw = dr.zeros(mi.UInt64, n)
-    dr.scatter_reduce(dr.ReduceOp.Add, sw, fixed(weight), entry, active)
+    dr.scatter_reduce(dr.ReduceOp.Add, sw, fixed(weight), entry, active, mode=LOCAL)
     sums = []
     for v in values:
         s = dr.zeros(mi.UInt64, n)
-        dr.scatter_reduce(dr.ReduceOp.Add, s, fixed(weight * v), entry, active)
+        dr.scatter_reduce(dr.ReduceOp.Add, s, fixed(weight * v), entry, active, mode=LOCAL)
         sums.append(s)
     cnt = dr.zeros(mi.UInt32, n)
-    dr.scatter_reduce(dr.ReduceOp.Add, cnt, mi.UInt32(1), entry, active)
+    dr.scatter_reduce(dr.ReduceOp.Add, cnt, mi.UInt32(1), entry, active, mode=LOCAL)
     inv = 1.0 / FIXED_SCALE
     return [mi.Float64(s) * inv for s in sums], mi.Float64(sw) * inv, cnt
 

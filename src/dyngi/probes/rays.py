@@ -77,7 +77,8 @@ class RayPlan:
         self.offsets = np.asarray(self.offsets, np.int64)
         if self.slot is None:
             if self.rays_per_probe:
-                self.slot = dr.arange(mi.UInt32, P * self.rays_per_probe) // self.rays_per_probe
+                n = dr.opaque(mi.UInt32, self.rays_per_probe)    # not a literal: budgets change it per frame
+                self.slot = dr.arange(mi.UInt32, P * self.rays_per_probe) // n
             else:
                 self.slot = upload(np.repeat(np.arange(P, dtype=np.uint32), self.counts), mi.UInt32)
 
@@ -122,8 +123,9 @@ def _shared_plan(probe_ids: np.ndarray, dirs: np.ndarray) -> RayPlan:
     pids = mi.UInt32(np.asarray(probe_ids, np.uint32))
     m = len(probe_ids) * n
     idx = dr.arange(mi.UInt32, m)
-    slot = idx // n
-    local = idx - slot * n
+    nn = dr.opaque(mi.UInt32, n)     # a budget changes n per frame: not a literal in the kernels
+    slot = idx // nn
+    local = idx - slot * nn
     probe = dr.gather(mi.UInt32, pids, slot)
     dset = mi.Float(np.asarray(dirs, np.float32).ravel())
     d = dr.gather(mi.Vector3f, dset, local)

@@ -153,38 +153,46 @@ def _summaries_numpy(volume, pid, dirs, dist, shared):
 
 def _summaries_drjit(volume, pid, dirs, dist):
     """The same summaries as :func:`_summaries_numpy` from the device distances of a shared
-    direction set: per-ray work and block reductions in Dr.Jit, launched here without waiting;
-    returns a function that collects the (P,) arrays on the host."""
+    direction set: one lane per probe walks its ``N`` rays in a symbolic loop (``N`` opaque: a budget
+    changes it per frame, and a block reduction over ``N`` rays would bake it into the kernels);
+    launched here without waiting; returns a function that collects the (P,) arrays on the host."""
     from ..backend import dr, mi
 
     P, N = len(pid), len(dirs)
     d = mi.Float(dist)
-    ray = dr.arange(mi.UInt32, P * N)
-    slot = ray // N
-    r = ray - slot * N
-    back = d < 0.0
-    front = (d > 0.0) & dr.isfinite(d)
+    nn = dr.opaque(mi.UInt32, N)
     inf = dr.inf
-    t_back = dr.select(back, d * (-1.0 / BACKFACE_DISTANCE_SCALE), inf)
-    t_front = dr.select(front, d, inf)
-    w = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(dirs).ravel()), r)
+    dset = mi.Float(np.ascontiguousarray(dirs, np.float32).ravel())
     lo, hi = _cell_extents(volume, pid)
-    lo_d = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(lo).ravel()), slot)
-    hi_d = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(hi).ravel()), slot)
-    ext = dr.select(w > 0.0, hi_d, lo_d)
-    t_axis = dr.select(dr.abs(w) > 0.0, ext / dr.abs(w), inf)
-    t_exit = dr.minimum(dr.minimum(t_axis.x, t_axis.y), t_axis.z)
-    near = front & (d <= t_exit)
-    n_back = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(back), N)
-    tb = dr.block_reduce(dr.ReduceOp.Min, t_back, N)
-    tf = dr.block_reduce(dr.ReduceOp.Min, t_front, N)
-    n_near = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(near), N)
-    dr.eval(n_back, tb, tf, n_near)
-    # the first ray reaching each minimum (argmin); N when the probe has no such hit
-    big = mi.UInt32(N)
-    ib = dr.block_reduce(dr.ReduceOp.Min, dr.select(back & (t_back == dr.gather(mi.Float, tb, slot)), r, big), N)
-    i_f = dr.block_reduce(dr.ReduceOp.Min, dr.select(front & (t_front == dr.gather(mi.Float, tf, slot)), r, big), N)
-    dr.eval(ib, i_f)
+    lo_d = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(lo).ravel()), dr.arange(mi.UInt32, P))
+    hi_d = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(hi).ravel()), dr.arange(mi.UInt32, P))
+    base = dr.arange(mi.UInt32, P) * nn
+
+    def body(r, n_back, n_near, tb, tf, ib, i_f):
+        x = dr.gather(mi.Float, d, base + r)
+        back = x < 0.0
+        front = (x > 0.0) & dr.isfinite(x)
+        t_back = dr.select(back, x * (-1.0 / BACKFACE_DISTANCE_SCALE), inf)
+        t_front = dr.select(front, x, inf)
+        w = dr.gather(mi.Vector3f, dset, r)
+        ext = dr.select(w > 0.0, hi_d, lo_d)
+        t_axis = dr.select(dr.abs(w) > 0.0, ext / dr.abs(w), inf)
+        t_exit = dr.minimum(dr.minimum(t_axis.x, t_axis.y), t_axis.z)
+        n_back += mi.UInt32(back)
+        n_near += mi.UInt32(front & (x <= t_exit))
+        nb = back & (t_back < tb)         # strict: the first ray reaching the minimum (argmin)
+        nf = front & (t_front < tf)
+        tb = dr.select(nb, t_back, tb)
+        ib = dr.select(nb, r, ib)
+        tf = dr.select(nf, t_front, tf)
+        i_f = dr.select(nf, r, i_f)
+        return r + 1, n_back, n_near, tb, tf, ib, i_f
+
+    big = dr.zeros(mi.UInt32, P) + nn   # N when the probe has no such hit
+    init = (mi.UInt32(0), dr.zeros(mi.UInt32, P), dr.zeros(mi.UInt32, P), dr.full(mi.Float, inf, P),
+            dr.full(mi.Float, inf, P), big, mi.UInt32(big))
+    _, n_back, n_near, tb, tf, ib, i_f = dr.while_loop(init, lambda r, *_: r < nn, body)
+    dr.eval(n_back, n_near, tb, tf, ib, i_f)
     return lambda: {"back_ratio": np.asarray(n_back, np.float64) / N, "t_back": np.asarray(tb, np.float32),
                     "t_front": np.asarray(tf, np.float32), "i_back": np.minimum(np.asarray(ib, np.int64), N - 1),
                     "i_front": np.minimum(np.asarray(i_f, np.int64), N - 1), "near_any": np.asarray(n_near) > 0}

@@ -579,8 +579,9 @@ class ADGITechnique(_ProbeTechniqueBase):
         d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(oo)
         dr.eval(probe, d, ok)
         if self._dynamic_rays is not None:    # budget: whole proxy octants, in order, while rays remain
-            per = dr.zeros(mi.UInt32, n_marked)
-            dr.scatter_reduce(dr.ReduceOp.Add, per, mi.UInt32(1), m, ok)
+            # lanes of one proxy octant are contiguous: a block sum, not a scatter into n_marked slots
+            # (on LLVM that bakes n_marked into the kernel, a new kernel whenever it changes)
+            per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27 * R)
             cost = np.cumsum(np.asarray(per, np.float64) * (2.0 + self._shadow_rate))
             n_keep = int(np.searchsorted(cost, self._dynamic_rays, side="right"))
             ok &= m < dr.opaque(mi.UInt32, n_keep)
