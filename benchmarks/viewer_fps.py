@@ -54,8 +54,10 @@ async def client(url: str, seconds: float, switches: list[str]):
         await pump(t0 + seconds)
         got = [f for f in frames[n0:] if f[1]["slot"] == "a"]
         out["fps"] = len(got) / (time.perf_counter() - t0)
-        ddgi = [s["wall_ms"] for s in stats.get("ddgi", [])[3:]]
-        out["ddgi_ms"] = sorted(ddgi)[len(ddgi) // 2] if ddgi else None
+        ddgi = sorted(s["wall_ms"] for s in stats.get("ddgi", [])[3:])
+        enc = sorted(s["encode_ms"] for s in stats.get("ddgi", [])[3:])
+        out["ddgi_ms"] = ddgi[len(ddgi) // 2] if ddgi else None
+        out["encode_ms"] = enc[len(enc) // 2] if enc else None
         out["switches"] = []
         for spec in switches:
             sent = time.perf_counter()
@@ -94,7 +96,7 @@ def main() -> int:
     load = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     print(f"`{' '.join(['dyngi'] + cmd[3:])}`, {os.cpu_count()} cores, uptime: {load}\n")
     print(f"* streamed: **{res['fps']:.1f} frames/s** of ddgi over {a.seconds:g} s (error view off, playing); "
-          f"ddgi median frame {res['ddgi_ms']:.1f} ms")
+          f"ddgi median frame {res['ddgi_ms']:.1f} ms, tonemap + JPEG {res['encode_ms']:.1f} ms")
     for s in res["switches"]:
         print(f"* switch to `{s['spec']}`: first frame on the page after **{s['latency_ms']:.0f} ms**; that frame "
               f"took {s['first_frame_ms']:.0f} ms to render (kernel compilation), steady frames "

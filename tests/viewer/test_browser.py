@@ -101,6 +101,21 @@ def _wait_frames(page, n: int, slot="a", timeout=30):
     page.wait_for(f"(window.dyngiView.framesBySlot['{slot}'] || 0) >= {start + n}", timeout)
 
 
+def _wait_idle(page, quiet_s=0.8, timeout=30):
+    """Wait until no frame has arrived for ``quiet_s``: paused and still, the viewer stops after its still
+    frames, so the image on the page no longer changes."""
+    end = time.monotonic() + timeout
+    last, since = _frames(page), time.monotonic()
+    while time.monotonic() < end:
+        time.sleep(0.1)
+        n = _frames(page)
+        if n != last:
+            last, since = n, time.monotonic()
+        elif time.monotonic() - since >= quiet_s:
+            return
+    raise AssertionError(f"the viewer kept rendering for {timeout} s while paused and still")
+
+
 def test_binds_to_localhost_only(viewer):
     assert viewer["url"].startswith("http://127.0.0.1:")
 
@@ -118,11 +133,8 @@ def test_page_loads_and_shows_a_frame(page):
 def test_camera_drag_changes_the_image(page):
     page.evaluate("window.dyngiView.send({type: 'play', playing: false})")
     page.wait_for("window.dyngiView.state && window.dyngiView.state.playing === false", 10)
-    _wait_frames(page, 3)
-    a, b = _canvas_png(page), None
-    _wait_frames(page, 2)
+    _wait_idle(page)
     b = _canvas_png(page)
-    noise = np.abs(_blocks(a) - _blocks(b)).mean()
     r = page.evaluate("(() => { const r = document.getElementById('view').getBoundingClientRect();"
                       " return {x: r.x, y: r.y, w: r.width, h: r.height}; })()")
     cx, cy = r["x"] + r["w"] / 2, r["y"] + r["h"] / 2
@@ -130,7 +142,7 @@ def test_camera_drag_changes_the_image(page):
     _wait_frames(page, 4)
     c = _canvas_png(page)
     moved = np.abs(_blocks(c) - _blocks(b)).mean()
-    assert moved > max(4 * noise, 3.0), (moved, noise)
+    assert moved > 3.0, moved
     assert page.evaluate("window.dyngiView.state.follow") is False
 
 
@@ -175,12 +187,14 @@ def test_probe_overlay_and_error_view(page):
     page.evaluate(f"window.dyngiView.send({{type: 'technique', slot: 'a', spec: '{SPEC_A}'}})")
     page.wait_for(f"window.dyngiView.state.overlays.includes('probes') && "
                   f"window.dyngiView.stats.a.spec === '{SPEC_A}'", 30)
+    _wait_idle(page)
     base = _canvas_png(page)
     page.evaluate("const s = document.getElementById('overlay'); s.value = 'probes';"
                   "s.dispatchEvent(new Event('change'))")
     page.wait_for("window.dyngiView.stats.a.overlay_ms > 0", 30)
     _wait_frames(page, 1)
-    assert np.abs(_blocks(_canvas_png(page), 12) - _blocks(base, 12)).mean() > 1.0
+    drawn = np.abs(_blocks(_canvas_png(page), 12) - _blocks(base, 12)).mean()
+    assert drawn > 1.5, drawn
     # error view: a 4-spp reference at the current (still) view, HDR-FLIP in [0, 1]
     page.evaluate("const e = document.getElementById('errview'); e.checked = true;"
                   "e.dispatchEvent(new Event('change'))")

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
 import signal
 import struct
 import sys
@@ -296,12 +297,15 @@ def run_viewer(scene_name: str, techniques: str = "ddgi", host: str = "127.0.0.1
                             device=device, ref_spp=ref_spp, still_frames=still_frames)
     server = ViewerServer(session, host, port)
     holder["server"] = server
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:          # SIGTERM before the server runs (building the techniques) stops as Ctrl-C does
+        old_term = signal.signal(signal.SIGTERM, _raise_interrupt)
     session.start()
     try:
         while not session.ready.wait(0.2):
             pass
     except KeyboardInterrupt:
-        session.stop(5.0)
+        _stop_or_exit(session, out)
         raise
     if session.startup_error:
         session.stop(5.0)
@@ -320,6 +324,22 @@ def run_viewer(scene_name: str, techniques: str = "ddgi", host: str = "127.0.0.1
     except KeyboardInterrupt:
         pass
     finally:
-        ok = session.stop(30.0)
-    print("dyngi view: stopped" + ("" if ok else " (a frame was still rendering)"), file=out, flush=True)
+        _stop_or_exit(session, out)
+        if main_thread:
+            signal.signal(signal.SIGTERM, old_term)
+    print("dyngi view: stopped", file=out, flush=True)
     return 0
+
+
+def _raise_interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _stop_or_exit(session, out, timeout: float = 10.0) -> None:
+    """Stop the render thread; if a frame is still rendering after ``timeout`` s, end the process now
+    (a daemon thread inside a Dr.Jit kernel at interpreter shutdown could crash it)."""
+    if not session.stop(timeout):
+        print(f"dyngi view: stopped (a frame was still rendering after {timeout:g} s; not waiting for it)",
+              file=out, flush=True)
+        sys.stderr.flush()
+        os._exit(0)

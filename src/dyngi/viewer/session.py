@@ -388,6 +388,7 @@ class RenderSession:
             s.image = r.image
             from ..experiments.io import tonemap_srgb
 
+            e0 = time.perf_counter()
             u8 = tonemap_srgb(np.nan_to_num(r.image, nan=0.0, posinf=0.0, neginf=0.0), exposure)
             ov_ms = 0.0
             if overlay != "none" and overlay in overlays.available(s.tech):
@@ -396,6 +397,7 @@ class RenderSession:
                 ov_ms = 1e3 * (time.perf_counter() - o0)
             jpeg = encode_jpeg(u8, self.jpeg_quality)
             now = time.perf_counter()
+            encode_ms = 1e3 * (now - e0) - ov_ms      # tonemap + JPEG: the viewer's own cost per frame
             s.sent = [x for x in s.sent[-29:] if now - x < 3.0] + [now]
             fps = (len(s.sent) - 1) / (s.sent[-1] - s.sent[0]) if len(s.sent) > 2 else None
             switch_ms = None
@@ -409,7 +411,7 @@ class RenderSession:
                       "w": self.res[0], "h": self.res[1]}
             self.publish("frame", (header, jpeg))
             self.publish("stats", {"type": "stats", "slot": name, "spec": s.spec, "frame": s.frames - 1, "t": t,
-                                   "static": static, "wall_ms": wall, "overlay_ms": ov_ms, "fps": fps,
+                                   "static": static, "wall_ms": wall, "overlay_ms": ov_ms, "encode_ms": encode_ms, "fps": fps,
                                    "first_frame_ms": s.first_frame_ms, "switch_ms": switch_ms,
                                    "nonfinite_pixels": nonfinite, "playing": self.playing,
                                    "stats": _jsonable_stats(r.stats)})

@@ -168,6 +168,7 @@
       html += `<tr><td><b>frame ${m.frame}</b></td><td><b>${fmt(m.wall_ms)}</b></td><td><b>${fmtRays(tr)}</b></td></tr>`;
       html += `<tr class="dim"><td>frames/s</td><td>${fmt(m.fps)}</td><td></td></tr>`;
       if (m.first_frame_ms) html += `<tr class="dim"><td>first frame (compile)</td><td>${fmt(m.first_frame_ms, 0)}</td><td></td></tr>`;
+      html += `<tr class="dim"><td>tonemap + JPEG</td><td>${fmt(m.encode_ms)}</td><td></td></tr>`;
       if (m.overlay_ms) html += `<tr class="dim"><td>overlay</td><td>${fmt(m.overlay_ms)}</td><td></td></tr>`;
       if (m.nonfinite_pixels) html += `<tr><td style="color:var(--bad)">NaN/Inf pixels</td><td>${m.nonfinite_pixels}</td><td></td></tr>`;
       html += "</table><br>";
