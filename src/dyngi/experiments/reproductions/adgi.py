@@ -32,12 +32,8 @@ Issue 12 item 8, on our analog scenes, with the paper's figures beside ours (``s
   +1 s, +2 s (:data:`GLOSSY_TIMES`; the paper's start, +10 s, +15 s are beyond our 4 s loop), the mean
   indirect luminance over the reference's, and the per-stage ms beside Table 4's "Sponza - Glossy" row
   (the timings Fig. 10 quotes, 19.7 vs 31.6 ms). Fig. 10's SSIM/MSE are quoted beside ours; our floor is
-  untextured, so its "without texture" pairs are the closer analog. Run in ``--quick`` too: measured
-  5-8 s there (load 7.5; its references cached or not), under the 20 s allowed; the whole ``--quick``
-  then took 47 s (load 5-6). Measured (quick): ADGI ahead of Q-DDGI at all three marks (indirect SSIM
-  0.79-0.82 vs 0.71-0.75; the paper's ranking), both ~50 % below the reference's mean indirect (the
-  8x8 cosine-prefiltered probes blur the alpha-0.04 floor's reflection; Sec. 6's limitation), and
-  ~2x below it with ``glossy=false`` (SSIM 0.56-0.58 vs 0.52-0.53).
+  untextured, so its "without texture" pairs are the closer analog. Run in ``--quick`` too. Figures
+  measured with it: docs/benchmarks.md ("Moved from module docstrings").
 
 Our substitutions (also in the summary): a procedural tunnel and atrium for Bistro and Sponza; a CPU
 (Dr.Jit LLVM) at low resolution instead of an RTX 2080 Ti at 1920x1080; our probe grids (tunnel 8x6x32 =
@@ -48,22 +44,10 @@ sampled at ``dt`` (quick: 0.25 s) instead of the frame rate's 1/30 s, so a frame
 change than one of the paper's. MSE is on linear radiance (the paper's images are display-referred), so
 compare SSIM and the rankings, not the MSE values.
 
-Measured 2026-12-02 (the 2-core box shared with 8 other jobs; /tmp/figs/adgi.md has every figure):
-``--quick`` 26-43 s (load 3-8, references cached or not); the full run 268 s wall, 103 s CPU (load
-6-11). Full run: after the gate is fully open, adgi's relMSE is within 10 % of its steady level after
-6 frames, qddgi's after 28 (adgi@equal-rays: 24); steady relMSE 0.024 / 0.071 / 0.148 (adgi / qddgi /
-adgi@equal-rays). Atrium
-indirect SSIM at start/+2 s/+3 s 0.81/0.81/0.81 (adgi) vs 0.72/0.77/0.76 (qddgi) -- the paper's ranking.
-Static tunnel at equal time: adgi ahead from the second check point (SSIM 0.75 vs 0.68). ADGI's
-probe-sampling time is 7.6x Q-DDGI's at our 1536-probe grid (paper: 0.49x at 2.36M probes), spending 11x
-the rays at its defaults; at Q-DDGI's ray count (~40k a frame at 64x48: primary 6k, pilot 6k, static
-10.5k, dynamic 17k) it falls behind Q-DDGI on the tunnel: a few thousand samples a frame over ~460 probes
-of V_in do not keep up with the opening gate.
-
 ``--quick``: 32x24, dt = 0.25 s, few held frames, 32 spp ground truth (a few minutes on the shared
 2-core box); the full run: 64x48, dt = 1/15 s (every other frame of the scenes' 30 fps), 30 held frames,
-128 spp, the probe reference at 16x16 texels x 4 rays -- what the shared box allows (see the figures file
-for how long it took).
+128 spp, the probe reference at 16x16 texels x 4 rays -- what the shared box allows (docs/benchmarks.md
+records how long it took).
 """
 from __future__ import annotations
 

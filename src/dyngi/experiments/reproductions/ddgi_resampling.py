@@ -20,13 +20,7 @@ Room, the thin-walled sunlit room; skipped with a note if the scene is absent). 
 paper's Table 1 (RTX 3090, 1920x1080) and Table 2 per-stage averages; compare ratios, not milliseconds.
 ``--quick``: 48x27, few frames, 64-spp references (a smoke run; the ratios are then very noisy).
 
-Measured (full run, 96x54, 2026-12-02, 2-core box at load ~15, 8 min): ddgi-resampling reaches equal
-MAPE 2.1x / 1.8x / 2.3x / 0.3x / 0.4x faster than restir-pt on cornell-static / corridor-rooms /
-atrium-sun / glossy-floor / living-room (paper: 84x-5800x; the >= 50x target is not met). Every
-DDGI technique reaches ddgi-resampling's first-frame MAPE in its first frame, restir-pt in 1-9
-frames: at these resolutions restir-pt's single-frame MAPE is only ~1.2-1.5x ddgi-resampling's, the
-probes' bias (emission heuristic, leaks) keeps the DDGI techniques' MAPE up, and the CPU probe update
-(100-1070 ms at 96x54) makes a DDGI frame 1-5x a restir-pt frame.
+Figures measured with it: docs/benchmarks.md.
 """
 from __future__ import annotations
 

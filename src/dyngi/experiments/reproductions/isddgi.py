@@ -9,19 +9,9 @@ blend + states) per steady frame; their ratios beside the abstract's figures ("s
 with a speedup of 1.27x to 2.47x in total DDGI time and 3.29x to 6.64x in probes ray tracing time").
 
 Both techniques run their defaults at equal frames (no budget); hardware, resolution and scenes differ
-from the paper's, so compare ratios and trends. ``--quick``: three scenes, few frames, small images
-(measured: 40 s on the shared 2-core box).
+from the paper's, so compare ratios and trends. ``--quick``: three scenes, few frames, small images.
 
-Measured 2026-12-02 (run_scene at 64x48, 24 frames, corridor-rooms 45 so that its light switch at frame
-30 is inside the run, reference 128 spp; the 2-core box shared with other jobs, load ~12: milliseconds
-noisy to about 2x between runs): isddgi traced 12.0x / 6.2x / 4.6x / 6.3x / 5.3x fewer probe rays than ddgi on
-corridor-rooms / cornell-moving-box / tunnel-gate / atrium-sun / cornell-moving-light, probe-trace time
-5.1x / 2.8x / 2.2x / 3.8x / 3.7x lower (fixed per-kernel costs weigh more at these small ray counts),
-probe-update time 1.75x lower on corridor-rooms and 0.6-0.8x elsewhere: the 256-set integration plus
-the merge into 18x18 atlases (~3.5x ddgi's BLAS blend) outweighs the saved rays where tracing is cheap; the
-plan is ~30 ms per frame on ~2048 probes (sparse host allocation, device-side directions). MSE vs the ground
-truth 1.00x / 1.00x / 0.93x / 1.00x / 1.00x of ddgi's; FLIP 0.430 vs 0.412 / 0.198 vs 0.200 / 0.192 vs 0.203 /
-0.135 vs 0.134 / 0.279 vs 0.266 (isddgi vs ddgi).
+Figures measured with it: docs/benchmarks.md.
 """
 from __future__ import annotations
 
