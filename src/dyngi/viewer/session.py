@@ -88,6 +88,7 @@ class Slot:
     image: np.ndarray | None = None
     requested_at: float | None = None   # when the page asked for this technique (switch latency)
     first_frame_ms: float | None = None
+    build_ms: float | None = None       # creating the technique (before its first frame)
     wall_ms: list = field(default_factory=list)
     sent: list = field(default_factory=list)   # perf_counter of recent frames (fps)
 
@@ -324,6 +325,7 @@ class RenderSession:
             if want is None:
                 self.slots[slot] = Slot()
                 continue
+            b0 = time.perf_counter()
             try:
                 tech = self._build(slot, want)
             except Exception as e:  # noqa: BLE001
@@ -338,7 +340,8 @@ class RenderSession:
                 continue
             finally:
                 self.busy = None
-            self.slots[slot] = Slot(spec=want, tech=tech, requested_at=cur.requested_at or time.perf_counter())
+            self.slots[slot] = Slot(spec=want, tech=tech, requested_at=cur.requested_at or time.perf_counter(),
+                                    build_ms=1e3 * (time.perf_counter() - b0))
         if changed:
             self._last_tick = None
             self.publish("state", self.state())
@@ -412,7 +415,8 @@ class RenderSession:
             self.publish("frame", (header, jpeg))
             self.publish("stats", {"type": "stats", "slot": name, "spec": s.spec, "frame": s.frames - 1, "t": t,
                                    "static": static, "wall_ms": wall, "overlay_ms": ov_ms, "encode_ms": encode_ms, "fps": fps,
-                                   "first_frame_ms": s.first_frame_ms, "switch_ms": switch_ms,
+                                   "first_frame_ms": s.first_frame_ms, "build_ms": s.build_ms,
+                                   "switch_ms": switch_ms,
                                    "nonfinite_pixels": nonfinite, "playing": self.playing,
                                    "stats": _jsonable_stats(r.stats)})
         if republish:
