@@ -494,8 +494,11 @@ class ADGITechnique(_ProbeTechniqueBase):
 
         n_run = self._n_run = self._chains_to_run()
         st = self.static_state
-        if n_run < st.n:      # a budget runs the first n_run chains; the others keep their states
-            lane = dr.arange(mi.UInt32, n_run)
+        if self._static_rays is not None:     # a budget runs the first n_run chains; the others keep their
+            # states (this path even when n_run is all of them: one set of kernels whatever the budget)
+            # + an opaque 0: Dr.Jit turns a gather of all lanes by a plain arange into the source itself, which
+            # would make the n_run == n frames launch other kernels than the others
+            lane = dr.arange(mi.UInt32, n_run) + dr.opaque(mi.UInt32, 0)
             sub = ChainState(dr.gather(mi.Vector3f, st.position, lane), dr.gather(mi.Vector3f, st.direction, lane))
             sub, s = self.static.run(sub, target, frame.seed, frame.index)
             pos, dirs = mi.Vector3f(st.position), mi.Vector3f(st.direction)
