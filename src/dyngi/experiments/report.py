@@ -263,7 +263,11 @@ def _grid(tmp, i, images, refs, flip):
     import matplotlib.pyplot as plt
 
     names = list(images)
-    fig, axes = plt.subplots(len(names), 3, figsize=(9, 2.6 * len(names)), squeeze=False)
+    # constrained layout keeps each row's titles clear of the images above (tight_layout with a suptitle
+    # let them overlap); the row height follows the image's aspect, plus room for the titles
+    h, w = np.asarray(refs[i]).shape[:2]
+    fig, axes = plt.subplots(len(names), 3, figsize=(9, (2.9 * h / w + 0.45) * len(names) + 0.35), squeeze=False,
+                             layout="constrained")
     for r, name in enumerate(names):
         img = np.asarray(images[name][i])
         if np.all(np.isfinite(img)):
@@ -281,7 +285,6 @@ def _grid(tmp, i, images, refs, flip):
         for a in axes[r]:
             a.axis("off")
     fig.suptitle(f"frame {i}")
-    fig.tight_layout()
     p = os.path.join(tmp, f"grid_{i:04d}.png")
     fig.savefig(p, dpi=90)
     plt.close(fig)
