@@ -294,6 +294,16 @@ def cmd_probe_view(args) -> int:
     return 0
 
 
+def _port(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--port must be an integer, got '{text}'") from None
+    if not 0 <= v <= 65535:
+        raise argparse.ArgumentTypeError(f"--port must be in 0..65535 (0: any free port), got {v}")
+    return v
+
+
 def cmd_view(args) -> int:
     from .experiments.runner import parse_res
     from .viewer.server import run_viewer
@@ -450,7 +460,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma-separated specs offered on the page (default ddgi); the first is shown, a second "
                         "beside it in the split view")
     s.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
-    s.add_argument("--port", type=int, default=None,
+    s.add_argument("--port", type=_port, default=None,
                    help="port (default 8765, or a free one when it is taken; 0: any free port)")
     s.add_argument("--res", default="320x180", help="render size WxH (default 320x180)")
     s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=128,

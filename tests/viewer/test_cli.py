@@ -32,3 +32,11 @@ def test_busy_port_is_one_line(backend, capsys):
     err = capsys.readouterr().err
     assert rc == 2, err
     assert f"port {port}" in err and "--port" in err and err.count("\n") == 1
+
+
+def test_port_out_of_range_is_one_line(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["view", "cornell-static", "--port", "99999"])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "0..65535" in err and err.count("\n") == 1
