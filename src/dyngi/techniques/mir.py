@@ -19,19 +19,47 @@ resampling rate of 256:1." Per frame, independently (no temporal coherence):
    path space, mapped to area measure through the raw hits' kNN density.
 
 Random numbers are per frame (``(seed, frame)``): the VPL set is redrawn every frame.
-Extra parameter: ``resampling_rate`` (256). Bias: the kNN density ``q`` and clamping.
+
+All on the device, no host round trip (issue 29): the camera paths keep every lane (an invalid hit
+weighs 0), the path radiance comes from the shared path walk
+(:func:`dyngi.transport.path_walk.trace_paths_split`, one sample per hit, the emission at y
+subtracted as :func:`dyngi.vpl.radiosity.estimate_radiosity` does), ``q`` from the device k-NN
+(:class:`dyngi.vpl.density.KNNGrid` over all valid hits, queried only at the I drawn ones, where
+``q`` is used; k of Eq. 8 for the number of camera paths, a static count: our choice, it avoids reading
+the valid count back) and the resampling from an inverse CDF
+(:func:`dyngi.vpl.smc.resample_with_replacement_device`). The frame's only host reads are the shading's
+image and stats.
+
+Extra parameter: ``resampling_rate`` (256, the paper's). Bias: the kNN density ``q`` and clamping.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..sampling.rng import mix_seed
-from ..vpl.density import knn_density, knn_k
-from ..vpl.points import raw_candidates
-from ..vpl.radiosity import estimate_radiosity
+from ..backend import dr, mi
+from ..sampling.rng import make_sampler
+from ..transport.path_walk import trace_paths_split
+from ..vpl.density import MIN_RADIUS, KNNGrid, knn_k
+from ..vpl.points import raw_candidates_device
+from ..vpl.radiosity import RAY_OFFSET
+from ..vpl.smc import resample_with_replacement_device
 from ..vpl.store import LUMINANCE
 from .base import Frame, Param, StageTimer, register
 from .vpl_base import COMMON_PARAMS, VPLTechnique
+
+
+def path_radiance_device(mscene, pos, nrm, sampler, active, max_depth: int):
+    """One path-tracer sample of the radiance leaving each y toward -n, without y's own emission
+    (the device twin of :func:`dyngi.vpl.radiosity.estimate_radiosity` with one sample and an ordinary
+    sampler); returns (L, rays per lane)."""
+    eps = dr.opaque(mi.Float, RAY_OFFSET) * (1.0 + dr.max(dr.abs(pos)))
+    ray = mi.Ray3f(pos + nrm * eps, -nrm)
+    L, _, n_rays, _ = trace_paths_split(mscene, sampler, ray, active, int(max_depth), int(max_depth) + 1, None,
+                                        True, split=False)
+    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
+    L = L - mi.Color3f(si.emitter(mscene).eval(si, active))
+    L = dr.select(active & dr.isfinite(dr.max(L)), dr.maximum(L, 0.0), 0.0)
+    return L, n_rays
 
 
 @register
@@ -48,27 +76,44 @@ class MetropolisIR(VPLTechnique):
 
     def update_vpls(self, frame: Frame, t: StageTimer):
         I, p = self.budget, self.params
-        z = np.zeros((16, 3), np.float32)
         if self.bounces <= 0:
+            z = np.zeros((16, 3), np.float32)
             return z, z, z, {"vpls_used": 0, "vpl_budget": I}
+        n = int(p["resampling_rate"]) * I
         with t.stage("paths"):
-            cand, _, rays = raw_candidates(self.scene, frame.camera, frame.res, p["resampling_rate"] * I,
-                                           frame.seed, frame.index, 0x31A)
-            m = len(cand["pos"])
-            rng = np.random.default_rng(mix_seed(frame.seed, frame.index, 0x31B))
-            seeds = rng.integers(0, 1 << 62, m, dtype=np.uint64)
-            L, r2 = estimate_radiosity(self.scene.mi_scene, cand["pos"], cand["nrm"], seeds, 1,
-                                       int(p["max_depth"]) - 1)
-        t.add_rays("paths", rays + r2)
+            cand = raw_candidates_device(self.scene, frame.camera, frame.res, n, frame.seed, frame.index, 0x31A)
+            ok = cand["ok"]
+            sampler = make_sampler(n, frame.seed, frame.index, 0x31C)
+            L, n_rays = path_radiance_device(self.scene.mi_scene, cand["pos"], cand["nrm"], sampler, ok,
+                                             int(p["max_depth"]) - 1)
+            c = dr.select(ok, mi.Float(dr.dot(mi.Vector3f(cand["mailbox_albedo"] * L),
+                                              mi.Vector3f(*(float(v) for v in LUMINANCE)))), 0.0)
+            rays = dr.sum(n_rays) + dr.count(cand["okx"]) + n
+            dr.eval(cand, L, c, rays)      # cand too: a lazy hit would be re-traced in every later kernel
+        t.add_rays("paths", rays)
         with t.stage("resampling"):
-            c = (cand["mailbox_albedo"].astype(np.float64) * L) @ LUMINANCE
-            if m == 0 or not np.any(c > 0):
-                return z, z, z, {"vpls_used": 0, "vpl_budget": I}
-            q = knn_density(cand["pos"], k=knn_k(m))
-            sel = rng.choice(m, size=I, replace=True, p=c / c.sum())
-            mean_c = c.sum() / m        # over the raw hits, the set whose area density q is
-            with np.errstate(divide="ignore", invalid="ignore"):
-                w = mean_c / (I * c[sel] * q[sel])
-            w = np.where(np.isfinite(w), w, 0.0)
-            flux = (L[sel] * w[:, None]).astype(np.float32)
-        return cand["pos"][sel], cand["nrm"][sel], flux, {"vpls_used": int(len(np.unique(sel))), "vpl_budget": I}
+            m = dr.maximum(mi.Float(dr.count(ok)), 1.0)
+            u = make_sampler(I, frame.seed, frame.index, 0x31B).next_1d()
+            sel = resample_with_replacement_device(c, u)
+            pos = dr.gather(mi.Point3f, mi.Point3f(cand["pos"]), sel)
+            nrm = dr.gather(mi.Vector3f, mi.Vector3f(cand["nrm"]), sel)
+            dr.eval(sel, pos, nrm)
+        with t.stage("knn"):
+            # q only where it is used: at the I drawn hits (each excluding itself), among all valid hits
+            k = knn_k(n)
+            grid = KNNGrid(cand["pos"], ok)
+            r = dr.maximum(grid.kth_distance(pos, k, sel), MIN_RADIUS)
+            q = dr.select(dr.isfinite(r), k / (m * dr.pi * r * r), 0.0)
+            dr.eval(q)
+        with t.stage("resampling"):
+            total = dr.sum(c)
+            mean_c = total / m        # over the raw hits, the set whose area density q is
+            c_s = dr.gather(mi.Float, c, sel)
+            w = mean_c / (I * c_s * q)
+            w = dr.select((total > 0.0) & (c_s > 0.0) & (q > 0.0) & dr.isfinite(w), w, 0.0)
+            flux = dr.gather(mi.Color3f, mi.Color3f(L), sel) * w
+            hit = dr.zeros(mi.UInt32, n)
+            dr.scatter(hit, mi.UInt32(1), sel, w > 0.0)
+            used = dr.sum(hit)
+            dr.eval(pos, nrm, flux, used)
+        return pos, nrm, flux, {"vpls_used": used, "vpl_budget": I}

@@ -70,7 +70,8 @@ class VPLTechnique(Technique):
 
     def step(self, frame: Frame) -> FrameResult:
         """Shade this frame with the VPLs of the subclass's ``update_vpls(frame, timer) -> (pos[n,3],
-        nrm[n,3], flux[n,3], stats dict)`` (each of ``ir``, ``mir``, ``tcas``, ``smcir`` defines it)."""
+        nrm[n,3], flux[n,3], stats dict)`` (each of ``ir``, ``mir``, ``tcas``, ``smcir`` defines it): NumPy
+        rows or Dr.Jit arrays (kept on the device); stats may hold Dr.Jit scalars, read after the image."""
         p = self.params
         t = StageTimer()
         pos, nrm, flux, extra = self.update_vpls(frame, t)
@@ -83,7 +84,9 @@ class VPLTechnique(Technique):
         t.add_rays("shading", rays)
         t.add_rays("shading", shader.rays)
         stats = t.as_dict()
-        stats.update(extra)
+        # device counts (a VPL set built on the device) are read here, once, after the image
+        stats.update({k: (v if isinstance(v, (int, float, str, type(None), np.integer, np.floating))
+                          else float(np.asarray(v).ravel()[0])) for k, v in extra.items()})
         img = to_image(L, frame.res)
         indirect = to_image(ind, frame.res)
         return FrameResult(image=np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0),

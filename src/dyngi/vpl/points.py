@@ -98,12 +98,10 @@ def _surface(mscene, ray, active):
     return si, ok, n, alb
 
 
-def raw_candidates(scene, camera, res, n: int, seed: int, frame: int, stream: int = 0x51C):
-    """``n`` camera rays -> visible points x -> one cosine ray each -> hits y (Sec. 3.2.1).
-
-    Returns (dict of NumPy arrays over the valid candidates: ``pos``, ``nrm``, ``albedo``,
-    ``mailbox``, ``mailbox_n``, ``mailbox_albedo`` (the diffuse albedo at x); dict of the valid visible points ``x``/``n``; rays traced).
-    """
+def raw_candidates_device(scene, camera, res, n: int, seed: int, frame: int, stream: int = 0x51C):
+    """:func:`raw_candidates` on the device, every lane kept (no compaction, no host round trip): a dict
+    of Dr.Jit arrays over the ``n`` camera rays -- ``pos``, ``nrm``, ``albedo`` (at y), ``mailbox``,
+    ``mailbox_n``, ``mailbox_albedo`` (at x), ``ok`` (a valid candidate y) and ``okx`` (a valid x)."""
     mscene = _mscene(scene)
     w, h = res
     sampler = make_sampler(n, seed, frame, stream)
@@ -115,12 +113,24 @@ def raw_candidates(scene, camera, res, n: int, seed: int, frame: int, stream: in
     ray2 = si.spawn_ray(d)
     si2, oky, ny, alb = _surface(mscene, ray2, okx)
     oky &= okx
-    P, X = si2.p, si.p
-    dr.eval(P, ny, alb, X, nx, alb_x, okx, oky)
-    okx_n, oky_n = np.asarray(okx, bool), np.asarray(oky, bool)
-    Xn, NXn = to_numpy3(X), to_numpy3(nx)
-    cand = {"pos": to_numpy3(P)[oky_n], "nrm": to_numpy3(ny)[oky_n], "albedo": to_numpy3(alb)[oky_n],
-            "mailbox": Xn[oky_n], "mailbox_n": NXn[oky_n], "mailbox_albedo": to_numpy3(alb_x)[oky_n]}
+    return {"pos": si2.p, "nrm": ny, "albedo": alb, "mailbox": si.p, "mailbox_n": nx, "mailbox_albedo": alb_x,
+            "ok": oky, "okx": okx}
+
+
+def raw_candidates(scene, camera, res, n: int, seed: int, frame: int, stream: int = 0x51C):
+    """``n`` camera rays -> visible points x -> one cosine ray each -> hits y (Sec. 3.2.1).
+
+    Returns (dict of NumPy arrays over the valid candidates: ``pos``, ``nrm``, ``albedo``,
+    ``mailbox``, ``mailbox_n``, ``mailbox_albedo`` (the diffuse albedo at x); dict of the valid visible points ``x``/``n``; rays traced).
+    The host form of :func:`raw_candidates_device` (the same random numbers and lanes).
+    """
+    c = raw_candidates_device(scene, camera, res, n, seed, frame, stream)
+    dr.eval(c)
+    okx_n, oky_n = np.asarray(c["okx"], bool), np.asarray(c["ok"], bool)
+    Xn, NXn = to_numpy3(c["mailbox"]), to_numpy3(c["mailbox_n"])
+    cand = {"pos": to_numpy3(c["pos"])[oky_n], "nrm": to_numpy3(c["nrm"])[oky_n],
+            "albedo": to_numpy3(c["albedo"])[oky_n], "mailbox": Xn[oky_n], "mailbox_n": NXn[oky_n],
+            "mailbox_albedo": to_numpy3(c["mailbox_albedo"])[oky_n]}
     pts = {"x": Xn[okx_n], "n": NXn[okx_n]}
     return cand, pts, n + int(okx_n.sum())
 

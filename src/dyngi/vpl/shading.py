@@ -92,7 +92,8 @@ def _vpl_loop(mscene, p, n, active, pos, nrm, flux, start, stride, count, gmax, 
 
 class VPLShader:
     """The ``volume_query`` that :func:`~dyngi.probes.primary.shade_primary` reads: ``irradiance(p, n, wo,
-    active)`` over the lanes of the image's pixels (row-major), from one frame's VPL set."""
+    active)`` over the lanes of the image's pixels (row-major), from one frame's VPL set (NumPy rows, or
+    Dr.Jit arrays that stay on the device)."""
 
     def __init__(self, scene, res, camera, pos, nrm, flux, mode: str = "interleaved", gmax: float = math.inf,
                  normal_power: float = 16.0, filter_sigma_px: float = 2.0):
@@ -100,12 +101,24 @@ class VPLShader:
             raise unknown_choice("VPL shading mode", mode, MODES)
         self.mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
         self.res, self.camera, self.mode = res, camera, mode
-        cap = len(pos)
-        pad = (-cap) % (TILE * TILE)
-        z = np.zeros((pad, 3), np.float32)
-        self.cap = cap + pad
-        self.pos, self.nrm = to_point(np.vstack([pos, z])), to_vector(np.vstack([nrm, z]))
-        self.flux = to_color(np.vstack([flux, z]))
+        if isinstance(pos, np.ndarray):
+            cap = len(pos)
+            pad = (-cap) % (TILE * TILE)
+            z = np.zeros((pad, 3), np.float32)
+            self.cap = cap + pad
+            self.pos, self.nrm = to_point(np.vstack([pos, z])), to_vector(np.vstack([nrm, z]))
+            self.flux = to_color(np.vstack([flux, z]))
+        else:
+            # Dr.Jit arrays (a VPL set built on the device): padded there, no host round trip
+            cap = dr.width(pos)
+            self.cap = cap + (-cap) % (TILE * TILE)
+            i = dr.arange(mi.UInt32, self.cap)
+            real = i < cap
+            j = dr.minimum(i, cap - 1)
+            self.pos = dr.gather(mi.Point3f, mi.Point3f(pos), j)
+            self.nrm = dr.gather(mi.Vector3f, mi.Vector3f(nrm), j)
+            self.flux = dr.select(real, dr.gather(mi.Color3f, mi.Color3f(flux), j), 0.0)
+            dr.eval(self.pos, self.nrm, self.flux)
         self.gmax = float(gmax)
         self.normal_power, self.sigma_px = float(normal_power), float(filter_sigma_px)
         self.rays = 0

@@ -55,3 +55,22 @@ def clamp_size(invalid: np.ndarray, intensity: np.ndarray, m_max: int) -> np.nda
     choice of which; the paper does not say)."""
     idx = np.flatnonzero(invalid)
     return idx[np.argsort(intensity[idx], kind="stable")][: int(m_max)]
+
+
+# -- device resampling (issue 29) ----------------------------------------------------------------------
+
+def resample_with_replacement_device(weights, u):
+    """Indices drawn with replacement with probability ``w_i / sum(w)``, one per uniform ``u`` (a Dr.Jit
+    Float of the wanted count): the inclusive prefix sum of ``weights`` on the device and a binary
+    search for the first entry above ``u * sum`` (inverse-CDF sampling; no host round trip). MIR's
+    importance resampling (Segovia et al. 2007, as Hedman et al. run it, Sec. 5.1). Zero weights are
+    never drawn; all-zero weights give index 0 (the caller masks them by the total)."""
+    from ..backend import dr, mi
+
+    w = dr.maximum(mi.Float(weights), 0.0)
+    n = dr.width(w)
+    cdf = dr.prefix_sum(w) + w                    # inclusive
+    total = dr.sum(w)
+    target = mi.Float(u) * total
+    idx = dr.binary_search(0, n - 1, lambda i: dr.gather(mi.Float, cdf, i) <= target)
+    return mi.UInt32(dr.minimum(idx, n - 1))
