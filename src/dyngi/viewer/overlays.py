@@ -8,6 +8,8 @@
   (:func:`dyngi.vpl.points.camera_sees`), as 3x3 dots coloured by their flux's chromaticity.
 * ``octree`` (``nee-pt`` with an adaptive octree: ``lights=vlc`` or ``directions=cdq``): each pixel's
   primary hit tinted by the octree leaf holding it (a hashed colour) with the leaf borders darkened.
+* ``guide`` (``adgi``): where the guide's Metropolis chains stand (the positions of ADGI's static
+  chains, which concentrate where the guide's density is high), as cyan dots where the camera sees them.
 
 All overlays work on the tonemapped 8-bit frame (``draw``); each costs one extra camera-ray pass at
 most (probe view: ~35 ms at 320x180 once the sphere mesh is built, rebuilt only when probes move).
@@ -16,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-OVERLAYS = ("none", "probes", "vpls", "octree")
+OVERLAYS = ("none", "probes", "vpls", "octree", "guide")
 
 
 def probe_volume_of(tech):
@@ -62,6 +64,12 @@ def capture_vpls(tech) -> bool:
     return True
 
 
+def guide_chains_of(tech):
+    """The positions of a technique's guide chains (ADGI's static Metropolis chains), or None."""
+    st = getattr(tech, "static_state", None)
+    return getattr(st, "position", None) if st is not None else None
+
+
 def available(tech) -> list[str]:
     """Overlay names this technique supports (always starting with 'none')."""
     out = ["none"]
@@ -73,6 +81,8 @@ def available(tech) -> list[str]:
         out.append("vpls")
     if octree_of(tech) is not None:
         out.append("octree")
+    if guide_chains_of(tech) is not None:
+        out.append("guide")
     return out
 
 
@@ -84,6 +94,8 @@ def draw(name: str, tech, scene, camera, res, frame_u8: np.ndarray, exposure: fl
         return _draw_vpls(tech, scene, camera, res, frame_u8)
     if name == "octree":
         return _draw_octree(tech, scene, camera, res, frame_u8)
+    if name == "guide":
+        return _draw_guide(tech, scene, camera, res, frame_u8)
     return frame_u8
 
 
@@ -133,6 +145,31 @@ def _draw_vpls(tech, scene, camera, res, frame_u8):
     px, py, _ = project(camera, res, pos[seen])
     col = flux[seen] / np.maximum(flux[seen].max(axis=1, keepdims=True), 1e-12)
     col = (80 + 175 * np.clip(col, 0, 1)).astype(np.uint8)
+    return _dots(out, px, py, col)
+
+
+def _draw_guide(tech, scene, camera, res, frame_u8):
+    from ..vpl.points import camera_sees
+
+    p = guide_chains_of(tech)
+    if p is None:
+        return frame_u8
+    pos = np.asarray(p, np.float32)
+    if pos.ndim == 2 and pos.shape[0] == 3 and pos.shape[1] != 3:
+        pos = pos.T
+    pos = pos.reshape(-1, 3)
+    pos = pos[np.all(np.isfinite(pos), axis=1)]
+    out = frame_u8.copy()
+    if not len(pos):
+        return out
+    seen, _ = camera_sees(scene, camera, res, np.ascontiguousarray(pos, np.float32), None)
+    px, py, _ = project(camera, res, pos[seen])
+    col = np.broadcast_to(np.array([0, 230, 255], np.uint8), (len(px), 3))
+    return _dots(out, px, py, col)
+
+
+def _dots(out, px, py, col):
+    """3x3 dots with a black ring at pixel positions (px, py) on ``out`` (in place; returned)."""
     h, w = out.shape[:2]
     xi, yi = np.floor(px).astype(int), np.floor(py).astype(int)
     for dy in (-1, 0, 1):
