@@ -42,12 +42,6 @@ KNOWN: dict[tuple[str, str], str] = {
     ("dyngi.probes.ddgi_plus", "dyngi.techniques.ddgi"): "issue 23 (one probe pipeline)",
     ("dyngi.techniques.adgi.technique", "dyngi.techniques.ddgi"): "issue 23 (one probe pipeline)",
     ("dyngi.techniques.isddgi", "dyngi.techniques.ddgi"): "issue 23 (one probe pipeline)",
-    # the path walk and ReSTIR DI live in techniques: they move to transport/
-    ("dyngi.techniques.ddgi_primary", "dyngi.techniques.restir"): "issue 24 (one transport core)",
-    ("dyngi.techniques.ddgi_resampling", "dyngi.techniques.path"): "issue 24 (one transport core)",
-    ("dyngi.techniques.ddgi_resampling", "dyngi.techniques.restir"): "issue 24 (one transport core)",
-    ("dyngi.techniques.restir", "dyngi.techniques.path"): "issue 24 (one transport core)",
-    ("dyngi.vpl.radiosity", "dyngi.techniques.path"): "issue 24 (one transport core)",
 }
 
 

@@ -8,7 +8,7 @@ approximates the maximal quality obtainable with our chosen level of clamping."
 Per sample: the camera ray (pixel area jittered) finds the primary hit x (front
 face, diffuse albedo a_x: the VPL techniques shade the diffuse lobe only); a
 cosine-sampled ray finds y; our path tracer
-(:func:`dyngi.techniques.path.trace_paths_split`, BSDF + NEE with MIS) estimates
+(:func:`dyngi.transport.path_walk.trace_paths_split`, BSDF + NEE with MIS) estimates
 the radiance L leaving y towards x with ``max_depth - 1`` vertices from y, minus
 y's own emission (that segment is direct light, which the indirect image leaves
 out). The sample is ``a_x * min(1, G_max / G(x, y)) * L`` with
@@ -45,7 +45,7 @@ def clamped_indirect(scene, t: float, res, spp: int, max_depth: int = 5, gmax: f
     """H x W x 3 clamped indirect image (module docstring) at time ``t``, ``spp`` samples per pixel;
     with ``pixels`` ((n, 2) rows, columns) only those pixels: (n, 3)."""
     from ..sampling.rng import make_sampler, mix_seed
-    from ..techniques.path import trace_paths_split
+    from ..transport.path_walk import trace_paths_split
     from ..vpl.points import _surface
 
     scene.at(t)

@@ -8,7 +8,7 @@ without the direct light at x1. For Mitsuba's ``path`` this is
 
 Renderer (our choice; issue 11 item 6 allows this or Mitsuba full minus
 Mitsuba direct): **dyngi's own path tracer in its indirect-only mode**
-(:func:`dyngi.techniques.path.render_paths` with ``indirect_only=True``):
+(:func:`dyngi.transport.path_walk.render_paths` with ``indirect_only=True``):
 BSDF sampling + NEE with power-heuristic MIS and Russian roulette from
 ``rr_depth = 5``, exactly Mitsuba's ``path`` estimator, with the terms of the
 first vertex (its emission, the emission its BSDF-sampled ray reaches, its NEE
@@ -83,7 +83,7 @@ def _check(t, res, spp, max_depth, seed) -> tuple[int, int]:
 def _render_half(scene, camera, res, spp: int, max_depth: int, seed: int) -> np.ndarray:
     """Mean of ``spp`` indirect-only samples per pixel (float64 H x W x 3), in passes of bounded size."""
     from ..techniques.base import to_image
-    from ..techniques.path import render_paths
+    from ..transport.path_walk import render_paths
 
     w, h = res
     acc = np.zeros((h, w, 3), np.float64)

@@ -2,7 +2,7 @@
 
 "We compute ground truth values for these pixels using 692100 samples from our
 path tracer": far more samples than an image reference gets. Here: dyngi's
-validated path tracer (:func:`dyngi.techniques.path.trace_paths_split`, the same
+validated path tracer (:func:`dyngi.transport.path_walk.trace_paths_split`, the same
 estimator as the image and indirect references: full, or indirect-only with
 vertices >= 3) traces only the tracked pixels' camera rays, ``spp`` per pixel
 (default :data:`TRACKED_SPP_FACTOR` x the image reference's, at most
@@ -62,7 +62,7 @@ def tracked_reference(scene, t: float, res, pixels: np.ndarray, spp: int, max_de
                       indirect: bool, chunk: int = 1 << 20) -> np.ndarray:
     """Mean radiance (full or indirect-only) of each tracked pixel at time ``t``: (n, 3) float32."""
     from ..sampling.rng import make_sampler, mix_seed
-    from ..techniques.path import trace_paths_split
+    from ..transport.path_walk import trace_paths_split
     from ..vpl.points import aligned
 
     scene.at(t)

@@ -5,10 +5,11 @@ column of its Fig. 3 / 8 and Table 1):
 
 * ``L_e`` at the primary vertex, and **direct light by ReSTIR DI** -- exactly
   ``restir-pt``'s G-buffer, candidates, temporal and spatial reuse and shadow
-  ray (an internal :class:`~dyngi.techniques.restir.ReSTIRPTTechnique` run
-  with ``max_depth = 2``, ``progressive = False``), which covers ``T_f L_e``
-  through every smooth lobe of the primary BSDF (diffuse and glossy), plus the
-  emission seen through a delta lobe of the primary vertex;
+  ray (the transport layer's :class:`~dyngi.transport.restir_di.ReSTIRDI`, as
+  ``restir-pt`` with ``max_depth = 2``), which covers ``T_f L_e`` through
+  every smooth lobe of the primary BSDF (diffuse and glossy), plus the
+  emission seen through a delta lobe of the primary vertex
+  (:func:`~dyngi.transport.restir_di.continue_paths` to depth 2);
 * ``L_DDGI``: ``albedo / pi * E_probe(x, n)`` from a plain DDGI volume
   (:class:`~dyngi.probes.ddgi_plus.DDGIPlusVolume` in ``'ddgi'`` mode) whose
   probe rays do NEE for **every** emitter (``direct='nee'``): the probes then
@@ -64,16 +65,17 @@ from ..probes.trace import shading_side
 from ..sampling.diffuse import diffuse_albedo
 from ..sampling.lights import EmitterSampling, sample_traced
 from ..sampling.rng import make_sampler
+from ..transport.restir_di import PARAM_SPECS, ReSTIRDI, continue_paths
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
-from .restir import ReSTIRPTTechnique
 
 _GLOSSY_STREAM = 0x6C05
-_RESTIR_KEYS = ("candidates", "temporal", "m_cap", "spatial", "radius", "combine")
+_PATH_STREAM = 0x7E57
+"""RNG stream of the delta-lobe continuation at the primary vertex (as ``restir-pt``'s path)."""
 _PROBE_SKIP = ("direct", "emission_attenuation", "emission_scale", "probe_glossy")
 
 
 def _params() -> dict:
-    out = {k: ReSTIRPTTechnique.PARAMS[k] for k in _RESTIR_KEYS}
+    out = {k: Param(**v) for k, v in PARAM_SPECS.items()}
     out.update({k: v for k, v in plus_params().items() if k not in _PROBE_SKIP})
     out["glossy_depth"] = Param(4, "glossy bounces of the path-traced T_fg L recursion (0: none)", min=0, max=64)
     return out
@@ -148,22 +150,49 @@ class DDGIPrimaryTechnique(Technique):
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
         p = self.params
-        self.restir = ReSTIRPTTechnique(scene, {**{k: p[k] for k in _RESTIR_KEYS}, "max_depth": 2,
-                                                "progressive": False})
+        self.restir = ReSTIRDI.from_params(scene, p)
+        # whether any surface has a delta lobe (mirror, glass): only then does direct light need a path
+        self._has_delta = any(sh.bsdf() is not None and mi.has_flag(sh.bsdf().flags(), mi.BSDFFlags.Delta)
+                              for sh in scene.mi_scene.shapes())
         probe = {k: p[k] for k in plus_params() if k in p}
         probe["direct"] = "nee"
         self.probes = DDGIPlusVolume(scene, probe, mode="ddgi")
         self.lights = EmitterSampling()
 
+    def _direct(self, frame: Frame, t: StageTimer):
+        """``L_e + T_f L_e`` at the primary vertex (an H x W x 3 image): ReSTIR DI through the smooth lobes,
+        the emission behind a delta lobe by the path walk (``restir-pt`` at ``max_depth = 2``)."""
+        npix = frame.res[0] * frame.res[1]
+        mscene = self.scene.mi_scene
+        sampler = make_sampler(npix, frame.seed, frame.index)
+        time = dr.opaque(mi.Float, float(frame.time))
+        self.restir.begin_frame(frame)
+        gb, reproj = self.restir.gbuffer(frame, sampler, t)
+        si, valid = gb.si, gb.valid
+        bsdf = si.bsdf(gb.ray)
+        smooth = valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        direct = mi.Color3f(0.0)
+        if self.restir.cand.count > 0:
+            direct = self.restir.direct(gb, reproj, bsdf, smooth, sampler, time, t)
+        Le0 = si.emitter(mscene).eval(si, mi.Bool(True))
+        L_d = dr.zeros(mi.Color3f, npix)
+        if self._has_delta:
+            with t.stage("path"):
+                ps = make_sampler(npix, frame.seed, frame.index, _PATH_STREAM)
+                cont = valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Delta)
+                L_d, _, rays = continue_paths(mscene, ps, gb.ray, si, cont, 2, 5, self.lights)
+                dr.eval(L_d, rays)
+            t.add_rays("path", dr.sum(rays))
+        with t.stage("accumulate"):
+            L = mi.Color3f(Le0 + direct + L_d)
+            dr.eval(L)
+        return to_image(L, frame.res)
+
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
         self.probes.update(frame, timer=t)
-        r = self.restir.step(frame)               # G-buffer, ReSTIR DI, delta-lobe emission: L_e + T_f L_e
-        for k, v in r.stats["ms"].items():
-            t.ms[k] = t.ms.get(k, 0.0) + v
-        for k, v in r.stats["rays"].items():
-            t.add_rays(k, v)
+        direct_img = self._direct(frame, t)       # G-buffer, ReSTIR DI, delta-lobe emission: L_e + T_f L_e
         gb = self.restir.hist.cur
         si, ray = gb.si, gb.ray
         mscene = self.scene.mi_scene
@@ -185,7 +214,7 @@ class DDGIPrimaryTechnique(Technique):
                 dr.eval(gl, rays)
             t.add_rays("glossy", dr.sum(rays))
         indirect = to_image(ind + gl, frame.res)
-        img = r.image + indirect
+        img = direct_img + indirect
         stats = t.as_dict()
         st = self.probes.stats()
         stats.update({k: v for k, v in st.items() if k not in ("ms", "rays", "total_ms", "total_rays")})

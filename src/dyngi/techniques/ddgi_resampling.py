@@ -163,14 +163,13 @@ from ..backend import dr, mi
 from ..probes.ddgi_plus import DDGIPlusVolume, plus_params
 from ..probes.glossy import GLOSSY_NORMALISATION, glossy_context, has_glossy_lobe
 from ..sampling.diffuse import diffuse_albedo
-from ..sampling.candidates import EmitterCandidates
-from ..sampling.gbuffer import GBufferHistory, render_gbuffer, similar
 from ..sampling.lights import sample_traced
-from ..sampling.reservoir import Reservoir, finalize, finalize_single, merge
+from ..sampling.reservoir import Reservoir
 from ..sampling.rng import make_sampler
+from ..transport.accumulate import ProgressiveMean
+from ..transport.path_walk import trace_paths
+from ..transport.restir_di import PARAM_SPECS, ReSTIRDI, initial_candidates, target
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
-from .path import trace_paths
-from .restir import ReSTIRPTTechnique, initial_candidates, spatial_reuse, target
 
 _SHADE_STREAM = 0x5EC0
 """RNG stream of the secondary-vertex shading (the ReSTIR stages use stream 0)."""
@@ -410,7 +409,8 @@ def _probe_params():
 PROBE_KEYS = tuple(_probe_params())
 
 SECONDARY_PARAMS = {
-    **{k: v for k, v in ReSTIRPTTechnique.PARAMS.items() if k not in ("max_depth", "rr_depth")},
+    **{k: Param(**v) for k, v in PARAM_SPECS.items()},
+    "progressive": Param(True, "accumulate over frames while the scene is static"),
     **_probe_params(),
     "footprint_c": Param(FOOTPRINT_C, "Eq. 8 threshold c of the footprint termination", min=0.0, max=1e6),
     "max_glossy": Param(3, "most glossy recursion steps after the secondary vertex", min=0, max=16),
@@ -423,7 +423,7 @@ SECONDARY_PARAMS = {
 
 
 @register
-class DDGISecondaryTechnique(ReSTIRPTTechnique):
+class DDGISecondaryTechnique(Technique):
     """Secondary DDGI: ReSTIR DI at the primary vertex, DDGI+ read at the secondary vertex (Sec. 3.3-3.5)."""
 
     name = "ddgi-secondary"
@@ -440,18 +440,13 @@ class DDGISecondaryTechnique(ReSTIRPTTechnique):
     FURNACE_TOL = 0.03
 
     def __init__(self, scene, params=None):
-        Technique.__init__(self, scene, params)
+        super().__init__(scene, params)
         p = self.params
-        # -- restir-pt's set-up (its __init__ validates a max_depth these techniques do not have) --
-        self.cand = EmitterCandidates(scene.mi_scene)
-        ids = self.cand.fast_shape_ids() if self.cand.count else set()
-        self._light_anim = any((getattr(a, "shape", None) in ids)
-                               or str(getattr(a, "key", "")).split(".")[0] in ids for a in scene.animators)
-        self.hist = GBufferHistory(scene)
-        self.prev_res = None
-        self.accum = None
-        self.accum_ind = None
-        self.n_accum = 0
+        # -- ReSTIR DI at the primary vertex (the transport layer's component) --
+        self.restir = ReSTIRDI.from_params(scene, p)
+        self.cand = self.restir.cand
+        self.hist = self.restir.hist
+        self.accum = ProgressiveMean()
         self.vol = DDGIPlusVolume(scene, {k: p[k] for k in PROBE_KEYS}, mode="plus")
         self.query = self.vol.query
         self.nee = self.vol.nee_lights
@@ -546,47 +541,6 @@ class DDGISecondaryTechnique(ReSTIRPTTechnique):
     def _update_probes(self, frame, t):
         self.vol.update(frame, timer=t)
 
-    # -- ReSTIR DI at the primary vertex (restir-pt's stages) --------------------------------------
-    def _restir_direct(self, gb, reproj, smooth, sampler, time, t):
-        p = self.params
-        npix = dr.width(gb.valid)
-        si, n, two = gb.si, gb.n_sh, gb.transmissive
-        bsdf = si.bsdf(gb.ray)
-        with t.stage("candidates"):
-            k, pl, w_sum, ph = initial_candidates(self.cand, si, n, two, smooth, sampler, p["candidates"], time)
-            r = Reservoir((k, pl), w_sum, dr.select(smooth, float(p["candidates"]), 0.0), ph,
-                          mi.Float(0.0), dr.zeros(mi.UInt32, npix))
-            finalize_single(r)
-            dr.eval(*r.arrays())
-        with t.stage("temporal"):
-            prev = self.hist.prev
-            if p["temporal"] and self.prev_res is not None and prev is not None \
-                    and dr.width(self.prev_res.W) == npix:
-                ok = smooth & reproj.valid
-                rp = self.prev_res.gather(reproj.prev_pixel, ok)
-                cap = dr.opaque(mi.Float, p["m_cap"] * p["candidates"])
-                m_prev = dr.minimum(rp.M, cap)
-                _, ph_here = self._eval_at(gb.pos, n, two, rp.sample, time, ok)
-                merge(r, rp, ph_here, sampler.next_1d(), ok, src=1, m_cap=cap)
-                ppos = dr.gather(mi.Point3f, prev.pos, reproj.prev_pixel, ok)
-                pn = dr.gather(mi.Vector3f, prev.n_sh, reproj.prev_pixel, ok)
-                ptwo = dr.gather(mi.Bool, prev.transmissive, reproj.prev_pixel, ok)
-                _, ph_prev = self._eval_at(ppos, pn, ptwo, r.sample, time, ok)
-                finalize(r, p["combine"], [mi.Float(p["candidates"]), m_prev], [r.p_hat, ph_prev], [True, ok])
-                dr.eval(*r.arrays())
-        with t.stage("spatial"):
-            if p["spatial"] > 0:
-                r = self._spatial(gb, r, smooth, sampler, time)
-        with t.stage("shadow"):
-            ev = self.cand.evaluate(gb.pos, r.sample[0], r.sample[1], time, smooth & (r.W > 0.0))
-            vis = self.cand.visible(si, ev, ev.valid)
-            f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ev.wi), vis)
-            direct = dr.select(vis, f * ev.Lg * r.W, 0.0)
-            dr.eval(direct)
-        t.add_rays("shadow", dr.count(smooth & ev.valid))
-        self.prev_res = r
-        return direct
-
     def _begin(self, frame, t):
         """Probe update, G-buffer, reprojection; returns the per-frame context."""
         p = self.params
@@ -595,14 +549,8 @@ class DDGISecondaryTechnique(ReSTIRPTTechnique):
         self._update_probes(frame, t)
         sampler = make_sampler(npix, frame.seed, frame.index)
         time = dr.opaque(mi.Float, float(frame.time))
-        if self._light_anim and not frame.static and self.cand.has_fast:
-            self.cand.refresh()
-        with t.stage("gbuffer"):
-            gb = render_gbuffer(self.scene, frame.camera, frame.res, sampler.next_2d(), frame.time,
-                                material=False)
-            self.hist.push(gb)
-            reproj = self.hist.reproject() if p["temporal"] else None
-        t.add_rays("gbuffer", npix)
+        self.restir.begin_frame(frame)
+        gb, reproj = self.restir.gbuffer(frame, sampler, t)
         bsdf = gb.si.bsdf(gb.ray)
         smooth = gb.valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         a0 = camera_footprint(gb.depth, dr.abs(dr.dot(gb.n_geo, gb.ray.d)))
@@ -622,31 +570,24 @@ class DDGISecondaryTechnique(ReSTIRPTTechnique):
     def _finish(self, frame, t, L, L_ind):
         p = self.params
         with t.stage("accumulate"):
-            if p["progressive"] and frame.static and self.accum is not None and dr.width(self.accum) == dr.width(L):
-                a = dr.opaque(mi.Float, 1.0 / (self.n_accum + 1))
-                self.accum = dr.fma(L - self.accum, a, self.accum)
-                self.accum_ind = dr.fma(L_ind - self.accum_ind, a, self.accum_ind)
-                self.n_accum += 1
-            else:
-                self.accum, self.accum_ind, self.n_accum = mi.Color3f(L), mi.Color3f(L_ind), 1
-            dr.eval(self.accum, self.accum_ind)
+            self.accum.add(mi.Color3f(L), mi.Color3f(L_ind), accumulate=p["progressive"] and frame.static)
         stats = t.as_dict()
         ms = stats["ms"]
         stats["table2_ms"] = {
             "trace & shade": float(sum(ms.get(k, 0.0) for k in TRACE_STAGES)),
             "resampling": float(sum(ms.get(k, 0.0) for k in RESAMPLING_STAGES)),
             "update": float(sum(ms.get(k, 0.0) for k in UPDATE_STAGES))}
-        stats["accumulated_frames"] = self.n_accum
+        stats["accumulated_frames"] = self.accum.frames
         stats["spp"] = 1
-        return FrameResult(image=to_image(self.accum, frame.res), indirect=to_image(self.accum_ind, frame.res),
-                           stats=stats)
+        return FrameResult(image=to_image(self.accum.mean, frame.res),
+                           indirect=to_image(self.accum.mean_ind, frame.res), stats=stats)
 
     def step(self, frame: Frame) -> FrameResult:
         t = StageTimer()
         npix = frame.res[0] * frame.res[1]
         sampler, time, gb, reproj, bsdf, smooth, a0 = self._begin(frame, t)
         do_direct = self.cand.count > 0
-        direct = self._restir_direct(gb, reproj, smooth, sampler, time, t) if do_direct else mi.Color3f(0.0)
+        direct = self.restir.direct(gb, reproj, bsdf, smooth, sampler, time, t) if do_direct else mi.Color3f(0.0)
         Le0 = gb.si.emitter(self.scene.mi_scene).eval(gb.si, mi.Bool(True))
         with t.stage("shade secondary"):
             ss = make_sampler(npix, frame.seed, frame.index, _SHADE_STREAM)
@@ -878,23 +819,19 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
 
         # -- temporal reuse (1 neighbour: the reprojected pixel) --
         with t.stage("temporal"):
-            prev = self.hist.prev
-            if p["temporal"] and self.prev_res is not None and prev is not None and dr.width(self.prev_res.W) == npix:
-                okp = smooth & reproj.valid
-                rp = self.prev_res.gather(reproj.prev_pixel, okp)
-                cap = dr.opaque(mi.Float, p["m_cap"] * M)
-                m_prev = dr.minimum(rp.M, cap)
-                ph_here = self._target(gb.pos, n, two, gmax, rp.sample, time, okp, g_lum, eps, gb.n_geo)
-                merge(r, rp, ph_here, sampler.next_1d(), okp, src=1, m_cap=cap)
-                ppos = dr.gather(mi.Point3f, prev.pos, reproj.prev_pixel, okp)
-                pn = dr.gather(mi.Vector3f, prev.n_sh, reproj.prev_pixel, okp)
-                ptwo = dr.gather(mi.Bool, prev.transmissive, reproj.prev_pixel, okp)
-                pg = dr.gather(mi.Float, self.prev_gmax, reproj.prev_pixel, okp)
-                pcv = self._gather_g(self.prev_g, reproj.prev_pixel, okp) if cv else None
-                png = dr.gather(mi.Vector3f, prev.n_geo, reproj.prev_pixel, okp)
-                ph_prev = self._target(ppos, pn, ptwo, pg, r.sample, time, okp, pcv, self.prev_eps, png)
-                finalize(r, p["combine"], [mi.Float(M), m_prev], [r.p_hat, ph_prev], [True, okp])
-                dr.eval(*r.arrays())
+            def here(sample, ok):
+                return self._target(gb.pos, n, two, gmax, sample, time, ok, g_lum, eps, gb.n_geo)
+
+            def there_prev(prev, pix, sample, ok):
+                ppos = dr.gather(mi.Point3f, prev.pos, pix, ok)
+                pn = dr.gather(mi.Vector3f, prev.n_sh, pix, ok)
+                ptwo = dr.gather(mi.Bool, prev.transmissive, pix, ok)
+                pg = dr.gather(mi.Float, self.prev_gmax, pix, ok)
+                pcv = self._gather_g(self.prev_g, pix, ok) if cv else None
+                png = dr.gather(mi.Vector3f, prev.n_geo, pix, ok)
+                return self._target(ppos, pn, ptwo, pg, sample, time, ok, pcv, self.prev_eps, png)
+
+            self.restir.temporal_reuse(r, gb, reproj, smooth, sampler, M, here, there_prev)
 
         # -- spatial reuse --
         with t.stage("spatial"):
@@ -909,11 +846,7 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
             direct = mi.Color3f(0.0)
             shadow_lanes = mi.Bool(False)
             if self.cand.count:
-                ev = self.cand.evaluate(gb.pos, k, pl, time, p0)
-                vis = self.cand.visible(si, ev, ev.valid & p0)
-                f0 = bsdf.eval(ctx, si, si.to_local(ev.wi), vis)
-                direct = dr.select(vis, f0 * ev.Lg * r.W, 0.0)
-                shadow_lanes = p0 & ev.valid
+                direct, shadow_lanes = self.restir.shade(gb, bsdf, (k, pl), r.W, p0, time)
             dz = yz - gb.pos
             rz = dr.norm(dz)
             wz = dz / dr.maximum(rz, 1e-30)
@@ -963,7 +896,7 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
         for c in self._vis_rays:
             t.add_rays("spatial", c)
         self._vis_rays = []
-        self.prev_res = r
+        self.restir.prev_res = r
         self.prev_gmax = gmax
         self.prev_g = g_lum
         self.prev_eps = eps
@@ -973,7 +906,7 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
 
     def _spatial_r(self, gb, r_t, active, sampler, time, gmax, g_lum, eps):
         """Spatial reuse over ``spatial`` neighbours in a disk (Bitterli Alg. 4/5/6) with this target
-        (restir-pt's :func:`~dyngi.techniques.restir.spatial_reuse`)."""
+        (the ReSTIR DI component's :meth:`~dyngi.transport.restir_di.ReSTIRDI.spatial_reuse`)."""
         p = self.params
 
         def here(sample, ok):
@@ -987,8 +920,7 @@ class DDGIResamplingTechnique(DDGISecondaryTechnique):
             npos, nn, ntwo, ngmax, ng, nng = dom
             return self._target(npos, nn, ntwo, ngmax, sample, time, ok, ng, eps, nng)
 
-        return spatial_reuse(gb, r_t, active, sampler, p["radius"], p["spatial"], p["combine"], here, domain,
-                             there)
+        return self.restir.spatial_reuse(gb, r_t, active, sampler, here, domain, there)
 
 
 __all__ = ["DDGISecondaryTechnique", "DDGIResamplingTechnique", "camera_footprint", "footprint_term",

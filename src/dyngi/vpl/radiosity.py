@@ -2,7 +2,7 @@
 
 ``L(y)`` is the outgoing radiance of the diffuse surface at ``y`` *without* its own
 emission: ``spp`` paths (16 in the paper) of our path tracer
-(:func:`dyngi.techniques.path.trace_paths_split`, BSDF sampling + NEE with MIS)
+(:func:`dyngi.transport.path_walk.trace_paths_split`, BSDF sampling + NEE with MIS)
 start at ``y`` (a ray just above ``y`` along ``-n`` finds it as the first vertex),
 with ``max_depth`` vertices counted from ``y`` (``y`` and the light: 2 = direct
 light at ``y``), no Russian roulette; the emission seen at ``y`` itself is
@@ -77,7 +77,7 @@ def estimate_radiosity(mscene, pos: np.ndarray, nrm: np.ndarray, seeds: np.ndarr
     ``max_depth`` counts path vertices from ``y`` (1: nothing, 2: direct light at ``y``, 4: up to three
     bounces of light reaching ``y``). Samples are averaged on the host (deterministic order).
     """
-    from ..techniques.path import trace_paths_split
+    from ..transport.path_walk import trace_paths_split
 
     n = len(pos)
     if n == 0 or max_depth < 2:

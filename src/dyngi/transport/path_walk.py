@@ -1,0 +1,228 @@
+"""One unidirectional path walk: BSDF sampling + next-event estimation with MIS + Russian roulette.
+
+Estimator (Veach 1997, Ch. 9; pbrt-v4's ``PathIntegrator::Li``): at each vertex the emission reached
+by the BSDF-sampled ray, weighted by MIS against light sampling (power or balance heuristic,
+:mod:`dyngi.transport.mis`), plus one light sample (NEE, :func:`dyngi.sampling.lights.sample_traced`)
+weighted by MIS against BSDF sampling; Russian roulette from ``rr_depth`` on with survival probability
+``min(max(beta) * eta^2, 0.95)`` (Mitsuba's ``path``). ``max_depth`` counts path vertices as in
+Mitsuba (1: emitters seen directly, 2: direct illumination; -1 unbounded). The whole path is one
+symbolic ``@dr.syntax`` loop: one kernel, and a steady frame compiles nothing new.
+
+A walk starts from **camera rays** (:func:`walk` without ``si``: the first intersection is its vertex
+0) or from **given surface interactions** (``si`` and the ray that reached them: a G-buffer's primary
+vertex, a VPL's point); both consume the sampler identically, so the same sampler gives the same path
+(``tests/transport/test_path_walk.py``). Vertex ``depth`` 0 is the first one; its emission is what the
+ray sees directly.
+
+Per-vertex choices (Python callables evaluated inside the loop, on Dr.Jit masks):
+
+* ``emission(depth, prev_delta) -> Bool``: which vertices' emission counts (``prev_delta``: the vertex
+  was reached through a delta lobe, which light sampling cannot produce). Default: all.
+* ``nee(depth) -> Bool``: where NEE happens. Default: every vertex with a smooth lobe.
+* ``terminate(si, ray, depth, active) -> (stop, radiance)``: where ``stop``, the path ends at this
+  vertex (after its emission) and ``beta * radiance`` replaces the rest of it (a probe lookup, a
+  footprint test); no NEE and no further bounce there. Default: none.
+
+A path that can no longer contribute (its next vertex counts no emission and is the last) stops early.
+
+Outputs, from the same terms: ``L`` (everything counted), ``L_ind`` (the *indirect* part: emission at
+vertices >= 2, NEE at vertices >= 1, terminate radiance at vertices >= 1, i.e. light that reflected at
+least once before vertex 0 -- the papers' "indirect", as the indirect reference), ``L_near`` (the
+counted rest: emission at vertices 0 and 1, NEE and terminate radiance at vertex 0). Each is a
+separate running sum, so ``L`` is not ``L_near + L_ind`` to the last bit; ask only for what is used.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..backend import dr, mi
+from ..sampling.lights import EmitterSampling, sample_traced
+from ..sampling.rng import make_sampler
+from .mis import mis_weight
+
+
+@dataclass
+class PathResult:
+    """What :func:`walk` returns: the sums asked for (else None), rays traced per lane, and whether
+    vertex 0 is a surface (for camera rays: the first hit)."""
+
+    L: object
+    L_ind: object
+    L_near: object
+    n_rays: object
+    first_valid: object
+
+
+def _mask(hook, base, *args):
+    """``base`` restricted by a per-vertex hook (``None``: not restricted)."""
+    return base if hook is None else base & mi.Bool(hook(*args))
+
+
+def _terminate(hook, si, ray, depth, active, active_next, beta, L, L_ind, L_near, total, split, near):
+    """Apply the terminate hook at this vertex: add ``beta * radiance`` where it stops the path."""
+    stop, L_t = hook(si, ray, depth, active & si.is_valid())
+    stop = active & si.is_valid() & mi.Bool(stop)
+    if total:
+        L = dr.select(stop, dr.fma(beta, L_t, L), L)
+    if split:
+        L_ind = dr.select(stop & (depth >= 1), dr.fma(beta, L_t, L_ind), L_ind)
+    if near:
+        L_near = dr.select(stop & (depth == 0), dr.fma(beta, L_t, L_near), L_near)
+    return L, L_ind, L_near, active_next & ~stop
+
+
+@dr.syntax
+def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None, power_heuristic: bool = True,
+         si=None, emission=None, nee=None, terminate=None, total: bool = True, split: bool = False,
+         near: bool = False) -> PathResult:
+    """Trace one path per lane (module docstring); ``si``: start at these surface interactions
+    (``ray``: the rays that reached them), else intersect ``ray`` first. ``total``/``split``/``near``:
+    which of ``L``/``L_ind``/``L_near`` to sum."""
+    lights = lights if lights is not None else EmitterSampling()
+    max_depth = mi.UInt32(0xFFFFFFFF) if max_depth < 0 else mi.UInt32(max_depth)
+    rr_depth_u = mi.UInt32(rr_depth)
+    ctx = mi.BSDFContext()
+    active = mi.Bool(active)
+    ray = mi.Ray3f(ray)
+    # -- vertex 0: the camera ray's first hit, or the given surface --
+    if si is None:
+        si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True, active=active)
+        n_rays = mi.UInt32(active)
+    else:
+        si = mi.SurfaceInteraction3f(si)
+        n_rays = dr.zeros(mi.UInt32, dr.width(active))
+    first_valid = active & si.is_valid()
+    L = mi.Spectrum(0.0)
+    L_ind = mi.Spectrum(0.0)
+    L_near = mi.Spectrum(0.0)
+    beta = mi.Spectrum(1.0)
+    depth = mi.UInt32(0)
+    prev_si = dr.zeros(mi.SurfaceInteraction3f)
+    prev_pdf = mi.Float(1.0)
+    prev_delta = mi.Bool(True)
+
+    while dr.hint(active, label="dyngi_path_walk"):
+        # -- emission hit by the BSDF-sampled ray, MIS against NEE --
+        ds = mi.DirectionSample3f(scene, si, prev_si)
+        em_pdf = mi.Float(0.0)
+        if ~prev_delta:
+            em_pdf = lights.pdf(scene, prev_si, ds, active & ~prev_delta)
+        w_bsdf = mis_weight(prev_pdf, em_pdf, power_heuristic)
+        em_on = _mask(emission, active, depth, prev_delta)
+        Le = ds.emitter.eval(si, em_on & (prev_pdf > 0))
+        if total:
+            L[em_on] = dr.fma(beta, Le * w_bsdf, L)
+        if split:    # not the emission of vertex 0 nor of vertex 1 (direct light)
+            L_ind[em_on & (depth >= 2)] = dr.fma(beta, Le * w_bsdf, L_ind)
+        if near:
+            L_near[em_on & (depth < 2)] = dr.fma(beta, Le * w_bsdf, L_near)
+
+        active_next = active & si.is_valid() & (depth + 1 < max_depth)
+        bsdf = si.bsdf(ray)
+
+        # -- terminate hook: radiance replaces the rest of the path --
+        if terminate is not None:
+            L, L_ind, L_near, active_next = _terminate(terminate, si, ray, depth, active, active_next, beta,
+                                                       L, L_ind, L_near, total, split, near)
+
+        # -- next-event estimation --
+        active_em = _mask(nee, active_next, depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        ds_em, em_weight, active_em = sample_traced(lights, scene, si, sampler.next_2d(), active_em)
+        n_rays += mi.UInt32(active_em)
+        wo = si.to_local(ds_em.d)
+        bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
+        w_em = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, bsdf_pdf, power_heuristic))
+        if total:
+            L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_em, L)
+        if split:    # not NEE at vertex 0 (direct light)
+            L_ind[active_em & (depth >= 1)] = dr.fma(beta, bsdf_val * em_weight * w_em, L_ind)
+        if near:
+            L_near[active_em & (depth == 0)] = dr.fma(beta, bsdf_val * em_weight * w_em, L_near)
+
+        # -- BSDF sampling --
+        bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active_next)
+        delta_lobe = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        ray = si.spawn_ray(si.to_world(bs.wo))
+        beta *= bsdf_weight
+        prev_si = dr.detach(si, True)
+        prev_pdf = bs.pdf
+        prev_delta = delta_lobe
+        depth += 1
+        # the next vertex contributes if it counts emission or is not the last one
+        useful = _mask(emission, mi.Bool(True), depth, delta_lobe) | (depth + 1 < max_depth)
+
+        # -- Russian roulette --
+        beta_max = dr.max(beta)
+        rr_active = depth >= rr_depth_u
+        rr_prob = dr.minimum(beta_max * dr.square(bs.eta), 0.95)
+        rr_continue = sampler.next_1d() < rr_prob
+        beta[rr_active] *= dr.rcp(rr_prob)
+        active = active_next & useful & (~rr_active | rr_continue) & (beta_max != 0.0) & (bs.pdf > 0.0)
+
+        si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
+        n_rays += mi.UInt32(active)
+
+    return PathResult(L if total else None, L_ind if split else None, L_near if near else None, n_rays,
+                      first_valid)
+
+
+def trace_paths_split(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None,
+                      power_heuristic: bool = True, split: bool = True):
+    """Camera-ray paths; return (radiance, indirect radiance, rays per lane, first-hit validity).
+
+    The indirect part (with ``split``; else it is 0) sums the same terms as the full radiance except
+    the emission seen at the first vertex, the emission reached by its BSDF-sampled ray and its NEE
+    sample: light that reflected at least once before the first vertex (vertices >= 3). Both come from
+    the same paths, so ``full - indirect`` is each sample's emission + direct light, and
+    ``indirect <= full`` per sample."""
+    r = walk(scene, sampler, ray, active, max_depth, rr_depth, lights, power_heuristic, split=split)
+    L_ind = r.L_ind if split else mi.Spectrum(0.0)
+    return r.L, L_ind, r.n_rays, r.first_valid
+
+
+def trace_paths(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None,
+                power_heuristic: bool = True, indirect_only: bool = False):
+    """Camera-ray paths; return (radiance, rays traced per lane, first-hit validity).
+
+    ``indirect_only`` keeps only the indirect part (:func:`trace_paths_split`): the "indirect" image
+    the papers compare (same definition as the indirect reference: depth-D minus depth-2). Nothing is
+    clamped: every term dropped is a non-negative sample contribution."""
+    L, L_ind, n_rays, first_valid = trace_paths_split(scene, sampler, ray, active, max_depth, rr_depth, lights,
+                                                      power_heuristic, split=indirect_only)
+    return (L_ind if indirect_only else L), n_rays, first_valid
+
+
+def render_paths(scene, camera, res, spp: int, seed: int, frame_index: int, max_depth: int,
+                 rr_depth: int, lights=None, power_heuristic=True, indirect_only=False):
+    """Render ``spp`` paths per pixel; return (mean colour per pixel, total rays as a Dr.Jit UInt32 sum).
+
+    ``indirect_only``: the indirect part only (see :func:`trace_paths`)."""
+    L, L_ind, rays = render_paths_split(scene, camera, res, spp, seed, frame_index, max_depth, rr_depth, lights,
+                                        power_heuristic, split=indirect_only)
+    return (L_ind if indirect_only else L), rays
+
+
+def render_paths_split(scene, camera, res, spp: int, seed: int, frame_index: int, max_depth: int,
+                       rr_depth: int, lights=None, power_heuristic=True, split: bool = True):
+    """Render ``spp`` paths per pixel; return (mean colour, mean indirect colour, total rays as a UInt32 sum).
+
+    The indirect image comes from the same paths (:func:`trace_paths_split`); without ``split`` it is
+    0 and costs nothing. ``scene``: a dyngi Scene or a Mitsuba scene."""
+    w, h = res
+    n = w * h * spp
+    sampler = make_sampler(n, seed, frame_index)
+    idx = dr.arange(mi.UInt32, n)
+    pix = idx // dr.opaque(mi.UInt32, spp) if spp > 1 else idx
+    ray = camera.sample_rays(res, pix, sampler.next_2d())
+    L, L_ind, n_rays, _ = trace_paths_split(scene.mi_scene if hasattr(scene, "mi_scene") else scene, sampler,
+                                            ray, mi.Bool(True), max_depth, rr_depth, lights, power_heuristic, split)
+    if split:
+        dr.eval(L, L_ind, n_rays)  # one kernel for the whole path loop; outputs evaluated together
+    else:
+        dr.eval(L, n_rays)
+    if spp > 1:
+        inv = dr.opaque(mi.Float, 1.0 / spp)
+        L = dr.block_reduce(dr.ReduceOp.Add, L, spp) * inv
+        if split:
+            L_ind = dr.block_reduce(dr.ReduceOp.Add, L_ind, spp) * inv
+    return L, L_ind, dr.sum(n_rays)

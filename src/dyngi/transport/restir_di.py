@@ -1,0 +1,276 @@
+"""ReSTIR DI as a component (Bitterli et al. 2020, "Spatiotemporal reservoir resampling"): the stages
+every technique that resamples direct light at the primary vertex holds (``restir-pt``, the DDGI
+Resampling family; issue 24). The target is a parameter of each reuse stage.
+
+1. **G-buffer** (:mod:`dyngi.sampling.gbuffer`): one jittered primary ray per pixel, reprojection by
+   each shape's own rigid motion, disocclusion mask (:meth:`ReSTIRDI.gbuffer`).
+2. **Initial candidates** (Bitterli Alg. 3, :func:`initial_candidates`): M light samples per pixel from
+   :class:`~dyngi.sampling.candidates.EmitterCandidates` (area lights in area measure, environment in
+   solid angle, delta lights as point masses) streamed through a reservoir with the default target
+   ``p_hat(y) = lum(Lg(y)) * cos+(n, wi)`` (:func:`target`; ``|cos|`` on transmissive surfaces): the
+   unshadowed contribution without the BSDF, so any neighbour's or the previous frame's target is
+   exact and needs only a G-buffer's position and normal.
+3. **Temporal reuse** (Alg. 4/5, :meth:`ReSTIRDI.temporal_reuse`): the reprojected previous pixel's
+   reservoir, M capped at ``m_cap`` x M (Bitterli Sec. 6: 20); skipped where the disocclusion mask
+   rejects the previous pixel.
+4. **Spatial reuse** (Alg. 4/5, unbiased Alg. 6, :func:`spatial_reuse`): ``spatial`` neighbours
+   uniformly in a disk of ``radius`` px, accepted by the depth (10 %) / normal (25 deg) test.
+5. **Shading** (:meth:`ReSTIRDI.shade`): one shadow ray for the final sample; BSDF x Lg x W.
+
+:func:`continue_paths` is the path walk after ReSTIR DI's primary vertex (vertex 0): it counts what
+ReSTIR's light samples cannot (emission behind a delta lobe of vertex 0) and everything from vertex 2
+on (the indirect part).
+
+Bias: none with ``combine='mis'`` or ``'1/z'`` on static frames; on dynamic frames the previous
+pixel's target is evaluated with today's lights and a reused ``W`` may belong to a light that moved
+(both documented in :mod:`dyngi.techniques.restir`).
+"""
+from __future__ import annotations
+
+from ..backend import dr, mi
+from ..sampling.candidates import EmitterCandidates
+from ..sampling.gbuffer import GBufferHistory, render_gbuffer, similar
+from ..sampling.reservoir import COMBINE_MODES, Reservoir, finalize, finalize_single, merge
+from .path_walk import walk
+
+PARAM_SPECS = {
+    "candidates": dict(default=32, doc="initial light candidates per pixel (M)", min=1, max=1024),
+    "temporal": dict(default=True, doc="temporal reuse (motion-vector reprojection)"),
+    "m_cap": dict(default=20.0, doc="temporal M cap in multiples of 'candidates'", min=0.0, max=1e4),
+    "spatial": dict(default=3, doc="spatial neighbours per pixel (Bitterli et al.: 5)", min=0, max=16),
+    "radius": dict(default=30.0, doc="spatial reuse radius (pixels)", min=1.0, max=1e4),
+    "combine": dict(default="mis", doc="reservoir combination: unbiased 'mis' or '1/z', or 'biased'",
+                    choices=COMBINE_MODES),
+}
+"""The component's settings, as keyword arguments of a technique's parameter declaration (``Param``):
+a technique that holds a :class:`ReSTIRDI` exposes these under these names."""
+
+
+def target(n, two_sided, ev):
+    """ReSTIR target ``lum(Lg) cos+`` (``|cos|`` where ``two_sided``) of evaluated candidates ``ev``."""
+    c = dr.dot(n, ev.wi)
+    c = dr.select(two_sided, dr.abs(c), dr.maximum(c, 0.0))
+    return dr.select(ev.valid, mi.luminance(ev.Lg) * c, 0.0)
+
+
+@dr.syntax
+def initial_candidates(cand, si, n, two_sided, active, sampler, m: int, time, target_fn=target):
+    """Stream ``m`` light candidates per lane (Bitterli Alg. 3); returns (k, payload, w_sum, p_hat).
+    ``target_fn(n, two_sided, ev)``: the target of evaluated candidates (default :func:`target`)."""
+    k_sel = dr.zeros(mi.UInt32, dr.width(active))
+    pl_sel = dr.zeros(mi.Vector3f, dr.width(active))
+    w_sum = dr.zeros(mi.Float, dr.width(active))
+    ph_sel = dr.zeros(mi.Float, dr.width(active))
+    i = mi.UInt32(0)
+    m_u = mi.UInt32(m)
+    while dr.hint(i < m_u, label="dyngi_restir_candidates"):
+        k, pl = cand.sample(si, sampler.next_1d(), sampler.next_2d(), active)
+        ev = cand.evaluate(si.p, k, pl, time, active)
+        ph = target_fn(n, two_sided, ev)
+        w = dr.select(active & (ev.pdf > 0.0), ph / ev.pdf, 0.0)
+        w_sum += w
+        take = (w > 0.0) & (sampler.next_1d() * w_sum < w)
+        k_sel = dr.select(take, k, k_sel)
+        pl_sel = dr.select(take, pl, pl_sel)
+        ph_sel = dr.select(take, ph, ph_sel)
+        i += 1
+    return k_sel, pl_sel, w_sum, ph_sel
+
+
+def spatial_reuse(gb, r_t, active, sampler, radius, count: int, combine: str, eval_here, gather_domain,
+                  eval_there):
+    """Spatial reuse of ``r_t`` over ``count`` neighbours in a disk of ``radius`` pixels (Bitterli et al.
+    Alg. 4/5, the unbiased combination of Alg. 6), for any target function.
+
+    ``eval_here(sample, ok)``: the target of a neighbour's sample at this pixel; ``gather_domain(nid, npos,
+    nn, ntwo, ok)``: what the target needs of neighbour ``nid`` (a tuple); ``eval_there(domain, sample,
+    ok)``: the target of this pixel's chosen sample at that neighbour (for the MIS / 1/Z weights)."""
+    w, h = gb.res
+    npix = w * h
+    idx = dr.arange(mi.UInt32, npix)
+    x = mi.Int32(idx % w)
+    y = mi.Int32(idx // w)
+    out = Reservoir.empty(r_t.sample, npix)
+    merge(out, r_t, r_t.p_hat, sampler.next_1d(), active, src=0)
+    counts, domains, masks = [r_t.M], [], [active]
+    radius = dr.opaque(mi.Float, radius)
+    for j in range(count):
+        off = mi.warp.square_to_uniform_disk_concentric(sampler.next_2d()) * radius
+        nx = dr.clip(x + mi.Int32(dr.round(off.x)), 0, w - 1)
+        ny = dr.clip(y + mi.Int32(dr.round(off.y)), 0, h - 1)
+        nid = mi.UInt32(ny * w + nx)
+        nvalid = dr.gather(mi.Bool, gb.valid, nid, active)
+        npos = dr.gather(mi.Point3f, gb.pos, nid, active)
+        nn = dr.gather(mi.Vector3f, gb.n_sh, nid, active)
+        ntwo = dr.gather(mi.Bool, gb.transmissive, nid, active)
+        ndepth = dr.gather(mi.Float, gb.depth, nid, active)
+        dom = gather_domain(nid, npos, nn, ntwo, active)
+        ok = active & (nid != idx) & similar(gb.depth, gb.n_sh, ndepth, nn, nvalid)
+        rn = r_t.gather(nid, ok)
+        ok &= rn.M > 0.0
+        merge(out, rn, eval_here(rn.sample, ok), sampler.next_1d(), ok, src=j + 1)
+        counts.append(rn.M)
+        domains.append(dom)
+        masks.append(ok)
+    p_hats = [out.p_hat]
+    for dom, ok in zip(domains, masks[1:]):
+        p_hats.append(eval_there(dom, out.sample, ok))
+    finalize(out, combine, counts, p_hats, masks)
+    dr.eval(*out.arrays())
+    return out
+
+
+def _after_restir_emission(depth, prev_delta):
+    """Emission the continuation counts: from vertex 2 on (vertex 1's through a smooth lobe is ReSTIR's
+    direct light), and at vertex 1 behind a delta lobe, which ReSTIR's light samples cannot reach."""
+    return (depth >= 2) | ((depth == 1) & prev_delta)
+
+
+def _after_restir_nee(depth):
+    """NEE from vertex 1 on: the primary vertex's direct light is ReSTIR's."""
+    return depth >= 1
+
+
+def continue_paths(scene, sampler, ray, si, active, max_depth: int, rr_depth: int, lights):
+    """Path tracing from the primary vertex ``si`` on (BSDF + NEE with power-heuristic MIS, RR): the
+    path walk (:func:`dyngi.transport.path_walk.walk`) from a given surface, with ReSTIR DI's share left
+    out. Returns (light through a delta lobe of the primary vertex straight from an emitter [vertex 2],
+    light from vertices >= 3 [the indirect part], rays traced per lane). The primary vertex's own
+    emission and its direct light through smooth lobes are ReSTIR's (not counted here)."""
+    r = walk(scene, sampler, ray, active, max_depth, rr_depth, lights, True, si=si,
+             emission=_after_restir_emission, nee=_after_restir_nee, total=False, split=True, near=True)
+    return r.L_near, r.L_ind, r.n_rays
+
+
+class ReSTIRDI:
+    """ReSTIR DI at the primary vertex (module docstring): owns the G-buffer history, the light
+    candidates' table and last frame's reservoirs; a technique holds one and calls its stages.
+
+    ``target_fn(n, two_sided, ev)``: the target of the emitter-sample stages (:meth:`direct`), from a
+    shading normal and evaluated candidates (default :func:`target`); any target that is positive
+    wherever the integrand is keeps the estimate unbiased. The reuse stages also take the target as
+    callables, so a technique whose reservoirs hold other samples (DDGI Resampling's emitter + BSDF-hit
+    reservoir) uses the same temporal and spatial reuse."""
+
+    def __init__(self, scene, candidates: int = 32, temporal: bool = True, m_cap: float = 20.0, spatial: int = 3,
+                 radius: float = 30.0, combine: str = "mis", target_fn=target):
+        self.scene = scene
+        self.target_fn = target_fn
+        self.m = int(candidates)
+        self.temporal = bool(temporal)
+        self.m_cap = float(m_cap)
+        self.spatial = int(spatial)
+        self.radius = float(radius)
+        self.combine = combine
+        self.cand = EmitterCandidates(scene.mi_scene)
+        ids = self.cand.fast_shape_ids() if self.cand.count else set()
+        # animators that move an emissive mesh or change its radiance: the triangle table follows them
+        self.light_anim = any((getattr(a, "shape", None) in ids)
+                              or str(getattr(a, "key", "")).split(".")[0] in ids for a in scene.animators)
+        self.hist = GBufferHistory(scene)
+        self.prev_res: Reservoir | None = None
+
+    @classmethod
+    def from_params(cls, scene, params: dict, **kw) -> "ReSTIRDI":
+        """The component with a technique's settings (the keys of :data:`PARAM_SPECS`)."""
+        return cls(scene, **{k: params[k] for k in PARAM_SPECS}, **kw)
+
+    # -- per frame ------------------------------------------------------------------------------
+    def begin_frame(self, frame) -> None:
+        """Follow moving or changing emissive meshes (the candidates' triangle table)."""
+        if self.light_anim and not frame.static and self.cand.has_fast:
+            self.cand.refresh()
+
+    def gbuffer(self, frame, sampler, timer):
+        """Stage ``gbuffer``: primary rays (one ``next_2d`` of ``sampler``), history, reprojection;
+        returns (G-buffer, reprojection or None without temporal reuse)."""
+        with timer.stage("gbuffer"):
+            gb = render_gbuffer(self.scene, frame.camera, frame.res, sampler.next_2d(), frame.time,
+                                material=False)
+            self.hist.push(gb)
+            reproj = self.hist.reproject() if self.temporal else None
+        timer.add_rays("gbuffer", frame.res[0] * frame.res[1])
+        return gb, reproj
+
+    # -- the default target ---------------------------------------------------------------------
+    def eval_at(self, pos, n, two_sided, sample, time, active):
+        """The default target of ``sample`` = (k, payload) at a shading domain (position, normal, two-sided)."""
+        ev = self.cand.evaluate(pos, sample[0], sample[1], time, active)
+        return self.target_fn(n, two_sided, ev)
+
+    # -- stages -----------------------------------------------------------------------------------
+    def candidates(self, gb, active, sampler, time) -> Reservoir:
+        """Initial candidates (Bitterli Alg. 3) with the default target: a one-sample reservoir per lane."""
+        npix = dr.width(gb.valid)
+        k, pl, w_sum, ph = initial_candidates(self.cand, gb.si, gb.n_sh, gb.transmissive, active, sampler, self.m,
+                                              time, self.target_fn)
+        r = Reservoir((k, pl), w_sum, dr.select(active, float(self.m), 0.0), ph, mi.Float(0.0),
+                      dr.zeros(mi.UInt32, npix))
+        finalize_single(r)
+        dr.eval(*r.arrays())
+        return r
+
+    def temporal_reuse(self, r, gb, reproj, active, sampler, m: float, eval_here, eval_prev) -> None:
+        """Merge the reprojected previous pixel's reservoir into ``r`` (Alg. 4/5; in place), M capped at
+        ``m_cap * m`` (``m``: the candidates a fresh reservoir holds). ``eval_here(sample, ok)``: the
+        target at this pixel; ``eval_prev(prev_gbuffer, prev_pixel, sample, ok)``: at the previous pixel
+        (for the MIS / 1/Z weights). Does nothing without temporal reuse or a previous frame."""
+        npix = dr.width(gb.valid)
+        prev = self.hist.prev
+        if not (self.temporal and self.prev_res is not None and prev is not None
+                and dr.width(self.prev_res.W) == npix):
+            return
+        ok = active & reproj.valid
+        rp = self.prev_res.gather(reproj.prev_pixel, ok)
+        cap = dr.opaque(mi.Float, self.m_cap * m)
+        m_prev = dr.minimum(rp.M, cap)
+        ph_here = eval_here(rp.sample, ok)
+        merge(r, rp, ph_here, sampler.next_1d(), ok, src=1, m_cap=cap)
+        # the final sample's target at the previous pixel (its G-buffer, today's lights)
+        ph_prev = eval_prev(prev, reproj.prev_pixel, r.sample, ok)
+        finalize(r, self.combine, [mi.Float(m), m_prev], [r.p_hat, ph_prev], [True, ok])
+        dr.eval(*r.arrays())
+
+    def spatial_reuse(self, gb, r, active, sampler, eval_here, gather_domain, eval_there) -> Reservoir:
+        """Spatial reuse (:func:`spatial_reuse`) with this component's count, radius and combination."""
+        return spatial_reuse(gb, r, active, sampler, self.radius, self.spatial, self.combine, eval_here,
+                             gather_domain, eval_there)
+
+    def shade(self, gb, bsdf, sample, W, active, time):
+        """One shadow ray to the emitter sample ``sample`` = (k, payload) per ``active`` lane; returns
+        (BSDF x Lg x W where visible, lanes that traced a shadow ray)."""
+        si = gb.si
+        ev = self.cand.evaluate(gb.pos, sample[0], sample[1], time, active)
+        vis = self.cand.visible(si, ev, ev.valid)
+        f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ev.wi), vis)
+        return dr.select(vis, f * ev.Lg * W, 0.0), ev.valid
+
+    # -- all stages with the default target -------------------------------------------------------
+    def direct(self, gb, reproj, bsdf, smooth, sampler, time, timer):
+        """Direct light at the primary vertex by ReSTIR DI with the default target: stages
+        ``candidates``, ``temporal``, ``spatial``, ``shadow`` (timed on ``timer``). Keeps the final
+        reservoirs as next frame's temporal input."""
+        with timer.stage("candidates"):
+            r = self.candidates(gb, smooth, sampler, time)
+        with timer.stage("temporal"):
+            def here(sample, ok):
+                return self.eval_at(gb.pos, gb.n_sh, gb.transmissive, sample, time, ok)
+
+            def there_prev(prev, pix, sample, ok):
+                ppos = dr.gather(mi.Point3f, prev.pos, pix, ok)
+                pn = dr.gather(mi.Vector3f, prev.n_sh, pix, ok)
+                ptwo = dr.gather(mi.Bool, prev.transmissive, pix, ok)
+                return self.eval_at(ppos, pn, ptwo, sample, time, ok)
+
+            self.temporal_reuse(r, gb, reproj, smooth, sampler, self.m, here, there_prev)
+        with timer.stage("spatial"):
+            if self.spatial > 0:
+                r = self.spatial_reuse(gb, r, smooth, sampler, here,
+                                       lambda nid, npos, nn, ntwo, act: (npos, nn, ntwo),
+                                       lambda dom, sample, ok: self.eval_at(*dom, sample, time, ok))
+        with timer.stage("shadow"):
+            direct, shadow = self.shade(gb, bsdf, r.sample, r.W, smooth & (r.W > 0.0), time)
+            dr.eval(direct)
+        timer.add_rays("shadow", dr.count(smooth & shadow))
+        self.prev_res = r
+        return direct
