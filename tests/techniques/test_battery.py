@@ -9,10 +9,13 @@ future -- gets, with no per-technique test code:
   series ``e * (1 - a^D) / (1 - a)`` when the technique's resolved parameters
   carry ``max_depth = D`` (Mitsuba's vertex count: D = 1 is emission only);
 * ``test_finite_fast`` / ``test_finite_slow``: no NaN/Inf in ``image`` or
-  ``indirect`` over 200 frames at 32x24 on three varied built-in scenes
-  (fast suite) and on every built-in scene (``@pytest.mark.slow``);
-* ``test_steady_state_compiles_nothing``: after a warm-up, frames of an
-  animated scene compile no new Dr.Jit kernel (``dr.kernel_history()``);
+  ``indirect`` over 200 frames at 32x24: in the fast suite each technique on
+  one of three varied built-in scenes (a sample of the grid), every other
+  technique x built-in scene pair in ``@pytest.mark.slow``;
+* ``test_steady_state_compiles_nothing``: at the technique's defaults, after a
+  warm-up, frames of an animated scene with a new seed each compile no new
+  Dr.Jit kernel (``dr.kernel_history()``), also under each budget the
+  technique declares (``BUDGETS``: a new ray or time budget every frame);
 * ``test_unknown_parameter`` / ``test_bad_values``: one ``DyngiError`` naming
   the offending parameter (and, for an unknown name, every valid one); bad
   values are generated from each :class:`~dyngi.techniques.Param` (wrong
@@ -52,13 +55,11 @@ Until a technique module declares these itself, ``_FALLBACK`` below gives the
 values for the techniques registered when this battery was written; a class
 attribute always wins over it.
 
-Measured (2-core box shared with other jobs, load average 3-4, 2026-12-01, 4
-techniques registered): the fast part of this module 25-40 s wall
-(``pytest -q tests/techniques/test_battery.py``), ~6-9 s per technique, most of it the
-3 x 200 frames at 32x24 (1-2.3 s per scene); the slow part (the 10 other
-built-in scenes) 7 min 17 s (``-m slow``).
+Durations of the fast and slow parts: docs/benchmarks.md ("Steady frames compile nothing").
 """
 from __future__ import annotations
+
+import time
 
 import numpy as np
 import pytest
@@ -341,23 +342,50 @@ def _finite_run(name: str, scene_name: str):
     assert not bad, f"{name} on {scene_name}: first bad frames {bad[:5]}"
 
 
-@pytest.mark.parametrize("scene_name", FAST_SCENES)
-@pytest.mark.parametrize("name", NAMES)
+FAST_PAIRS = [(name, FAST_SCENES[i % len(FAST_SCENES)]) for i, name in enumerate(NAMES)]
+"""The fast suite samples the technique x scene grid: each technique on one of FAST_SCENES, in turn (every
+scene gets a third of the techniques); every other pair runs in ``slow``."""
+
+
+@pytest.mark.parametrize("name, scene_name", FAST_PAIRS)
 def test_finite_fast(backend, name, scene_name):
     _finite_run(name, scene_name)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("scene_name", [s for s in builtin_names() if s not in FAST_SCENES])
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name, scene_name", [(n, s) for n in NAMES for s in builtin_names()
+                                              if (n, s) not in FAST_PAIRS])
 def test_finite_slow(backend, name, scene_name):
     _finite_run(name, scene_name)
 
 
 # -- no recompiles in steady state ------------------------------------------------------------
 
+STEADY_SCENE = "cornell-moving-light"
+STEADY_RES = (32, 24)
 WARMUP_FRAMES = 12     # covers one periodic event at frame 8 (e.g. probe re-classification)
 CHECK_FRAMES = 8       # ... and the next one at frame 16
+STEADY_SLOW = ("mir", "smcir")
+"""Seconds a frame at their defaults (mir ~7 s, smcir ~0.4 s plus a long first frame at 32x24): ``slow``."""
+STEADY_PARAMS = {"probes-reference": {"probe_counts": "2"}, "tcas": {"vpls": 256, "iterations": 4}}
+"""Per-run sizes lowered for cost only (they can change a literal in a kernel, never which code runs, and they
+do not change from frame to frame): probes-reference at the defaults traces 512 probes x 30^2 texels x 64 rays
+x 2 a frame (~20 s); tcas's 16 Metropolis iterations over 2048 VPLs (host round trips) ~1 s a frame."""
+BUDGETS = ("equal-rays", "equal-time")
+
+
+def budget_factor(i: int) -> float:
+    """Frame ``i``'s budget as a multiple of the unbudgeted spend: in [0.5, 2), a golden-ratio sequence, so
+    the budget takes a new value every frame (what a comparison's per-frame budget does) over a wide range."""
+    return 0.5 * 4.0 ** ((i * 0.6180339887) % 1.0)
+
+
+def _steady_cases():
+    for name in NAMES:
+        marks = [pytest.mark.slow] if name in STEADY_SLOW else []
+        budgets = [b for b in BUDGETS if b in getattr(get_technique(name), "BUDGETS", ())]
+        for budget in (None, *budgets):
+            yield pytest.param(name, budget, marks=marks, id=f"{name}-{budget or 'defaults'}")
 
 
 def jit_hashes() -> set:
@@ -365,31 +393,48 @@ def jit_hashes() -> set:
     return {k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT}
 
 
-@pytest.mark.parametrize("name", NAMES)
-def test_steady_state_compiles_nothing(backend, name):
-    """An animated scene (moving light), a new frame index each frame: after the warm-up every kernel a
-    frame launches is one launched before. Kernels are compared by hash, not by ``cache_hit``: Dr.Jit's
-    on-disk kernel cache makes a kernel recompiled every frame a "cache hit" from the second test run on."""
-    sc = load_scene("cornell-moving-light")
-    tech = make(name, sc)
+@pytest.mark.parametrize("name, budget", list(_steady_cases()))
+def test_steady_state_compiles_nothing(backend, name, budget):
+    """At the technique's defaults, an animated scene (moving light), a new frame index and a new seed each
+    frame and, for the budgets the technique declares (``BUDGETS``), a new ray or time budget on each
+    :class:`Frame` (as ``compare --budget`` sets it): after the warm-up every kernel a frame launches is one
+    launched before (DESIGN, Dr.Jit rules: frame-varying scalars go in as ``dr.opaque``; sizes that vary
+    change the width of a launch, never its kernel). Kernels are compared by hash, not by ``cache_hit``:
+    Dr.Jit's on-disk kernel cache makes a kernel recompiled every frame a "cache hit" from the second run on.
+    The budgets start at frame 2 as multiples (:func:`budget_factor`) of frame 1's spend (its rays, or its
+    wall time)."""
+    sc = load_scene(STEADY_SCENE)
+    tech = create_technique(name, sc, STEADY_PARAMS.get(name, {}))
+    npix = STEADY_RES[0] * STEADY_RES[1]
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
-        seen, new, ran = set(), [], 0
-
-        def check(i, r):
-            nonlocal ran
+        seen, new, ran, base, prev = set(), [], 0, None, None
+        jit_hashes()   # clears
+        for i in range(WARMUP_FRAMES + CHECK_FRAMES):
+            t = sc.frame_time(i)
+            sc.at(t)
+            sig = sc.signature(t)
+            frame = Frame(i, t, sc.camera(t), STEADY_RES, seed=1000 + 7919 * i, static=(sig == prev))
+            prev = sig
+            if base is not None and budget == "equal-rays":
+                frame.ray_budget = max(1, int(base * budget_factor(i)))
+            elif base is not None and budget == "equal-time":
+                frame.time_budget_ms = base * budget_factor(i)
+            w0 = time.perf_counter()
+            r = tech.step(frame)
+            ms = 1e3 * (time.perf_counter() - w0)
+            if i == 1:      # the first frame without the warm-up
+                base = ms if budget == "equal-time" else (r.stats.get("total_rays") or 8 * npix)
             h = jit_hashes()
             ran += len(h)
             if i >= WARMUP_FRAMES:
                 new.extend((i, k) for k in sorted(h - seen))
             seen.update(h)
-
-        jit_hashes()   # clears
-        run_frames(tech, sc, WARMUP_FRAMES + CHECK_FRAMES, check=check)
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
     assert ran > 0, "no kernels ran?"
-    assert not new, f"{name}: {len(new)} kernels compiled in steady state (frame, hash): {new[:4]}"
+    assert not new, (f"{name} ({budget or 'no budget'}): {len(new)} kernels compiled in steady state "
+                     f"(frame, hash): {new[:4]}")
 
 
 # -- parameter errors --------------------------------------------------------------------------
@@ -499,6 +544,12 @@ def _broken_technique(mode: str, **attrs):
             level = self.params["level"]
             if mode == "literal":      # a frame-varying Python scalar baked into the kernel
                 level *= 1.0 + 1e-6 * frame.index
+            elif mode == "seed":       # ... the seed
+                level *= 1.0 + 1e-9 * frame.seed
+            elif mode == "budget" and frame.ray_budget is not None:     # ... the budget
+                level *= 1.0 + 1e-6 * frame.ray_budget
+            elif mode == "time" and frame.time_budget_ms is not None:
+                level *= 1.0 + 1e-3 * frame.time_budget_ms
             x = dr.fma(dr.arange(mi.Float, n), 1e-30, level)     # == level in float32, not a literal
             v = mi.Color3f(x, x, x)
             dr.eval(v)
@@ -507,7 +558,7 @@ def _broken_technique(mode: str, **attrs):
                 img[3, 5, 1] = np.nan
             if mode == "random":
                 img = img + np.random.default_rng().random(img.shape, dtype=np.float32) * 1e-3
-            return FrameResult(image=img)
+            return FrameResult(image=img, stats={"ms": {}, "rays": {}, "total_rays": n})
 
     for k, v in attrs.items():
         setattr(Broken, k, v)
@@ -516,7 +567,11 @@ def _broken_technique(mode: str, **attrs):
 
 @pytest.mark.parametrize("mode, test, message", [
     ("nan", lambda: test_finite_fast(None, "battery-selftest", "sky-pit"), "non-finite image values"),
-    ("literal", lambda: test_steady_state_compiles_nothing(None, "battery-selftest"), "compiled in steady state"),
+    ("literal", lambda: test_steady_state_compiles_nothing(None, "battery-selftest", None), "compiled in steady"),
+    ("seed", lambda: test_steady_state_compiles_nothing(None, "battery-selftest", None), "compiled in steady"),
+    ("budget", lambda: test_steady_state_compiles_nothing(None, "battery-selftest", "equal-rays"),
+     "compiled in steady"),
+    ("time", lambda: test_steady_state_compiles_nothing(None, "battery-selftest", "equal-time"), "compiled in steady"),
     ("random", lambda: test_bit_identical_reruns(None, "battery-selftest"), "differ between two runs"),
     ("ok", lambda: test_furnace(None, "battery-selftest", "sphere"), "expected 0.75"),   # 1.0 is not 0.75
 ])
@@ -546,7 +601,8 @@ def test_battery_furnace_opt_out_needs_a_reason(backend, monkeypatch):
         test_bit_identical_reruns(None, "battery-selftest")     # a stochastic technique must use its seed
     monkeypatch.setitem(REGISTRY, "battery-selftest", _broken_technique("ok", DETERMINISTIC=True))
     # the passing modes pass the other checks too (the self-tests above fail for the broken part only)
-    test_steady_state_compiles_nothing(None, "battery-selftest")
+    for budget in (None, "equal-rays", "equal-time"):   # the budget modes pass without a budget
+        test_steady_state_compiles_nothing(None, "battery-selftest", budget)
     test_bit_identical_reruns(None, "battery-selftest")
 
 
