@@ -146,6 +146,19 @@ def test_camera_drag_changes_the_image(page):
     assert page.evaluate("window.dyngiView.state.follow") is False
 
 
+def test_fly_keys_move_the_camera(page):
+    page.key("KeyR", "r")                       # the orbit above left the box; back inside
+    page.wait_for("window.dyngiView.state.follow === true", 10)
+    _wait_idle(page)
+    before = _canvas_png(page)
+    page.key("KeyW", "w", hold_s=0.5)           # fly forward for half a second
+    _wait_frames(page, 2)
+    _wait_idle(page)
+    after = _canvas_png(page)
+    moved = np.abs(_blocks(after) - _blocks(before)).mean()
+    assert moved > 3.0, moved
+
+
 def test_technique_switch_changes_the_stats(page):
     before = set(page.evaluate("Object.keys(window.dyngiView.stats.a.stats.ms)"))
     page.evaluate(f"document.getElementById('specA').value = '{SPEC_SWITCH}';"
