@@ -2,7 +2,7 @@
 2017 (Sec. 5.1): technique ``tcas``.
 
 Metropolis-Hastings over light-visible surface samples (the texels of a reflective
-shadow map: first diffuse hits of photons, :func:`dyngi.vpl.points.photon_first_hits`),
+shadow map: first diffuse hits of photons, :func:`dyngi.vpl.points.photon_first_hits_device`),
 ``iterations`` (16; Barak et al. propose 5, Hedman et al. use 16) per frame, single bounce
 (the VPLs carry direct light only, whatever ``max_depth``, as the paper's TCAS):
 
@@ -19,20 +19,53 @@ shadow map: first diffuse hits of photons, :func:`dyngi.vpl.points.photon_first_
   independent proposals (the normalisation of the MH target).
 
 Our choices where the papers are silent: the perturbation size, the mixture, ``b``.
+
+All on the device (issue 29): chain states, targets and the per-chain hits are Dr.Jit arrays kept
+across frames; the target's sum over view samples is one symbolic loop per chain; random numbers come
+from a per-chain PCG32 seeded by (seed, frame). The ``iterations`` MH steps are one symbolic loop (one
+kernel); a frame reads nothing back before the image.
 Extra parameters: ``iterations`` (16), ``view_samples`` (64).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..sampling.rng import mix_seed
-from ..vpl.points import photon_first_hits, raw_candidates
+from ..backend import dr, mi
+from ..sampling.rng import make_sampler, mix_seed
+from ..vpl.points import photon_first_hits_device, raw_candidates_device
 from ..vpl.store import LUMINANCE
 from .base import Frame, Param, StageTimer, register
 from .vpl_base import COMMON_PARAMS, VPLTechnique
 
 PERTURB_SIGMA = 0.02
 """Standard deviation of the small-step proposal in primary sample space (our choice)."""
+_S_VIEW, _S_INIT, _S_ITER = 0x7CA6, 0x7CA7, 0x7CA8
+
+
+def _pick(take, a, b):
+    """``select(take, a, b)`` over matching lists or dicts of arrays."""
+    if isinstance(a, dict):
+        return {k: dr.select(take, a[k], b[k]) for k in a}
+    return [dr.select(take, x, y) for x, y in zip(a, b)]
+
+
+@dr.syntax
+def _view_importance(p, n, ok, xs, ns, okx, count, dmin2):
+    """sum_x okx max(0, cos_x) max(0, cos_y) / max(d^2, d_min^2) over the view samples, per chain."""
+    acc = mi.Float(0.0)
+    j = mi.UInt32(0)
+    while ok & (j < count):
+        x = dr.gather(mi.Point3f, xs, j)
+        nx = dr.gather(mi.Vector3f, ns, j)
+        vx = dr.gather(mi.Bool, okx, j)
+        d = x - p
+        d2 = dr.maximum(dr.squared_norm(d), 1e-12)
+        dn = d * dr.rsqrt(d2)
+        cy = dr.maximum(dr.dot(dn, n), 0.0)
+        cx = dr.maximum(-dr.dot(dn, nx), 0.0)
+        acc += dr.select(vx, cx * cy / dr.maximum(d2, dmin2), 0.0)
+        j += 1
+    return acc
 
 
 @register
@@ -49,60 +82,78 @@ class TCAS(VPLTechnique):
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
-        self.u = None          # chain states, I x 5
+        self.u = None          # chain states: five Floats of I lanes (device)
         self.f = None
+        self.hits = None
 
-    def _target(self, hits, xs, ns):
-        """f = lum(L) * sum_x cos cos / max(d^2, d_min^2) (no visibility), host NumPy over I x |X|."""
-        lum = hits["radiosity"].astype(np.float64) @ LUMINANCE
-        if len(xs) == 0:
-            return np.where(hits["ok"], lum, 0.0)
-        d = xs[None, :, :] - hits["pos"][:, None, :]
-        d2 = np.maximum((d * d).sum(-1), 1e-12)
-        dn = d / np.sqrt(d2)[..., None]
-        cy = np.maximum((dn * hits["nrm"][:, None, :]).sum(-1), 0.0)
-        cx = np.maximum(-(dn * ns[None, :, :]).sum(-1), 0.0)
-        dmin2 = 1.0 / self.gmax if np.isfinite(self.gmax) else 0.0
-        imp = (cx * cy / np.maximum(d2, dmin2)).sum(-1)
-        return np.where(hits["ok"], lum * imp, 0.0)
+    def _target(self, hits, view):
+        """f = lum(L) * sum_x cos cos / max(d^2, d_min^2) (no visibility), per chain on the device."""
+        lum = dr.dot(mi.Vector3f(hits["radiosity"]), mi.Vector3f(*(float(v) for v in LUMINANCE)))
+        dmin2 = dr.opaque(mi.Float, 1.0 / self.gmax if np.isfinite(self.gmax) else 0.0)
+        imp = _view_importance(hits["pos"], hits["nrm"], hits["ok"], view["x"], view["n"], view["ok"],
+                               dr.opaque(mi.UInt32, view["count"]), dmin2)
+        return dr.select(hits["ok"], lum * imp, 0.0)
+
+    @dr.syntax
+    def _chains(self, u, f, hits, rng, view, iterations):
+        """``iterations`` MH steps of every chain in one symbolic loop (one kernel per frame); returns the
+        new states, targets, hits and the sums over independent proposals that estimate ``b``."""
+        b_sum = dr.zeros(mi.Float, dr.width(f))
+        b_n = dr.zeros(mi.Float, dr.width(f))
+        sigma = dr.opaque(mi.Float, PERTURB_SIGMA)
+        it = mi.UInt32(0)
+        while it < iterations:
+            indep = rng.next_float32() < 0.5
+            g0 = mi.warp.square_to_std_normal(mi.Point2f(rng.next_float32(), rng.next_float32()))
+            g1 = mi.warp.square_to_std_normal(mi.Point2f(rng.next_float32(), rng.next_float32()))
+            g2 = mi.warp.square_to_std_normal(mi.Point2f(rng.next_float32(), rng.next_float32()))
+            gauss = [g0.x, g0.y, g1.x, g1.y, g2.x]
+            prop = []
+            for i in range(5):       # static: the five primary-sample dimensions
+                small = u[i] + sigma * gauss[i]
+                prop.append(dr.select(indep, rng.next_float32(), small - dr.floor(small)))
+            h2 = photon_first_hits_device(self.scene, prop)
+            f2 = self._target(h2, view)
+            b_sum += dr.select(indep, f2, 0.0)
+            b_n += dr.select(indep, 1.0, 0.0)
+            acc = dr.select(f > 0.0, f2 / f, dr.select(f2 > 0.0, 1.0, 0.0))
+            take = rng.next_float32() < acc
+            u = _pick(take, prop, u)
+            f = dr.select(take, f2, f)
+            hits = _pick(take, h2, hits)
+            it += 1
+        return u, f, hits, dr.sum(b_sum), dr.sum(b_n)
 
     def update_vpls(self, frame: Frame, t: StageTimer):
         I, p = self.budget, self.params
-        z = np.zeros((16, 3), np.float32)
         if self.bounces <= 0:
+            z = np.zeros((16, 3), np.float32)
             return z, z, z, {"vpls_used": 0, "vpl_budget": I}
-        rng = np.random.default_rng(mix_seed(frame.seed, frame.index, 0x7CA5))
-        rays = 0
         with t.stage("view_samples"):
-            _, pts, r = raw_candidates(self.scene, frame.camera, frame.res, p["view_samples"], frame.seed, 0, 0x7CA6)
-            xs, ns = pts["x"].astype(np.float64), pts["n"].astype(np.float64)
-            rays += r
+            nv = int(p["view_samples"])
+            c = raw_candidates_device(self.scene, frame.camera, frame.res, nv, frame.seed, 0, _S_VIEW)
+            view = {"x": mi.Point3f(c["mailbox"]), "n": mi.Vector3f(c["mailbox_n"]), "ok": c["okx"], "count": nv}
+            dr.eval(view["x"], view["n"], view["ok"])
+        t.add_rays("view_samples", nv + dr.count(c["okx"]))
         with t.stage("metropolis"):
             if self.u is None:
-                self.u = rng.random((I, 5))
-            hits, r = photon_first_hits(self.scene, self.u)
-            rays += r
-            f = self._target(hits, xs, ns)
-            b_sum, b_n = 0.0, 0
-            for _ in range(p["iterations"]):     # a few static MH steps, each vectorised over all chains
-                indep = rng.random(I) < 0.5
-                prop = np.where(indep[:, None], rng.random((I, 5)),
-                                np.mod(self.u + PERTURB_SIGMA * rng.standard_normal((I, 5)), 1.0))
-                h2, r = photon_first_hits(self.scene, prop)
-                rays += r
-                f2 = self._target(h2, xs, ns)
-                b_sum += float(f2[indep].sum())
-                b_n += int(indep.sum())
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    acc = np.where(f > 0, f2 / f, np.where(f2 > 0, 1.0, 0.0))
-                take = rng.random(I) < acc
-                self.u[take] = prop[take]
-                f[take] = f2[take]
-                for k in hits:
-                    hits[k][take] = h2[k][take]
-        t.add_rays("metropolis", rays)
-        b = b_sum / max(b_n, 1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            w = np.where(f > 0, b / (I * f), 0.0)
-        flux = (hits["radiosity"] * w[:, None]).astype(np.float32)
-        return hits["pos"], hits["nrm"], flux, {"vpls_used": int((f > 0).sum()), "vpl_budget": I}
+                s0 = make_sampler(I, frame.seed, 0, _S_INIT)
+                self.u = [s0.next_1d() for _ in range(5)]
+                dr.eval(self.u)
+            hits = photon_first_hits_device(self.scene, self.u)
+            f = self._target(hits, view)
+            dr.eval(hits, f)
+            rng = mi.PCG32(size=I, initstate=mi.UInt64(dr.opaque(mi.UInt32, mix_seed(frame.seed, frame.index,
+                                                                                     _S_ITER))))
+            self.u, f, hits, b_sum, b_n = self._chains(self.u, f, hits, rng, view,
+                                                       dr.opaque(mi.UInt32, int(p["iterations"])))
+            dr.eval(self.u, f, hits, b_sum, b_n)
+        t.add_rays("metropolis", I * (int(p["iterations"]) + 1))
+        with t.stage("weights"):
+            b = b_sum / dr.maximum(b_n, 1.0)
+            w = dr.select(f > 0.0, b / (I * f), 0.0)
+            flux = hits["radiosity"] * w
+            used = dr.count(f > 0.0)
+            dr.eval(flux, used)
+        self.f, self.hits = f, hits
+        return hits["pos"], hits["nrm"], flux, {"vpls_used": used, "vpl_budget": I}

@@ -227,15 +227,12 @@ def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 
     return out, rays
 
 
-def photon_first_hits(scene, u: np.ndarray):
-    """Photons from primary samples ``u`` (n x 5: emitter choice, 2D position, 2D direction) to their first
-    hit: NumPy ``pos``, ``nrm``, ``albedo``, ``radiosity`` (= w rho / pi, as :func:`trace_photons`'s first
-    bounce) and ``ok`` (a front-facing diffuse hit). The light-visible surface samples of a reflective
-    shadow map, with the primary-sample parametrisation that Metropolis chains move in."""
+def photon_first_hits_device(scene, U):
+    """Photons from primary samples ``U`` (five Dr.Jit Floats: emitter choice, 2D position, 2D direction)
+    to their first hit, on the device: dict of ``pos``, ``nrm``, ``albedo``, ``radiosity`` (= w rho / pi,
+    as :func:`trace_photons`'s first bounce; 0 where invalid) and ``ok`` (a front-facing diffuse hit
+    with a finite, positive radiosity)."""
     mscene = _mscene(scene)
-    n_in = len(u)
-    u = padded(np.asarray(u, np.float32))
-    U = [mi.Float(aligned(u[:, i])) for i in range(5)]
     ray, w, _ = mscene.sample_emitter_ray(0.0, U[0], mi.Point2f(U[1], U[2]), mi.Point2f(U[3], U[4]),
                                           mi.Bool(True))
     beta = mi.Color3f(w)
@@ -243,10 +240,22 @@ def photon_first_hits(scene, u: np.ndarray):
     si, ok, n, alb = _surface(mscene, ray, alive)
     ok &= alive
     L = dr.select(ok, beta * alb * dr.inv_pi, 0.0)
-    dr.eval(si.p, n, alb, L, ok)
-    out = {"pos": to_numpy3(si.p), "nrm": to_numpy3(n), "albedo": to_numpy3(alb), "radiosity": to_numpy3(L),
-           "ok": np.asarray(ok, bool)}
-    out = {k: v[:n_in] for k, v in out.items()}
-    out["radiosity"] = np.where(np.isfinite(out["radiosity"]), out["radiosity"], 0.0)
-    out["ok"] &= out["radiosity"].max(axis=1) > 0.0
-    return out, n_in
+    L = dr.select(dr.isfinite(dr.max(L)), L, 0.0)
+    ok &= dr.max(L) > 0.0
+    return {"pos": mi.Point3f(si.p), "nrm": mi.Vector3f(n), "albedo": mi.Color3f(alb), "radiosity": mi.Color3f(L),
+            "ok": ok}
+
+
+def photon_first_hits(scene, u: np.ndarray):
+    """Photons from primary samples ``u`` (n x 5: emitter choice, 2D position, 2D direction) to their first
+    hit: NumPy ``pos``, ``nrm``, ``albedo``, ``radiosity`` (= w rho / pi, as :func:`trace_photons`'s first
+    bounce) and ``ok`` (a front-facing diffuse hit). The light-visible surface samples of a reflective
+    shadow map, with the primary-sample parametrisation that Metropolis chains move in (the host form
+    of :func:`photon_first_hits_device`)."""
+    n_in = len(u)
+    u = padded(np.asarray(u, np.float32))
+    h = photon_first_hits_device(scene, [mi.Float(aligned(u[:, i])) for i in range(5)])
+    dr.eval(h)
+    out = {"pos": to_numpy3(h["pos"]), "nrm": to_numpy3(h["nrm"]), "albedo": to_numpy3(h["albedo"]),
+           "radiosity": to_numpy3(h["radiosity"]), "ok": np.asarray(h["ok"], bool)}
+    return {k: v[:n_in] for k, v in out.items()}, n_in
