@@ -105,3 +105,55 @@ def test_untextured_scene_gets_a_new_content_hash(backend):
     before = sc.content_hash()
     assert make_untextured(sc) == 1
     assert sc.content_hash() != before
+
+
+# -- the reproduction's configuration and its ranking verdict (issue 29) -----------------------------------
+
+def test_full_reproduction_is_the_issue_size():
+    """The command's default (no --quick) is Table 1 at its real size: every sequence at >= 160x90,
+    >= 60 frames, >= 3 seeds, the paper's VPL counts and mir at 256:1 (no overrides), the paper's IR
+    (per-frame photons) with the fixed-photon variant and a k >= 8 smcir as their own rows."""
+    from dyngi.experiments.reproductions.smcir import SEQUENCES, SMCIR_FULL
+
+    c = SMCIR_FULL
+    assert set(c["scenes"]) == {s for s, _ in SEQUENCES}
+    assert c["res"][0] >= 160 and c["res"][1] >= 90 and c["frames"] >= 60 and len(c["seeds"]) >= 3
+    assert "mir" in c["specs"] and "ir" in c["specs"] and "smcir" in c["specs"] and "tcas" in c["specs"]
+    assert "ir:photons=fixed" in c["specs"]
+    assert any(s.startswith("smcir:density_k=") and int(s.split("=")[1]) >= 8 for s in c["specs"])
+    assert not any("vpls=" in s or "resampling_rate=" in s for s in c["specs"])
+
+
+def _run(vals):
+    """One seed's figures from (mir, ir, tcas, smcir) |E'| values."""
+    return {lab: {"E_prime_tracked": v} for lab, v in zip(("mir", "ir", "tcas", "smcir"), vals)}
+
+
+def test_ranking_is_stable_only_when_rank_or_interval_says_so():
+    from dyngi.experiments.reproductions.smcir import ranking
+
+    specs = ("mir", "ir", "tcas", "smcir")
+    r = ranking([_run((3, 2, 4, 1)), _run((3, 2, 4, 1.5)), _run((3, 2.2, 4, 1.2))], specs)
+    assert r["ranks"] == [1, 1, 1] and r["stable"] and r["lowest"] and r["best_other"] == "ir"
+    # rank moves between seeds and the difference's interval straddles 0: not stable
+    r = ranking([_run((3, 2, 4, 1.9)), _run((3, 2, 4, 2.1)), _run((3, 2, 4, 1.95))], specs)
+    assert r["ranks"] == [1, 2, 1] and not r["stable"] and r["ci95"][0] < 0 < r["ci95"][1]
+    # rank moves, but the interval excludes 0 (smcir consistently above ir): stable (and not lowest)
+    r = ranking([_run((3, 2.0, 4, 2.5)), _run((3, 2.6, 4, 3.1)), _run((3, 2.2, 2.6, 2.7))], specs)
+    assert r["ranks"] == [2, 3, 3] and r["stable"] and not r["lowest"] and r["ci95"][0] > 0
+
+
+def test_bad_reproduction_config_is_one_clear_error(tmp_path):
+    from dyngi.errors import DyngiError
+    from dyngi.experiments.reproductions.smcir import reproduce_smcir
+
+    with pytest.raises(DyngiError, match="unknown smcir reproduction setting"):
+        reproduce_smcir(str(tmp_path / "o"), config={"resolution": (8, 8)})
+    with pytest.raises(DyngiError, match="needs mir, ir, tcas, smcir"):
+        reproduce_smcir(str(tmp_path / "o"), config={"specs": ("ir", "smcir")})
+
+
+def test_one_seed_ranking_is_not_judged():
+    from dyngi.experiments.reproductions.smcir import ranking
+
+    assert ranking([_run((3, 2, 4, 1))], ("mir", "ir", "tcas", "smcir"))["stable"] is None

@@ -77,9 +77,20 @@ def test_reproduce_smcir_quick(backend, tmp_path):
     out = run_experiment("smcir", str(tmp_path / "r"), quick=True)
     d = json.load(open(f"{out}/paper.json"))
     assert d["experiment"] == "smcir" and len(d["rows"]) >= 6
-    for sc, figs in d["figures"].items():
-        for label, f in figs.items():
-            assert np.isfinite(f["E_tracked"]) and np.isfinite(f["E_prime_tracked"]) and not f["failed"], (sc, label)
+    for sc, runs in d["figures"].items():
+        assert len(runs) == len(d["config"]["seeds"])
+        for figs in runs:
+            for label, f in figs.items():
+                assert np.isfinite(f["E_tracked"]) and np.isfinite(f["E_prime_tracked"]) and not f["failed"], \
+                    (sc, label)
+                assert 0.2 < f["brightness"] < 5.0, (sc, label, f["brightness"])
+        assert set(d["ranking"][sc]) >= {"ranks", "ci95", "stable", "lowest"}
+    quantities = [r["quantity"] for r in d["rows"]]
+    assert "targets (issue 29)" in quantities and any("Table 2" in q for q in quantities)
+    # the paper's Table 1 stands beside ours, and the plots sit at the top level of the report
+    assert any("0.0075" in r["paper"] for r in d["rows"] if r["quantity"].startswith("maze: |E'|"))
+    assert (tmp_path / "r" / "flicker.png").exists() and (tmp_path / "r" / "error.png").exists()
+    assert "flicker.png" in open(f"{out}/report.html").read()
 
 
 def test_clamped_path_tracing_reference(backend):
