@@ -1,5 +1,5 @@
 """Baseline light selectors of the VLC paper (Sec. 7): the light hierarchy (lighttree) and Static Light Lists
-(sll). Their pmfs sum to 1 over all lights, equal the pmf that sample() returns, match sampling
+(``sll-pvs``: the paper's PVS lists, ``lights=sll``; ``sll``: the ray-cast oracle lists, ``lights=sll-oracle``). Their pmfs sum to 1 over all lights, equal the pmf that sample() returns, match sampling
 frequencies (chi^2), the tree has the widths the paper configures, and a light behind the wall of a closed
 room never enters the lists of the other room's cells."""
 from __future__ import annotations
@@ -30,10 +30,12 @@ def warehouse(backend):
 @pytest.fixture(scope="module")
 def selectors(warehouse):
     from dyngi.sampling.lighttree import LightTreeSelector
+    from dyngi.sampling.pvs import PVSLightLists
     from dyngi.sampling.sll import SLLSelector
     sc, tris = warehouse
     return {"lighttree": LightTreeSelector(tris, mi_scene=sc.mi_scene, bounds=sc.meta.bounds),
-            "sll": SLLSelector(tris, mi_scene=sc.mi_scene, bounds=sc.meta.bounds, cells=20)}
+            "sll": SLLSelector(tris, mi_scene=sc.mi_scene, bounds=sc.meta.bounds, cells=20),
+            "sll-pvs": PVSLightLists(tris, mi_scene=sc.mi_scene, bounds=sc.meta.bounds)}
 
 
 def _points(rng, k):
@@ -52,7 +54,7 @@ def _all_pmfs(mi, sel, P, N, L):
     return pm.numpy().reshape(K, L).astype(np.float64)
 
 
-@pytest.mark.parametrize("name", ["lighttree", "sll"])
+@pytest.mark.parametrize("name", ["lighttree", "sll", "sll-pvs"])
 def test_pmf_sums_to_one(warehouse, selectors, name):
     from dyngi.backend import mi
     sc, tris = warehouse
@@ -74,7 +76,7 @@ def test_pmf_sums_to_one(warehouse, selectors, name):
     assert np.all(pm >= 0.0)
 
 
-@pytest.mark.parametrize("name", ["lighttree", "sll"])
+@pytest.mark.parametrize("name", ["lighttree", "sll", "sll-pvs"])
 def test_sampling_frequencies_chi2(warehouse, selectors, name):
     """sample() draws light l with frequency pmf(l), and returns that pmf (chi^2, Sidak over 4 points)."""
     from dyngi.backend import mi

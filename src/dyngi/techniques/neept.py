@@ -17,7 +17,8 @@ Lights
 A light is an emitter triangle (:mod:`dyngi.sampling.emitter_triangles`). The
 ``lights`` parameter chooses how NEE selects one (:mod:`dyngi.sampling.light_select`):
 ``uniform`` (pmf 1/L), ``lighttree`` (light BVH, H2), ``sll`` (static light
-lists, H2), ``vlc`` (Visibility Light Cache, :mod:`dyngi.sampling.vlc`, default).
+lists from a conservative PVS, :mod:`dyngi.sampling.pvs`, the paper's), ``sll-oracle`` (ray-cast
+per-cell visible lists, an oracle baseline, :mod:`dyngi.sampling.sll`), ``vlc`` (Visibility Light Cache, :mod:`dyngi.sampling.vlc`, default).
 Emitters that are not triangles are handled the same way in every variant: delta
 lights (point, spot, directional) and analytic area emitters (sphere, disk) by a
 second NEE sample through Mitsuba's emitter sampling restricted to them (a sixth
@@ -131,11 +132,13 @@ def _make_selector(kind: str, tris, mi_scene, bounds, octree, params, dynamic_sh
     try:
         if kind == "lighttree":
             from ..sampling.lighttree import LightTreeSelector as cls
-        else:
+        elif kind == "sll":      # the paper's SLL: conservative PVS over coarse leaves (issue 28)
+            from ..sampling.pvs import PVSLightLists as cls
+        else:                    # sll-oracle: ray-cast per-cell visible lists (an oracle baseline)
             from ..sampling.sll import SLLSelector as cls
     except ImportError as e:
         raise DyngiError(f"nee-pt: lights={kind} is not available in this build ({e}); "
-                         "valid values: uniform, lighttree, sll, vlc") from None
+                         "valid values: uniform, lighttree, sll, sll-oracle, vlc") from None
     return cls(tris, mi_scene=mi_scene, bounds=bounds, **opts)
 
 
@@ -145,11 +148,12 @@ class NeePT(Technique):
 
     name = "nee-pt"
     description = ("VLC paper's evaluation path tracer: 5 rays/path, diffuse after the primary hit, "
-                   "NEE by lights=uniform|lighttree|sll|vlc, directions=bsdf|cdq, balance MIS")
+                   "NEE by lights=uniform|lighttree|sll|sll-oracle|vlc, directions=bsdf|cdq, balance MIS")
     HAS_INDIRECT = True
     REFERENCE_DEPTH = 3   # compare renders its reference at this depth without --ref-depth (Sec. 7's 5-ray path)
     PARAMS = {
-        "lights": Param("vlc", "NEE light selection", choices=("uniform", "lighttree", "sll", "vlc")),
+        "lights": Param("vlc", "NEE light selection (sll: the paper's PVS lists; sll-oracle: ray-cast lists, "
+                        "an oracle baseline)", choices=("uniform", "lighttree", "sll", "sll-oracle", "vlc")),
         "directions": Param("bsdf", "indirect-ray sampling", choices=("bsdf", "cdq")),
         "spp": Param(1, "samples per pixel per frame", min=1, max=1 << 12),
         "seed": Param(0, "seed mixed with the frame's seed", min=0),
@@ -202,13 +206,14 @@ class NeePT(Technique):
         self._res = None
         self.selector = None
         _weights(p["explore_weights"])          # bad values fail here, not at the first frame
-        if p["lights"] in ("lighttree", "sll"):
+        if p["lights"] in ("lighttree", "sll", "sll-oracle"):
             import importlib
+            mod = {"sll": "pvs", "sll-oracle": "sll"}.get(p["lights"], p["lights"])
             try:
-                importlib.import_module(f"dyngi.sampling.{p['lights']}")
+                importlib.import_module(f"dyngi.sampling.{mod}")
             except ImportError as e:
                 raise DyngiError(f"nee-pt: lights={p['lights']} is not available in this build ({e}); "
-                                 "valid values: uniform, lighttree, sll, vlc") from None
+                                 "valid values: uniform, lighttree, sll, sll-oracle, vlc") from None
         if p["directions"] == "cdq":
             try:
                 from ..sampling.cdq import CDQDirections  # noqa: F401
