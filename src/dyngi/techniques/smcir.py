@@ -87,8 +87,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..sampling.rng import mix_seed
-from ..vpl.density import knn_density, knn_k
-from ..vpl.points import camera_sees, raw_candidates, segment_clear
+from ..backend import dr, mi
+from ..vpl.density import knn_density, knn_density_device, knn_k
+from ..vpl.points import camera_sees, candidates_to_host, raw_candidates_device, segment_clear
 from ..vpl.radiosity import RENDER_STREAM, estimate_radiosity, stream_seeds
 from ..vpl.smc import clamp_size, grow_invalid, m_min, resample_without_replacement
 from ..vpl.store import LUMINANCE, VPLStore
@@ -156,14 +157,23 @@ class SMCIR(VPLTechnique):
     def _candidates(self, frame: Frame, key: int, t: StageTimer):
         """Lines 3, 5-8: X, raw hits, resampled candidates with radiosity, seed and k=1 density."""
         p, I = self.params, self.budget
+        n = p["candidate_rate"] * I
         with t.stage("candidates"):
-            cand, pts, rays = raw_candidates(self.scene, frame.camera, frame.res, p["candidate_rate"] * I,
-                                             frame.seed, key, _S_CAND)
-        t.add_rays("candidates", rays)
+            c = raw_candidates_device(self.scene, frame.camera, frame.res, n, frame.seed, key, _S_CAND)
+            dr.eval(c)
         with t.stage("resampling"):
+            # line 6's density of the raw hits among themselves, k = 1: on the device (fixed width n) on
+            # the GPU; on the CPU the host k-d tree (the declared CPU fast path: ~2x faster there, measured)
+            if mi.variant().startswith("cuda"):
+                dens = knn_density_device(c["pos"], k=CANDIDATE_K, valid=c["ok"])
+                dr.eval(dens)
+                cand, pts, rays = candidates_to_host(c, n, {"density": dens})
+                p_raw = cand.pop("density")
+            else:
+                cand, pts, rays = candidates_to_host(c, n)
+                p_raw = knn_density(cand["pos"], k=CANDIDATE_K)
             m = len(cand["pos"])
             if m > I:
-                p_raw = knn_density(cand["pos"], k=CANDIDATE_K)
                 with np.errstate(divide="ignore"):
                     wts = np.where(p_raw > 0, 1.0 / np.maximum(p_raw, 1e-300), np.inf)
                 sel = resample_without_replacement(wts, I, self._rng(frame.seed, key, _S_RESAMPLE))
@@ -171,6 +181,7 @@ class SMCIR(VPLTechnique):
             cand.pop("mailbox_albedo", None)
             cand["seed"] = self._rng(frame.seed, key, _S_SEEDS).integers(0, 1 << 62, len(cand["pos"]),
                                                                          dtype=np.uint64)
+        t.add_rays("candidates", rays)
         with t.stage("radiosity"):
             cand["radiosity"], r = self._radiosity(cand["pos"], cand["nrm"], cand["seed"])
         t.add_rays("radiosity", r)

@@ -53,8 +53,8 @@ def knn_density(points: np.ndarray, queries: np.ndarray | None = None, k: int | 
 
 # -- device k-NN: a uniform grid built with Dr.Jit ops (issue 29) ---------------------------------------
 
-GRID_MAX = 128
-"""Cells per axis of the device grid at most (G^3 + 1 cell counters; 128: 2M counters, 8 MB)."""
+CELLS_MAX = 1 << 22
+"""Cells of the device grid at most (4 n, capped: 4M counters, 16 MB)."""
 POINTS_PER_CELL = 8
 """G = sqrt(n / 8): points on surfaces occupy ~ a few G^2 cells (a box's walls ~ 6 G^2), a few points
 each (our choice: the search is exact for any G, only its speed depends on it)."""
@@ -77,30 +77,38 @@ class KNNGrid:
         from ..backend import dr, mi
 
         self.n = n = dr.width(points)
-        self.G = G = int(min(GRID_MAX, max(2, math.ceil(math.sqrt(max(n, 1) / POINTS_PER_CELL)))))
+        self.C = C = int(min(CELLS_MAX, max(64, 4 * n)))      # static cell budget
         ok = mi.Bool(True) if valid is None else mi.Bool(valid)
         big = 3.0e38
         lo = mi.Point3f(*(dr.min(dr.select(ok, points[i], big)) for i in range(3)))
         hi = mi.Point3f(*(dr.max(dr.select(ok, points[i], -big)) for i in range(3)))
-        ext = dr.maximum(dr.max(hi - lo), 1e-12)
-        self.h = ext * (1.0 + 1e-5) / G
+        ext = dr.maximum(mi.Vector3f(hi - lo), 1e-9)
+        # cell size: points on the walls of the box (area ~ 2 (ab + bc + ca)), POINTS_PER_CELL each; if
+        # that grid exceeds the budget C, cells of max(ext) / (floor(cbrt C) - 1) (every axis fits)
+        area = 2.0 * (ext.x * ext.y + ext.y * ext.z + ext.z * ext.x)
+        h = dr.maximum(dr.sqrt(area * POINTS_PER_CELL / max(n, 1)), dr.max(ext) * 1e-6)
+        dims = mi.Vector3f(dr.floor(ext / h) + 1.0)
+        fits = dims.x * dims.y * dims.z < C
+        h = dr.select(fits, h, dr.max(ext) * 1.0001 / (int(math.floor(C ** (1.0 / 3.0) + 1e-9)) - 1))
+        self.dims = mi.Vector3i(dr.floor(ext / h) + 1.0)
+        self.h = h
         self.lo = lo
         c = self._coords(points)
-        cid = dr.select(ok, c[0] + G * (c[1] + G * c[2]), G * G * G)
+        cid = dr.select(ok, mi.UInt32(c[0] + self.dims.x * (c[1] + self.dims.y * c[2])), C)
         order = dr.argsort(cid)
-        counts = dr.zeros(mi.UInt32, G * G * G + 1)
+        counts = dr.zeros(mi.UInt32, C + 1)
         dr.scatter_reduce(dr.ReduceOp.Add, counts, mi.UInt32(1), cid)
         self.start = dr.prefix_sum(counts)
         self.count = counts
         self.idx = order
         self.pts = dr.gather(mi.Point3f, points, order)
-        dr.eval(self.start, self.count, self.idx, self.pts, self.h, self.lo)
+        dr.eval(self.start, self.count, self.idx, self.pts, self.h, self.lo, self.dims)
 
     def _coords(self, p):
         from ..backend import dr, mi
 
         g = mi.Vector3f(p - self.lo) / self.h
-        return [mi.Int32(dr.clip(mi.Int32(dr.floor(g[i])), 0, self.G - 1)) for i in range(3)]
+        return [mi.Int32(dr.clip(mi.Int32(dr.floor(g[i])), 0, self.dims[i] - 1)) for i in range(3)]
 
     def kth_distance(self, queries, k: int, self_index=None):
         """Distance to the k-th nearest point (inf when fewer than k), per query; ``self_index``: each
@@ -113,12 +121,12 @@ class KNNGrid:
         excl = mi.UInt32(0xFFFFFFFF) if self_index is None else mi.UInt32(self_index)
         c = self._coords(queries)
         d2 = _knn_loop(mi.Point3f(queries), c[0], c[1], c[2], excl, self.pts, self.idx, self.start,
-                       self.count, self.h, self.G, k)
+                       self.count, self.h, self.dims, k)
         return dr.sqrt(d2)
 
 
 @__import__("drjit").syntax
-def _knn_loop(q, cx, cy, cz, excl, pts, idx, start, count, h, G: int, k: int):
+def _knn_loop(q, cx, cy, cz, excl, pts, idx, start, count, h, dims, k: int):
     """The ring search of :meth:`KNNGrid.kth_distance`; returns the k-th smallest squared distance."""
     from ..backend import dr, mi
 
@@ -146,7 +154,7 @@ def _knn_loop(q, cx, cy, cz, excl, pts, idx, start, count, h, G: int, k: int):
             w = 2 * R + 1
             if ci >= w * w * w:
                 rh = mi.Float(R) * h
-                if (buf[k - 1] <= rh * rh) | (R >= G):
+                if (buf[k - 1] <= rh * rh) | (R >= dr.max(dims)):
                     active = mi.Bool(False)
                 R += 1
                 ci = mi.Int32(0)
@@ -157,8 +165,8 @@ def _knn_loop(q, cx, cy, cz, excl, pts, idx, start, count, h, G: int, k: int):
             ci += 1
             ring = dr.maximum(dr.maximum(dr.abs(dx), dr.abs(dy)), dr.abs(dz)) == R
             x, y, z = cx + dx, cy + dy, cz + dz
-            inside = ring & (x >= 0) & (x < G) & (y >= 0) & (y < G) & (z >= 0) & (z < G) & active
-            cell = mi.UInt32(dr.select(inside, x + G * (y + G * z), 0))
+            inside = ring & (x >= 0) & (x < dims.x) & (y >= 0) & (y < dims.y) & (z >= 0) & (z < dims.z) & active
+            cell = mi.UInt32(dr.select(inside, x + dims.x * (y + dims.y * z), 0))
             s = dr.gather(mi.UInt32, start, cell, inside)
             pj = s
             pend = s + dr.select(inside, dr.gather(mi.UInt32, count, cell, inside), 0)

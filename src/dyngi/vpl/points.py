@@ -126,11 +126,19 @@ def raw_candidates(scene, camera, res, n: int, seed: int, frame: int, stream: in
     """
     c = raw_candidates_device(scene, camera, res, n, seed, frame, stream)
     dr.eval(c)
+    return candidates_to_host(c, n)
+
+
+def candidates_to_host(c: dict, n: int, extra: dict | None = None):
+    """:func:`raw_candidates`' host result from :func:`raw_candidates_device`'s evaluated dict ``c``;
+    ``extra``: more per-lane device Floats to carry into the candidate dict (e.g. a density)."""
     okx_n, oky_n = np.asarray(c["okx"], bool), np.asarray(c["ok"], bool)
     Xn, NXn = to_numpy3(c["mailbox"]), to_numpy3(c["mailbox_n"])
     cand = {"pos": to_numpy3(c["pos"])[oky_n], "nrm": to_numpy3(c["nrm"])[oky_n],
             "albedo": to_numpy3(c["albedo"])[oky_n], "mailbox": Xn[oky_n], "mailbox_n": NXn[oky_n],
             "mailbox_albedo": to_numpy3(c["mailbox_albedo"])[oky_n]}
+    for k, v in (extra or {}).items():
+        cand[k] = np.asarray(v, np.float64)[oky_n]
     pts = {"x": Xn[okx_n], "n": NXn[okx_n]}
     return cand, pts, n + int(okx_n.sum())
 
