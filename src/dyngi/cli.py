@@ -5,6 +5,7 @@
     dyngi render SCENE --technique T   render frames, video and stats
     dyngi reference SCENE              fill the ground-truth cache
     dyngi compare SCENE --techniques a,b:key=v   metrics, plots, report.html
+    dyngi sweep TECH SCENE --grid key=a,b --seeds N   error and time over a parameter grid
     dyngi reproduce NAME [--quick]     a paper's comparison on the analog scenes, beside its figures
     dyngi probe-view SCENE             the probe volume of ddgi as spheres
     dyngi view SCENE [--techniques a,b]  interactive browser viewer (camera, techniques, probes, error view)
@@ -139,13 +140,15 @@ def cmd_reference(args) -> int:
     scene = load_scene(args.scene)
     res = parse_res(args.res)
     kw = {} if args.spp is None else {"spp": args.spp}
+    from .experiments.reference import scene_max_depth
+
+    depth = scene_max_depth(scene) if args.ref_depth is None else args.ref_depth
+    if _cluster_spec(args) != "local":
+        return _reference_on_cluster(args, scene, res, depth, kw)
     bar = None
     if not args.quiet:
         from tqdm import tqdm
         bar = tqdm(total=args.frames, desc=f"reference {scene.name}", unit="frame", file=sys.stderr)
-    from .experiments.reference import scene_max_depth
-
-    depth = scene_max_depth(scene) if args.ref_depth is None else args.ref_depth
     ind = None
     if args.indirect:   # the indirect-only reference that 'dyngi compare --indirect' reads
         from .experiments.evaluate import indirect_reference_fn
@@ -166,6 +169,49 @@ def cmd_reference(args) -> int:
     print(f"reference cache holds {len(recs)} frame(s) of '{scene.name}' at {res[0]}x{res[1]} "
           f"({hits} already cached)")
     return 0
+
+
+def _cluster_spec(args) -> str:
+    """``--cluster``, else ``$DYNGI_CLUSTER``, else ``local`` (validated)."""
+    from .experiments.cluster import resolve_cluster
+
+    return resolve_cluster(getattr(args, "cluster", None))
+
+
+def _cluster_run(args, fn):
+    """``fn()`` with the executor of ``--cluster`` as the current one (:mod:`dyngi.experiments.cluster`);
+    returns ``(fn's result, 1 if tasks failed after retries (printed) else 0)``."""
+    from .experiments import cluster
+
+    ex = cluster.make_executor(getattr(args, "cluster", None), quiet=getattr(args, "quiet", False))
+    try:
+        with cluster.use(ex):
+            out = fn()
+    finally:
+        ex.close()
+    return out, cluster.report_failures(ex)
+
+
+def _reference_on_cluster(args, scene, res, depth, kw) -> int:
+    """``dyngi reference --cluster ...``: frames and spp chunks as tasks (reference_job)."""
+    from .experiments import cluster
+    from .experiments.reference import DEFAULT_REF_SPP, reference_job
+
+    def job():
+        ex = cluster.current()
+        prog = cluster.Progress(0, f"reference {scene.name} ({ex.kind}, {ex.workers} workers)", args.quiet)
+        try:
+            return reference_job(scene, args.frames, res, kw.get("spp", DEFAULT_REF_SPP), depth, executor=ex,
+                                 halves=True, chunks=args.chunks, progress=prog, indirect=args.indirect,
+                                 source=cluster.scene_ref(args.scene))
+        finally:
+            prog.close()
+    recs, bad = _cluster_run(args, job)
+    hits = sum(r["cached"] for r in recs)
+    done = sum(not r["failed"] for r in recs)
+    print(f"reference cache holds {done} of {len(recs)} frame(s) of '{scene.name}' at {res[0]}x{res[1]} "
+          f"({hits} already cached)")
+    return bad
 
 
 def _report_failures(out) -> int:
@@ -197,15 +243,32 @@ def cmd_compare(args) -> int:
 
     _setup(args)
     techs = split_spec_list(args.techniques)
-    out = run_compare(args.scene, techs, args.out, frames=args.frames, res=parse_res(args.res),
-                      budget=args.budget, seed=args.seed, ref_spp=args.ref_spp, quiet=args.quiet,
-                      params=_parse_sets(args.set),
-                      metrics=[m.strip() for m in args.metrics.split(",") if m.strip()],
-                      grid_frames=_frame_list(args.grid_frames, args.frames),
-                      ref_depth=args.ref_depth, indirect=args.indirect, denoise=args.denoise,
-                      reference=args.reference, untextured=args.untextured, tracked=not args.no_tracked)
+    out, bad = _cluster_run(args, lambda: run_compare(
+        args.scene, techs, args.out, frames=args.frames, res=parse_res(args.res),
+        budget=args.budget, seed=args.seed, ref_spp=args.ref_spp, quiet=args.quiet,
+        params=_parse_sets(args.set),
+        metrics=[m.strip() for m in args.metrics.split(",") if m.strip()],
+        grid_frames=_frame_list(args.grid_frames, args.frames),
+        ref_depth=args.ref_depth, indirect=args.indirect, denoise=args.denoise,
+        reference=args.reference, untextured=args.untextured, tracked=not args.no_tracked))
     print(f"wrote comparison to {out} (open {os.path.join(out, 'report.html')})")
-    return _report_failures(out)
+    return max(_report_failures(out), bad)
+
+
+def cmd_sweep(args) -> int:
+    from .experiments.runner import parse_res
+    from .experiments.sweep import run_sweep
+
+    _setup(args)
+    out = args.out or os.path.join("out", "sweep", f"{args.technique}-"
+                                   f"{os.path.splitext(os.path.basename(args.scene))[0]}")
+    out, bad = _cluster_run(args, lambda: run_sweep(
+        args.technique, args.scene, args.grid, args.seeds, out, frames=args.frames, res=parse_res(args.res),
+        ref_spp=args.ref_spp, ref_depth=args.ref_depth,
+        metrics=[m.strip() for m in args.metrics.split(",") if m.strip()], params=_parse_sets(args.set),
+        quiet=args.quiet))
+    print(f"wrote sweep to {out} (open {os.path.join(out, 'report.html')})")
+    return bad
 
 
 def cmd_reproduce(args) -> int:
@@ -237,11 +300,11 @@ def cmd_reproduce(args) -> int:
             raise DyngiError(f"experiment '{args.name}' takes no --reference/--untextured/--no-tracked; "
                              "experiments that do: smcir")
         check_writable(out)
-        out = exp.fn(os.path.abspath(out), args.quick, args.quiet, **opts)
+        out, bad = _cluster_run(args, lambda: exp.fn(os.path.abspath(out), args.quick, args.quiet, **opts))
     else:
-        out = run_experiment(args.name, out, quick=args.quick, quiet=args.quiet)
+        out, bad = _cluster_run(args, lambda: run_experiment(args.name, out, quick=args.quick, quiet=args.quiet))
     print(f"wrote reproduction '{args.name}' to {out} (open {os.path.join(out, 'report.html')})")
-    return _report_failures(out)
+    return max(_report_failures(out), bad)
 
 
 def _reference_options(args) -> dict:
@@ -254,6 +317,13 @@ def _reference_options(args) -> dict:
     if getattr(args, "no_tracked", False):
         opts["tracked"] = False
     return opts
+
+
+def _cluster_flag(s):
+    s.add_argument("--cluster", default=None, metavar="WHERE",
+                   help="where the job's independent tasks run: local (this process, the default), auto (a "
+                        "running Ray cluster, else a local one sized to this machine) or ray://HOST:PORT; "
+                        "default $DYNGI_CLUSTER; needs pip install 'dyngi[ray]' (see docs/cluster.md)")
 
 
 def _reference_flags(s, default):
@@ -400,6 +470,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--indirect", action="store_true", help="also the indirect-only reference")
     s.add_argument("--ref-depth", type=_depth, default=None,
                    help="reference max depth (default: the scene's own max depth, 12 for built-in scenes)")
+    _cluster_flag(s)
+    s.add_argument("--chunks", type=_positive("--chunks"), default=None,
+                   help="on a cluster: split each frame's samples into this many tasks (default: about two "
+                        "tasks per worker); the merged image equals the serial one")
     common(s, res_default="160x120")
     s.set_defaults(fn=cmd_reference)
 
@@ -429,8 +503,27 @@ def build_parser() -> argparse.ArgumentParser:
                    help="technique parameter for every spec of TECH (or KEY=VALUE for every technique that has "
                         "KEY); a spec's own settings win")
     s.add_argument("--out", required=True)
+    _cluster_flag(s)
     common(s, frames_default=30, res_default="160x120")
     s.set_defaults(fn=cmd_compare)
+
+    s = sub.add_parser("sweep", help="a technique's error and time over a grid of its parameters and seeds")
+    s.add_argument("technique", help="technique name (see 'dyngi techniques')")
+    s.add_argument("scene", help="built-in scene name or path to a scene file")
+    s.add_argument("--grid", action="append", metavar="KEY=A,B,...",
+                   help="a parameter and its values, repeatable; the sweep runs every combination")
+    s.add_argument("--seeds", type=_positive("--seeds"), default=1,
+                   help="seeds 0..N-1 per grid point (default 1)")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed technique parameter, repeatable")
+    s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=None,
+                   help="reference samples per pixel (default 1024, as for compare)")
+    s.add_argument("--ref-depth", type=_depth, default=None,
+                   help="reference max depth (default: the scene's own max depth, 12 for built-in scenes)")
+    s.add_argument("--metrics", default="mse,relmse,mape,flip,ssim", help="comma-separated metrics")
+    s.add_argument("--out", default=None, help="output folder (default out/sweep/TECHNIQUE-SCENE)")
+    _cluster_flag(s)
+    common(s, frames_default=30, res_default="160x120")
+    s.set_defaults(fn=cmd_sweep)
 
     s = sub.add_parser("reproduce", help="a paper's comparison on the analog scenes, beside its published figures")
     s.add_argument("name", nargs="?", help="experiment name (see --list)")
@@ -441,6 +534,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     _reference_flags(s, None)
+    _cluster_flag(s)
     s.set_defaults(fn=cmd_reproduce)
 
     s = sub.add_parser("probe-view", help="render a technique's probes as spheres shaded by their irradiance")

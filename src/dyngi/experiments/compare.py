@@ -147,6 +147,7 @@ def prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, me
     clamp = reference_clamp_distance(techs) if reference == "clamped" else None
     return {"reference": reference, "ref_clamp_distance": clamp, "untextured": bool(untextured),
             "tracked": bool(tracked),"scene": scene, "specs": {s.label: s for s in specs}, "labels": [s.label for s in specs],
+            "scene_name": scene_name, "params": per_tech,
             "techs": techs, "names": names, "budget": budget, "frames": frames, "ref_spp": spp,
             "ref_depth": ref_depth, "indirect": indirect,
             "out_dir": os.path.abspath(out_dir), "warnings": warnings}
@@ -210,12 +211,19 @@ def _no_indirect(labels) -> DyngiError:
 
 def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
     """References, every technique under the budget, evaluation: ``{'results', 'refs', 'rows', 'summary', 'ctx'}``."""
+    from . import cluster
+
     scene, labels, frames, budget = run["scene"], run["labels"], run["frames"], run["budget"]
-    bar = None
-    if not quiet:
-        from tqdm import tqdm
-        bar = tqdm(total=frames * (len(labels) + 1), desc=f"compare on {scene.name}", unit="frame",
-                   file=sys.stderr)
+    ex = cluster.current()
+    bar = prog = None
+    if ex.in_process:     # one process: the frame bar, as always
+        if not quiet:
+            from tqdm import tqdm
+            bar = tqdm(total=frames * (len(labels) + 1), desc=f"compare on {scene.name}", unit="frame",
+                       file=sys.stderr)
+    else:                 # a cluster: one task bar for the whole job (reference chunks + sequences)
+        prog = cluster.Progress(len(labels), f"compare on {scene.name} ({ex.kind}, {ex.workers} workers)", quiet)
+        _prefill_references(run, res, ex, prog)
     # -- ground truth (cached), with its own noise --
     tracked_spp = None if run.get("tracked", True) else 0
     if run.get("reference", "path") == "clamped":
@@ -226,15 +234,17 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
     else:
         refs, noise = collect_references(scene, frames, res, run["ref_spp"], run["ref_depth"], run["indirect"],
                                          bar, tracked_spp=tracked_spp)
-    # -- every technique; the first sets the budget --
-    results, first = {}, None
-    for label in labels:
-        seq = run_with_budget(scene, run["techs"][label], frames, res, seed, budget, first, bar, label=label)
+    # -- every technique (one task each); the first sets the budget --
+    try:
+        results = run_sequences(run, res, seed, ex, bar, prog)
+    finally:
+        if prog is not None:
+            prog.close()
+    for label, seq in results.items():
         if run["indirect"] and any(x is None for x in seq.indirect):
             raise _no_indirect([label])
-        results[label] = seq
-        if first is None:
-            first = seq
+    labels = run["labels"]
+    first = results[labels[0]]
     if bar is not None:
         bar.close()
     # -- metrics --
@@ -252,6 +262,8 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
     for label, seq in results.items():       # what techniques flag about their own frames, once each
         seen = dict.fromkeys(w for st in seq.stats for w in (st.get("warnings") or ()))
         warnings += [f"{label}: {w}" for w in seen]
+    if not ex.in_process:
+        warnings += cluster_warnings(ex, budget)
     ctx = {"frames": frames, "res": tuple(res), "budget": budget, "seed": seed, "ref_spp": run["ref_spp"],
            "ref_depth": run["ref_depth"], "indirect": run["indirect"], "ref_noise": summarize_noise(noise),
            "accounting": accounting, "warnings": warnings, "notes": []}
@@ -266,6 +278,104 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
                             "for the OptiX denoiser of the DDGI Resampling paper, fed with albedo and normal AOVs "
                             "of the primary hits; its time is the stage 'denoise', not charged to the budget.")
     return {"results": results, "refs": refs, "rows": rows, "summary": summary, "ctx": ctx}
+
+
+class _Live:
+    """The scene and techniques this process already made (tasks of an in-process executor use them)."""
+
+    def __init__(self, scene, techs):
+        self.scene, self.techs = scene, techs
+
+
+def _sequence_task(source, label, name, params, frames, res, seed, budget, first, bar=None):
+    """One technique's sequence (a task: stateful, so never split). ``source``: :class:`_Live` in-process,
+    else a :class:`~dyngi.experiments.cluster.SceneRef` from which the worker loads the scene and makes the
+    technique ``name`` with ``params``."""
+    if isinstance(source, _Live):
+        scene, tech = source.scene, source.techs[label]
+    else:
+        scene = source.load()
+        tech = create_technique(name, scene, params)
+    return run_with_budget(scene, tech, frames, res, seed, budget, first, bar, label=label)
+
+
+def _budget_view(seq):
+    """What a budget needs of the first technique's run (its stats and times; no images to ship)."""
+    from .runner import SequenceResult
+
+    return SequenceResult(seq.technique, times=list(seq.times), stats=list(seq.stats), wall_ms=list(seq.wall_ms))
+
+
+def run_sequences(run: dict, res, seed: int, ex, bar=None, progress=None) -> dict:
+    """``{label: SequenceResult}`` of every technique of ``run``, each one task on ``ex``.
+
+    ``equal-frames``: all at once; a budget: the first, then the others with its budget. In-process the
+    tasks use the techniques :func:`prepare` made, in order, exactly as before executors; on a cluster
+    each worker makes its own. A technique that failed (after retries) is dropped from ``run['labels']``
+    with a warning; when the budget-setting first one or every one failed, a DyngiError names them."""
+    from .cluster import Task, failed, scene_ref
+
+    scene, labels, frames, budget = run["scene"], list(run["labels"]), run["frames"], run["budget"]
+    if ex.in_process:
+        src = _Live(scene, run["techs"])
+    else:
+        src = run.get("source") or scene_ref(run.get("scene_name") or scene, run.get("untextured", False))
+
+    def task(label, first):
+        if first is not None and not ex.in_process:
+            first = _budget_view(first)
+        return Task(f"{label} on {scene.name} (seed {seed})", _sequence_task,
+                    (src, label, run["specs"][label].name, (run.get("params") or {}).get(label, {}), frames,
+                     tuple(res), seed, budget, first, bar if ex.in_process else None))
+
+    if ex.in_process:     # one after another, each checked as it ends, as before executors
+        outs, first = [], None
+        for lb in labels:
+            seq = ex.map([task(lb, first)], progress=progress)[0]
+            if not failed(seq) and run["indirect"] and any(x is None for x in seq.indirect):
+                raise _no_indirect([lb])
+            outs.append(seq)
+            if first is None and not failed(seq):
+                first = seq
+    elif budget == "equal-frames":
+        outs = ex.map([task(lb, None) for lb in labels], progress=progress)
+    else:
+        outs = ex.map([task(labels[0], None)], progress=progress)
+        if failed(outs[0]):
+            raise DyngiError(f"the first technique sets the {budget} budget and failed: {outs[0]}")
+        outs += ex.map([task(lb, outs[0]) for lb in labels[1:]], progress=progress)
+    bad = [o for o in outs if failed(o)]
+    if len(bad) == len(labels):
+        raise DyngiError("every technique failed: " + "; ".join(map(str, bad)))
+    results = {lb: o for lb, o in zip(labels, outs) if not failed(o)}
+    if bad:
+        run["labels"] = [lb for lb in labels if lb in results]
+        run.setdefault("warnings", []).extend(f"failed and left out: {o}" for o in bad)
+    return results
+
+
+def _prefill_references(run, res, ex, progress) -> None:
+    """On a cluster: render the missing references of the run as chunk tasks first (the image references;
+    the clamped kind and the 8 tracked pixels are rendered here as before), so that
+    :func:`collect_references` finds them cached."""
+    from .cluster import scene_ref
+    from .reference import reference_job
+
+    if run.get("reference", "path") != "path":
+        return
+    source = run.get("source") or scene_ref(run.get("scene_name") or run["scene"], run.get("untextured", False))
+    run["source"] = source
+    reference_job(run["scene"], run["frames"], res, run["ref_spp"], run["ref_depth"], executor=ex, halves=True,
+                  progress=progress, path=not run["indirect"], indirect=run["indirect"], source=source)
+
+
+def cluster_warnings(ex, budget) -> list[str]:
+    """What a report should say about a run on a cluster."""
+    out = []
+    if budget == "equal-time":
+        out.append(f"equal-time budgets measured on {ex.kind} workers ({getattr(ex, 'threads', 1)} Dr.Jit "
+                   "thread(s) each, sharing machines with other tasks): frame times are comparable within this run only")
+    return out
 
 
 DENOISED_SUFFIX = "+denoise"

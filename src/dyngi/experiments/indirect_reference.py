@@ -58,7 +58,7 @@ from ..backend import dr, mi
 from ..errors import DyngiError
 from ..sampling.rng import mix_seed
 from .reference import (DEFAULT_MAX_DEPTH, DEFAULT_REF_SPP, DIRECT_DEPTH, RR_DEPTH, _check_seed, _check_time_res,
-                        _entry_paths, _load_entry, _passes, _render_settings, _store, combine_halves, half_spp,
+                        _entry_paths, _passes, _render_settings, combine_halves, get_or_render, half_spp,
                         reference_key)
 
 INDIRECT_FORMAT = 1
@@ -165,12 +165,14 @@ def cached_indirect_reference(scene, t: float, res, spp: int = DEFAULT_REF_SPP,
     settings = indirect_reference_settings(scene, t, res, spp, max_depth, seed)
     key = reference_key(settings)
     exr, js = indirect_reference_paths(scene, settings, cache_dir)
-    hit = _load_entry(exr, js, key, settings["res"], meta_ok=lambda meta: isinstance(meta.get("noise"), dict))
-    if hit is not None:
-        return hit[0], hit[1]["noise"], True
-    start = time.perf_counter()
-    img, noise = indirect_reference_image(scene, t, res, spp, max_depth, seed)
-    meta = dict(settings, key=key, scene=scene.name, time=float(t), noise=noise,
-                render_seconds=round(time.perf_counter() - start, 3), created=time.strftime("%Y-%m-%dT%H:%M:%S"))
-    _store(exr, js, img, meta)
-    return img, noise, False
+
+    def render():
+        start = time.perf_counter()
+        img, noise = indirect_reference_image(scene, t, res, spp, max_depth, seed)
+        meta = dict(settings, key=key, scene=scene.name, time=float(t), noise=noise,
+                    render_seconds=round(time.perf_counter() - start, 3),
+                    created=time.strftime("%Y-%m-%dT%H:%M:%S"))
+        return img, meta
+    (img, meta), hit = get_or_render(exr, js, key, settings["res"], render,
+                                     meta_ok=lambda meta: isinstance(meta.get("noise"), dict))
+    return img, meta["noise"], hit

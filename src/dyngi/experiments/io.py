@@ -24,16 +24,36 @@ def tonemap_srgb(img: np.ndarray, exposure: float = 1.0) -> np.ndarray:
     return (s * 255.0 + 0.5).astype(np.uint8)
 
 
+@contextlib.contextmanager
+def exr_threads():
+    """Mitsuba's OpenEXR reader and writer wait on Dr.Jit's thread pool and deadlock when it has a single
+    thread (a cluster worker pinned to one, :mod:`~dyngi.experiments.cluster`): inside this block the pool
+    has at least two threads; the count is restored afterwards."""
+    from ..backend import dr
+
+    n = dr.thread_count()
+    if n >= 2:
+        yield
+        return
+    dr.set_thread_count(2)
+    try:
+        yield
+    finally:
+        dr.set_thread_count(n)
+
+
 def write_exr(path: str, img: np.ndarray) -> None:
     from ..backend import mi
 
-    mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write(path)
+    with exr_threads():
+        mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write(path)
 
 
 def read_exr(path: str) -> np.ndarray:
     from ..backend import mi
 
-    return np.asarray(mi.Bitmap(path), dtype=np.float32)
+    with exr_threads():
+        return np.asarray(mi.Bitmap(path), dtype=np.float32)
 
 
 def write_png(path: str, img: np.ndarray, exposure: float = 1.0) -> None:

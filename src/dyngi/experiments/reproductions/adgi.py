@@ -57,6 +57,8 @@ import time
 
 import numpy as np
 
+from ...errors import DyngiError
+from .. import cluster
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
@@ -435,6 +437,11 @@ def _plots(out_dir, tu, st):
     plt.close(fig)
 
 
+def _part(name: str, cfg: dict, quiet: bool = True) -> dict:
+    """One independent part of the experiment (a task of the job's executor, ``--cluster``)."""
+    return {"tunnel": tunnel, "atrium": atrium, "static": static, "glossy": glossy}[name](cfg, quiet)
+
+
 @register_experiment("adgi", "ADGI vs Q-DDGI and the probe reference: tunnel gate opening (Figs. 1, 8), atrium under "
                      "a moving sun (Fig. 9), static convergence at equal time (Fig. 7), glossy floor with the "
                      "glossy probe lookup (Fig. 10), both ray protocols, Table 4 stage ms", PAPER)
@@ -443,10 +450,11 @@ def reproduce_adgi(out_dir: str, quick: bool = False, quiet: bool = True) -> str
     cfg = ADGI_QUICK if quick else ADGI_FULL
     w0 = time.perf_counter()
     os.makedirs(out_dir, exist_ok=True)
-    tu = tunnel(cfg, quiet)
-    at = atrium(cfg, quiet)
-    st = static(cfg, quiet)
-    gl = glossy(cfg, quiet) if cfg.get("glossy", True) else None
+    parts = ["tunnel", "atrium", "static"] + (["glossy"] if cfg.get("glossy", True) else [])
+    got = cluster.run_named(parts, _part, [(p, cfg, quiet) for p in parts], "reproduce adgi", quiet)
+    if len(got) < len(parts):     # every table needs every part
+        raise DyngiError("reproduce adgi: " + "; ".join(cluster.failure_lines()))
+    tu, at, st, gl = got["tunnel"], got["atrium"], got["static"], got.get("glossy")
     seconds = time.perf_counter() - w0
     rows = _rows(tu, at, st, cfg, gl)
     _write_csvs(out_dir, tu, st)

@@ -46,6 +46,8 @@ import os
 
 import numpy as np
 
+from ...errors import DyngiError
+from .. import cluster
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
@@ -85,6 +87,14 @@ def _run(scene, spec: str, frames: int, res, t_of, on_image, seed: int = 0):
 def _mse(img, ref, mask=None):
     e = ((img - ref) ** 2).mean(-1)
     return float(e.mean()) if mask is None else float(e[mask].mean())
+
+
+def _part(name: str, cfg: dict, out_dir: str, quiet: bool = True) -> tuple[dict, dict]:
+    """Part ``a:<scene>`` or ``b`` (a task of the job's executor, ``--cluster``): (its result, the NaN/Inf
+    pixels per technique it saw)."""
+    _NONFINITE.clear()
+    out = part_b(cfg, out_dir, quiet) if name == "b" else part_a(cfg, out_dir, name[2:], quiet)
+    return out, dict(_NONFINITE)
 
 
 # -- (a) Fig. 8 (b) -----------------------------------------------------------------------------------
@@ -254,8 +264,16 @@ def reproduce_cdq(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
     cfg = CDQ_QUICK if quick else CDQ_FULL
     os.makedirs(out_dir, exist_ok=True)
     _NONFINITE.clear()
-    a = [part_a(cfg, out_dir, sn, quiet) for sn in cfg["scenes_a"]]
-    b = part_b(cfg, out_dir, quiet)
+    names = [f"a:{sn}" for sn in cfg["scenes_a"]] + ["b"]    # independent runs: tasks (--cluster)
+    got = cluster.run_named(names, _part, [(n, cfg, out_dir, quiet) for n in names], "reproduce cdq", quiet)
+    if len(got) < len(names):     # the tables need every part
+        raise DyngiError("reproduce cdq: " + "; ".join(cluster.failure_lines()))
+    _NONFINITE.clear()
+    for n in names:
+        for k, v in got[n][1].items():
+            _NONFINITE[k] = _NONFINITE.get(k, 0) + v
+    a = [got[f"a:{sn}"][0] for sn in cfg["scenes_a"]]
+    b = got["b"][0]
     rows = _rows(a, b)
     md = "\n".join([f"# reproduce cdq ({'quick' if quick else 'full'} run)", "", "CDQ: " + PAPER + ".",
                     f"(a) {' and '.join(cfg['scenes_a'])} at {cfg['res_a'][0]}x{cfg['res_a'][1]}, {cfg['frames_a']} frames at t = 0, "

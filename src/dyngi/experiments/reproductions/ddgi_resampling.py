@@ -29,6 +29,7 @@ import os
 
 import numpy as np
 
+from .. import cluster
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
@@ -199,12 +200,11 @@ def reproduce_ddgi_resampling(out_dir: str, quick: bool = False, quiet: bool = T
 
     cfg = QUICK if quick else FULL
     have = set(builtin_names())
-    notes, figs = [], []
-    for sc in cfg["scenes"]:
-        if sc not in have:
-            notes.append(f"`{sc}` skipped: the scene is not in this build.")
-            continue
-        figs.append(run_scene(sc, cfg, quiet))
+    notes = [f"`{sc}` skipped: the scene is not in this build." for sc in cfg["scenes"] if sc not in have]
+    names = [sc for sc in cfg["scenes"] if sc in have]   # independent runs: tasks of the executor (--cluster)
+    figs = list(cluster.run_named(names, run_scene, [(sc, cfg, quiet) for sc in names], "reproduce ddgi-resampling",
+                                  quiet).values())
+    notes += [f"failed and left out: {f}" for f in cluster.failure_lines()]
     t1, t1dn, cost = _tables(figs, cfg)
     os.makedirs(out_dir, exist_ok=True)
     with open(os.path.join(out_dir, "table1.csv"), "w", newline="") as fh:

@@ -20,6 +20,7 @@ import os
 import numpy as np
 
 from ..io import atomic_output_dir
+from .. import cluster
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
@@ -96,14 +97,17 @@ def _rows(figs: list) -> list:
 def reproduce_isddgi(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
     """The ``isddgi`` experiment (module docstring); ``quick``: :data:`ISDDGI_QUICK`, else :data:`ISDDGI_FULL`."""
     cfg = ISDDGI_QUICK if quick else ISDDGI_FULL
-    figs = [run_scene(sc, cfg, os.path.join(out_dir, sc), quiet) for sc in cfg["scenes"]]
+    figs = list(cluster.run_named(list(cfg["scenes"]), run_scene,   # independent runs: tasks (--cluster)
+                                  [(sc, cfg, os.path.join(out_dir, sc), quiet) for sc in cfg["scenes"]],
+                                  "reproduce isddgi", quiet).values())
     rows = _rows(figs)
     md = "\n".join([f"# reproduce isddgi ({'quick' if quick else 'full'} run)", "", "IS-DDGI: " + PAPER + ".",
                     f"Both techniques at their defaults, {cfg['frames']} frames "
                     f"({', '.join(f'{k}: {v}' for k, v in cfg.get('scene_frames', {}).items()) or 'every scene'}) "
                     f"at {cfg['res'][0]}x{cfg['res'][1]}, "
                     f"reference {cfg['ref_spp']} spp; per-scene reports in the sub-folders. Steady frames only "
-                    "(frame 0 with the warm-up is left out of the costs).", "", paper_table(rows), ""])
+                    "(frame 0 with the warm-up is left out of the costs).", "", paper_table(rows), "",
+                    *cluster.failure_notes()])
     return write_summary(out_dir, md, {
         "paper.json": {"experiment": "isddgi", "quick": quick, "paper": PAPER, "figures": figs,
                        "rows": [{"quantity": q, "paper": p, "ours": o} for q, p, o in rows]}})

@@ -38,6 +38,7 @@ import os
 import numpy as np
 
 from ..io import atomic_output_dir
+from .. import cluster
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
@@ -257,9 +258,12 @@ def reproduce_smcir(out_dir: str, quick: bool = False, quiet: bool = True, refer
     if missing or not cfg["seeds"]:
         raise DyngiError(f"the smcir reproduction needs {', '.join(METHODS)} among its techniques and >= 1 seed")
     t0 = time.time()
-    figs = {sc: [run_scene(sc, cfg, os.path.join(out_dir, sc, f"seed{sd}"), quiet, reference, untextured, tracked,
-                           seed=int(sd)) for sd in cfg["seeds"]]
-            for sc in cfg["scenes"]}
+    pairs = [(sc, int(sd)) for sc in cfg["scenes"] for sd in cfg["seeds"]]   # independent runs: tasks (--cluster)
+    got = cluster.run_named([f"{sc}/seed{sd}" for sc, sd in pairs], run_scene,
+                            [(sc, cfg, os.path.join(out_dir, sc, f"seed{sd}"), quiet, reference, untextured, tracked,
+                              sd) for sc, sd in pairs], "reproduce smcir", quiet)
+    figs = {sc: [got[f"{sc}/seed{int(sd)}"] for sd in cfg["seeds"]] for sc in cfg["scenes"]   # all seeds or none
+            if all(f"{sc}/seed{int(sd)}" in got for sd in cfg["seeds"])}
     wall = time.time() - t0
     rows = _rows(figs, cfg)
     _plot(figs, cfg, out_dir)
@@ -273,7 +277,8 @@ def reproduce_smcir(out_dir: str, quick: bool = False, quiet: bool = True, refer
                     f"seeds {', '.join(map(str, cfg['seeds']))}, indirect light only against the {ref_text} "
                     f"(max depth 5, {cfg['ref_spp']} spp; {tr_text}), equal VPL budget; per-sequence, per-seed "
                     "reports in the sub-folders. Visibility is ray-traced (our substitution for 128x128 "
-                    f"paraboloid shadow maps). Wall time {wall / 60:.1f} min.", "", paper_table(rows), ""])
+                    f"paraboloid shadow maps). Wall time {wall / 60:.1f} min.", "", paper_table(rows), "",
+                    *cluster.failure_notes()])
     return write_summary(out_dir, md, {
         "paper.json": {"experiment": "smcir", "quick": quick, "paper": PAPER, "figures": figs,
                        "config": {k: cfg[k] for k in CONFIG_KEYS}, "wall_s": wall,

@@ -29,6 +29,7 @@ import os
 import numpy as np
 
 from ..io import atomic_output_dir
+from .. import cluster
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
@@ -126,13 +127,15 @@ def _rows(figs: dict, cfg: dict) -> list:
 def reproduce_vlc(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
     """The ``vlc`` experiment (module docstring); ``quick``: :data:`VLC_QUICK`, else :data:`VLC_FULL`."""
     cfg = VLC_QUICK if quick else VLC_FULL
-    figs = {sc: run_scene(sc, cfg, os.path.join(out_dir, sc), quiet) for sc, _, _ in SCENES}
+    names = [sc for sc, _, _ in SCENES]     # independent runs: tasks of the job's executor (--cluster)
+    figs = cluster.run_named(names, run_scene, [(sc, cfg, os.path.join(out_dir, sc), quiet) for sc in names],
+                             "reproduce vlc", quiet)
     rows = _rows(figs, cfg)
     md = "\n".join([f"# reproduce vlc ({'quick' if quick else 'full'} run)", "", "VLC / SLL / LH: " + PAPER + ".",
                     f"Techniques {', '.join(SPECS + (VLC_LH,))}; {cfg['frames']} frames at {cfg['res'][0]}x{cfg['res'][1]}, "
                     f"1 spp, MSE against Mitsuba's path at max depth {REF_DEPTH} ({cfg['ref_spp']} spp); "
                     "per-scene reports in the sub-folders. Frame 0 (empty VLC, kernel compilation) is left out "
-                    "of the MSE means.", "", paper_table(rows), ""])
+                    "of the MSE means.", "", paper_table(rows), "", *cluster.failure_notes()])
     return write_summary(out_dir, md, {
         "paper.json": {"experiment": "vlc", "quick": quick, "paper": PAPER, "figures": figs,
                        "rows": [{"quantity": q, "paper": p, "ours": o} for q, p, o in rows]},
