@@ -14,8 +14,7 @@ RES = (24, 18)
 
 def _direct(scene, k, frames, **kw):
     """Independent run ``k``: ``frames`` static frames of L_e + ReSTIR DI at the primary vertex, averaged."""
-    from dyngi.backend import dr, mi
-    from dyngi.sampling.rng import make_sampler
+    from dyngi.backend import mi
     from dyngi.techniques import Frame
     from dyngi.timing import StageTimer
     from dyngi.transport.restir_di import ReSTIRDI
@@ -26,13 +25,10 @@ def _direct(scene, k, frames, **kw):
     acc = np.zeros((npix, 3))
     for i in range(frames):
         frame = Frame(i, 0.0, scene.camera(0.0), RES, seed=500 + k, static=i > 0)
-        sampler = make_sampler(npix, frame.seed, frame.index)
         t = StageTimer()
-        gb, reproj = di.gbuffer(frame, sampler, t)
-        bsdf = gb.si.bsdf(gb.ray)
-        smooth = gb.valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        direct = di.direct(gb, reproj, bsdf, smooth, sampler, dr.opaque(mi.Float, 0.0), t)
-        L = mi.Color3f(gb.si.emitter(scene.mi_scene).eval(gb.si) + direct)
+        pv = di.begin(frame, t)
+        direct = di.direct(pv, t)
+        L = mi.Color3f(pv.gb.si.emitter(scene.mi_scene).eval(pv.gb.si) + direct)
         acc += np.stack([np.asarray(L[c]) for c in range(3)], 1)
     return (acc / frames).reshape(RES[1], RES[0], 3).astype(np.float32)
 

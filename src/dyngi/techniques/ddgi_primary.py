@@ -9,7 +9,7 @@ column of its Fig. 3 / 8 and Table 1):
   ``restir-pt`` with ``max_depth = 2``), which covers ``T_f L_e`` through
   every smooth lobe of the primary BSDF (diffuse and glossy), plus the
   emission seen through a delta lobe of the primary vertex
-  (:func:`~dyngi.transport.restir_di.continue_paths` to depth 2);
+  (:meth:`~dyngi.transport.restir_di.ReSTIRDI.path_after` to depth 2);
 * ``L_DDGI``: ``albedo / pi * E_probe(x, n)`` from a plain DDGI volume
   (:class:`~dyngi.probes.ddgi_plus.DDGIPlusVolume` in ``'ddgi'`` mode) whose
   probe rays do NEE for **every** emitter (``direct='nee'``): the probes then
@@ -65,12 +65,10 @@ from ..probes.trace import shading_side
 from ..sampling.diffuse import diffuse_albedo
 from ..sampling.lights import EmitterSampling, sample_traced
 from ..sampling.rng import make_sampler
-from ..transport.restir_di import PARAM_SPECS, ReSTIRDI, continue_paths
+from ..transport.restir_di import PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
 _GLOSSY_STREAM = 0x6C05
-_PATH_STREAM = 0x7E57
-"""RNG stream of the delta-lobe continuation at the primary vertex (as ``restir-pt``'s path)."""
 _PROBE_SKIP = ("direct", "emission_attenuation", "emission_scale", "probe_glossy")
 
 
@@ -151,9 +149,6 @@ class DDGIPrimaryTechnique(Technique):
         super().__init__(scene, params)
         p = self.params
         self.restir = ReSTIRDI.from_params(scene, p)
-        # whether any surface has a delta lobe (mirror, glass): only then does direct light need a path
-        self._has_delta = any(sh.bsdf() is not None and mi.has_flag(sh.bsdf().flags(), mi.BSDFFlags.Delta)
-                              for sh in scene.mi_scene.shapes())
         probe = {k: p[k] for k in plus_params() if k in p}
         probe["direct"] = "nee"
         self.probes = DDGIPlusVolume(scene, probe, mode="ddgi")
@@ -162,27 +157,11 @@ class DDGIPrimaryTechnique(Technique):
     def _direct(self, frame: Frame, t: StageTimer):
         """``L_e + T_f L_e`` at the primary vertex (an H x W x 3 image): ReSTIR DI through the smooth lobes,
         the emission behind a delta lobe by the path walk (``restir-pt`` at ``max_depth = 2``)."""
-        npix = frame.res[0] * frame.res[1]
-        mscene = self.scene.mi_scene
-        sampler = make_sampler(npix, frame.seed, frame.index)
-        time = dr.opaque(mi.Float, float(frame.time))
-        self.restir.begin_frame(frame)
-        gb, reproj = self.restir.gbuffer(frame, sampler, t)
-        si, valid = gb.si, gb.valid
-        bsdf = si.bsdf(gb.ray)
-        smooth = valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        pv = self.restir.begin(frame, t)
         direct = mi.Color3f(0.0)
         if self.restir.cand.count > 0:
-            direct = self.restir.direct(gb, reproj, bsdf, smooth, sampler, time, t)
-        Le0 = si.emitter(mscene).eval(si, mi.Bool(True))
-        L_d = dr.zeros(mi.Color3f, npix)
-        if self._has_delta:
-            with t.stage("path"):
-                ps = make_sampler(npix, frame.seed, frame.index, _PATH_STREAM)
-                cont = valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Delta)
-                L_d, _, rays = continue_paths(mscene, ps, gb.ray, si, cont, 2, 5, self.lights)
-                dr.eval(L_d, rays)
-            t.add_rays("path", dr.sum(rays))
+            direct = self.restir.direct(pv, t)
+        Le0, L_d, _ = self.restir.path_after(pv, frame, self.lights, 2, 5, t)
         with t.stage("accumulate"):
             L = mi.Color3f(Le0 + direct + L_d)
             dr.eval(L)

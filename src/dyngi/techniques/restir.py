@@ -65,17 +65,12 @@ The candidates per pixel are the cost on a CPU; the 1.5x target is not met (2.9x
 """
 from __future__ import annotations
 
-from ..backend import dr, mi
+from ..backend import mi
 from ..errors import DyngiError
 from ..sampling.lights import EmitterSampling
-from ..sampling.rng import make_sampler
 from ..transport.accumulate import ProgressiveMean
-from ..transport.restir_di import PARAM_SPECS, ReSTIRDI, continue_paths
+from ..transport.restir_di import PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
-
-_PATH_STREAM = 0x7E57
-"""RNG stream of the path continuation (the ReSTIR stages use stream 0)."""
-
 
 @register
 class ReSTIRPTTechnique(Technique):
@@ -100,49 +95,19 @@ class ReSTIRPTTechnique(Technique):
             raise DyngiError("parameter 'max_depth' = 0 renders nothing; use -1 (unbounded) or >= 1")
         self.restir = ReSTIRDI.from_params(scene, self.params)
         self.lights = EmitterSampling()
-        # whether any surface has a delta lobe (mirror, glass): only then does direct light need a path
-        self._has_delta = any(sh.bsdf() is not None and mi.has_flag(sh.bsdf().flags(), mi.BSDFFlags.Delta)
-                              for sh in scene.mi_scene.shapes())
         self.accum = ProgressiveMean()
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
-        npix = frame.res[0] * frame.res[1]
-        mscene = self.scene.mi_scene
-        sampler = make_sampler(npix, frame.seed, frame.index)
-        time = dr.opaque(mi.Float, float(frame.time))
-        self.restir.begin_frame(frame)
-
         # -- G-buffer and reprojection --
-        gb, reproj = self.restir.gbuffer(frame, sampler, t)
-        si, valid = gb.si, gb.valid
-        bsdf = si.bsdf(gb.ray)
-        smooth = valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        do_direct = (p["max_depth"] < 0 or p["max_depth"] >= 2) and self.restir.cand.count > 0
-
+        pv = self.restir.begin(frame, t)
         # -- ReSTIR DI: candidates, temporal, spatial, one shadow ray --
         direct = mi.Color3f(0.0)
-        if do_direct:
-            direct = self.restir.direct(gb, reproj, bsdf, smooth, sampler, time, t)
-
-        # -- emission at the primary vertex (and the environment where the ray escapes) --
-        Le0 = si.emitter(mscene).eval(si, mi.Bool(True))
-
-        # -- the rest of the path --
-        L_d = dr.zeros(mi.Color3f, npix)
-        L_ind = dr.zeros(mi.Color3f, npix)
-        if p["max_depth"] < 0 or p["max_depth"] > 2 or (p["max_depth"] == 2 and self._has_delta):
-            with t.stage("path"):
-                ps = make_sampler(npix, frame.seed, frame.index, _PATH_STREAM)
-                cont = valid
-                if p["max_depth"] == 2:    # direct light only: just the primary vertex's delta lobes
-                    cont = valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Delta)
-                L_d, L_ind, rays = continue_paths(mscene, ps, gb.ray, si, cont, p["max_depth"], p["rr_depth"],
-                                                  self.lights)
-                dr.eval(L_d, L_ind, rays)
-            t.add_rays("path", dr.sum(rays))
-
+        if (p["max_depth"] < 0 or p["max_depth"] >= 2) and self.restir.cand.count > 0:
+            direct = self.restir.direct(pv, t)
+        # -- emission at the primary vertex (and the environment where the ray escapes); the rest of the path --
+        Le0, L_d, L_ind = self.restir.path_after(pv, frame, self.lights, p["max_depth"], p["rr_depth"], t)
         # -- accumulation --
         with t.stage("accumulate"):
             self.accum.add(mi.Color3f(Le0 + direct + L_d + L_ind), mi.Color3f(L_ind),

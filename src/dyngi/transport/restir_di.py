@@ -27,11 +27,18 @@ pixel's target is evaluated with today's lights and a reused ``W`` may belong to
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from ..backend import dr, mi
 from ..sampling.candidates import EmitterCandidates
 from ..sampling.gbuffer import GBufferHistory, render_gbuffer, similar
 from ..sampling.reservoir import COMBINE_MODES, Reservoir, finalize, finalize_single, merge
+from ..sampling.rng import make_sampler
 from .path_walk import walk
+
+PATH_STREAM = 0x7E57
+"""RNG stream of the path after the primary vertex (:meth:`ReSTIRDI.path_after`; the ReSTIR stages use
+stream 0)."""
 
 PARAM_SPECS = {
     "candidates": dict(default=32, doc="initial light candidates per pixel (M)", min=1, max=1024),
@@ -142,6 +149,19 @@ def continue_paths(scene, sampler, ray, si, active, max_depth: int, rr_depth: in
     return r.L_near, r.L_ind, r.n_rays
 
 
+@dataclass
+class PrimaryVertex:
+    """A frame's primary vertices (:meth:`ReSTIRDI.begin`): the ReSTIR stages' sampler (stream 0), the
+    frame time (opaque), G-buffer, reprojection (None without temporal reuse), BSDF, smooth-lobe mask."""
+
+    sampler: object
+    time: object
+    gb: object
+    reproj: object
+    bsdf: object
+    smooth: object
+
+
 class ReSTIRDI:
     """ReSTIR DI at the primary vertex (module docstring): owns the G-buffer history, the light
     candidates' table and last frame's reservoirs; a technique holds one and calls its stages.
@@ -169,6 +189,9 @@ class ReSTIRDI:
                               or str(getattr(a, "key", "")).split(".")[0] in ids for a in scene.animators)
         self.hist = GBufferHistory(scene)
         self.prev_res: Reservoir | None = None
+        # whether any surface has a delta lobe (mirror, glass): only then does direct light need a path
+        self.has_delta = any(sh.bsdf() is not None and mi.has_flag(sh.bsdf().flags(), mi.BSDFFlags.Delta)
+                             for sh in scene.mi_scene.shapes())
 
     @classmethod
     def from_params(cls, scene, params: dict, **kw) -> "ReSTIRDI":
@@ -191,6 +214,39 @@ class ReSTIRDI:
             reproj = self.hist.reproject() if self.temporal else None
         timer.add_rays("gbuffer", frame.res[0] * frame.res[1])
         return gb, reproj
+
+    def begin(self, frame, timer) -> PrimaryVertex:
+        """The frame's set-up: sampler, opaque time, moving lights, stage ``gbuffer``."""
+        npix = frame.res[0] * frame.res[1]
+        sampler = make_sampler(npix, frame.seed, frame.index)
+        time = dr.opaque(mi.Float, float(frame.time))
+        self.begin_frame(frame)
+        gb, reproj = self.gbuffer(frame, sampler, timer)
+        bsdf = gb.si.bsdf(gb.ray)
+        smooth = gb.valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        return PrimaryVertex(sampler, time, gb, reproj, bsdf, smooth)
+
+    def path_after(self, pv: PrimaryVertex, frame, lights, max_depth: int, rr_depth: int, timer):
+        """What ReSTIR DI does not deliver at the primary vertex (stage ``path``): returns (its emission,
+        the light behind its delta lobes straight from an emitter, light from vertices >= 3), the path
+        walk's :func:`continue_paths` on stream :data:`PATH_STREAM`. ``max_depth`` as Mitsuba's (2: direct
+        light only, so only the delta lobes need a path, and only where the scene has one)."""
+        npix = frame.res[0] * frame.res[1]
+        si, valid = pv.gb.si, pv.gb.valid
+        Le0 = si.emitter(self.scene.mi_scene).eval(si, mi.Bool(True))
+        L_d = dr.zeros(mi.Color3f, npix)
+        L_ind = dr.zeros(mi.Color3f, npix)
+        if max_depth < 0 or max_depth > 2 or (max_depth == 2 and self.has_delta):
+            with timer.stage("path"):
+                ps = make_sampler(npix, frame.seed, frame.index, PATH_STREAM)
+                cont = valid
+                if max_depth == 2:    # direct light only: just the primary vertex's delta lobes
+                    cont = valid & mi.has_flag(pv.bsdf.flags(), mi.BSDFFlags.Delta)
+                L_d, L_ind, rays = continue_paths(self.scene.mi_scene, ps, pv.gb.ray, si, cont, max_depth, rr_depth,
+                                                  lights)
+                dr.eval(L_d, L_ind, rays)
+            timer.add_rays("path", dr.sum(rays))
+        return Le0, L_d, L_ind
 
     # -- the default target ---------------------------------------------------------------------
     def eval_at(self, pos, n, two_sided, sample, time, active):
@@ -246,10 +302,11 @@ class ReSTIRDI:
         return dr.select(vis, f * ev.Lg * W, 0.0), ev.valid
 
     # -- all stages with the default target -------------------------------------------------------
-    def direct(self, gb, reproj, bsdf, smooth, sampler, time, timer):
+    def direct(self, pv: PrimaryVertex, timer):
         """Direct light at the primary vertex by ReSTIR DI with the default target: stages
         ``candidates``, ``temporal``, ``spatial``, ``shadow`` (timed on ``timer``). Keeps the final
         reservoirs as next frame's temporal input."""
+        gb, reproj, bsdf, smooth, sampler, time = pv.gb, pv.reproj, pv.bsdf, pv.smooth, pv.sampler, pv.time
         with timer.stage("candidates"):
             r = self.candidates(gb, smooth, sampler, time)
         with timer.stage("temporal"):
