@@ -66,3 +66,13 @@ def _ci_battery_sample(items):
         drop.extend(it for _, it in scenes if it is not chosen)
     rest = [it for it in items if not it.nodeid.startswith(BATTERY_SLOW)]
     return rest + keep, drop
+
+
+def pytest_runtest_logreport(report):
+    """With ``DYNGI_TEST_TIMES=FILE``, append ``nodeid<TAB>seconds`` for each test's call (and set-up)
+    as it finishes: the per-test costs that keep the fast suite in CI's budget, readable even from a
+    run that is stopped before pytest's own ``--durations`` table."""
+    path = os.environ.get("DYNGI_TEST_TIMES")
+    if path and report.when in ("setup", "call"):
+        with open(path, "a") as f:
+            f.write(f"{report.nodeid}\t{report.when}\t{report.duration:.2f}\t{report.outcome}\n")
