@@ -35,9 +35,9 @@ def uniform_covered(backend):
     return frames_of("nee-pt:lights=uniform", "covered-lights", 12, 16, seed=11)
 
 
-@pytest.mark.parametrize("lights", ["vlc", "lighttree", "sll"])
+@pytest.mark.parametrize("lights", ["vlc", "lighttree", "sll", "sll-oracle"])
 def test_selectors_converge_to_uniform(backend, uniform_covered, lights):
-    mod = {"lighttree": "dyngi.sampling.lighttree", "sll": "dyngi.sampling.sll"}.get(lights)
+    mod = {"lighttree": "dyngi.sampling.lighttree", "sll": "dyngi.sampling.pvs", "sll-oracle": "dyngi.sampling.sll"}.get(lights)
     if mod:
         pytest.importorskip(mod)
     imgs, ind, _, _ = frames_of(f"nee-pt:lights={lights}", "covered-lights", 12, 16, seed=12)
@@ -96,7 +96,7 @@ def test_unavailable_choices_are_clear_errors(backend, monkeypatch):
         create_technique("nee-pt:lights=lighttree", sc)
     with pytest.raises(DyngiError, match="explore_weights"):
         create_technique("nee-pt:explore_weights=1,2", sc)
-    with pytest.raises(DyngiError, match="uniform, lighttree, sll, vlc"):
+    with pytest.raises(DyngiError, match="uniform, lighttree, sll, sll-oracle, vlc"):
         create_technique("nee-pt:lights=nope", sc)
 
 
@@ -118,8 +118,8 @@ def test_reproduce_vlc_quick(backend, tmp_path):
     for key in ("Fig. 8 (a)", "Fig. 8 (c)", "Fig. 9", "per-stage ms", "VLC/SLL"):
         assert key in md, key
     figs = json.load(open(f"{out}/paper.json"))["figures"]
-    for scene in ("warehouse-lights", "covered-lights"):
-        for spec in ("nee-pt:lights=vlc", "nee-pt:lights=sll", "nee-pt:lights=lighttree"):
+    for scene in ("warehouse-rooms", "covered-lights"):
+        for spec in ("nee-pt:lights=vlc", "nee-pt:lights=sll", "nee-pt:lights=sll-oracle", "nee-pt:lights=lighttree"):
             f = figs[scene][spec]
             assert not f["failed"] and np.isfinite(f["mse"]) and len(f["mse_per_frame"]) == 6
         assert "preprocess" in figs[scene]["nee-pt:lights=vlc"]["stage_ms"]
