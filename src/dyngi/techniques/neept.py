@@ -41,9 +41,11 @@ over the scene bounds is created; every path vertex (hits 1-3) is placed in it
 and it adapts at the end of each frame. Thresholds: the paper's 4096 / 2048 at
 1080p scaled by the number of placed vertices per frame (3 per path per spp
 here), never below 512 / 256 (issue 17 item 2; ``octree.scaled_thresholds``).
-Sampling uses the shading point's previous-frame position (Sec. 6.3); our scenes
-provide no motion vectors, so it is the current one (our choice: the geometry
-that matters in our VLC scenes is static).
+Sampling uses the primary hit's previous-frame position (Sec. 6.3): on animated meshes
+(``scene.meta.dynamic_shapes``) :class:`~dyngi.sampling.motion.MotionVectors` gives it (the same surface
+point one frame earlier), and ``octree.lookup_pair`` finds the sampling leaf (previous position) and the
+placing leaf (current position) in one traversal; the VLC and the CDQ sample with the former and record
+into the latter. Secondary hits use their current position (our choice: no G-buffer there).
 
 ``FrameResult.indirect``: the same paths without the emission seen at the
 primary vertex, the emission reached by its indirect ray and its NEE (light that
@@ -203,6 +205,7 @@ class NeePT(Technique):
         p = self.params
         self.octree = None
         self.cdq = None
+        self.motion = None
         self._res = None
         self.selector = None
         _weights(p["explore_weights"])          # bad values fail here, not at the first frame
@@ -233,6 +236,9 @@ class NeePT(Technique):
             if p["leaf_samples"] > 0:
                 split, collapse = max(split, int(p["leaf_samples"])), max(collapse, int(p["leaf_samples"]) // 2)
             self.octree = AdaptiveOctree(self.bounds[0], self.bounds[1], split, collapse)
+            if self.scene.meta.dynamic_shapes:     # motion vectors for Sec. 6.3's previous/current lookup
+                from ..sampling.motion import MotionVectors
+                self.motion = MotionVectors(self.scene.mi_scene, self.scene.meta.dynamic_shapes)
         if p["directions"] == "cdq":
             from ..sampling.cdq import CDQDirections
             self.cdq = CDQDirections(self.octree, bits=p["cdq_bits"], stability=p["cdq_stability"],
@@ -247,8 +253,9 @@ class NeePT(Technique):
         """``leaf=`` keyword for selectors that accept an already looked-up octree leaf (the VLC)."""
         return {"leaf": leaf} if (leaf is not None and getattr(self.selector, "accepts_leaf", False)) else {}
 
-    def _nee(self, scene, si, n, real_bsdf, albedo, u1, u2, u_o, active, dir_pdf, leaf=None):
-        """NEE at a vertex: (radiance estimate without beta, rays traced). ``dir_pdf(wo_world)``: the BSDF-side pdf."""
+    def _nee(self, scene, si, n, real_bsdf, albedo, u1, u2, u_o, active, dir_pdf, leaf=None, leaf_rec=None):
+        """NEE at a vertex: (radiance estimate without beta, rays traced). ``dir_pdf(wo_world)``: the BSDF-side pdf.
+        ``leaf``: the sampling leaf; ``leaf_rec``: the placing leaf the sample is recorded in (default ``leaf``)."""
         tris, sel = self.tris, self.selector
         ctx = mi.BSDFContext()
         L = mi.Color3f(0.0)
@@ -280,7 +287,7 @@ class NeePT(Technique):
             Le = tris.gather_radiance(k, vis)
             w = _balance(pdf_l, pdf_b)
             L += dr.select(vis, f * Le * (w / pdf_l), 0.0)
-            sel.record(p, n, k, vis, active & (k != INVALID), **self._lk(leaf))
+            sel.record(p, n, k, vis, active & (k != INVALID), **self._lk(leaf if leaf_rec is None else leaf_rec))
         if self.others is not None and self.others.count:
             ds, em_w, traced = self.others.sample_traced(scene, si, u_o, active, receiver=None)
             if real_bsdf is not None:
@@ -411,12 +418,15 @@ class NeePT(Technique):
         bsdf1 = si1.bsdf(ray)
         n1 = mi.Vector3f(dr.select(mi.Frame3f.cos_theta(si1.wi) >= 0.0, si1.sh_frame.n, -si1.sh_frame.n))
         leaf1 = oc.lookup(si1.p, v1) if oc is not None else None
+        leaf1s = leaf1                   # the sampling leaf: of the previous position (Sec. 6.3)
+        if oc is not None and self.motion is not None and self.motion.active:
+            leaf1s, leaf1 = oc.lookup_pair(self.motion.previous(si1, v1), si1.p, v1)
         if oc is not None:
             oc.place_leaf(leaf1, v1)
         smooth1 = v1 & mi.has_flag(bsdf1.flags(), mi.BSDFFlags.Smooth)
         u_a, u_b, u_o = sampler.next_1d(), sampler.next_2d(), sampler.next_2d()
-        wo1, bw1, pdf1, delta1, ok1, dir_pdf1 = self._bounce(si1, n1, bsdf1, None, leaf1, sampler, v1)
-        L_nee1, r = self._nee(scene, si1, n1, bsdf1, None, u_a, u_b, u_o, smooth1, dir_pdf1, leaf1)
+        wo1, bw1, pdf1, delta1, ok1, dir_pdf1 = self._bounce(si1, n1, bsdf1, None, leaf1s, sampler, v1)
+        L_nee1, r = self._nee(scene, si1, n1, bsdf1, None, u_a, u_b, u_o, smooth1, dir_pdf1, leaf1s, leaf1)
         L += L_nee1
         rays += r
 
@@ -424,7 +434,7 @@ class NeePT(Technique):
         ray2 = si1.spawn_ray(wo1)
         si2 = scene.ray_intersect(ray2, ray_flags=mi.RayFlags.All, coherent=False, active=ok1)
         rays += mi.UInt32(ok1)
-        Le2, Env2 = self._emission(scene, si2, ray2.d, si1, si1.p, n1, pdf1, delta1, ok1, smooth1, leaf1)
+        Le2, Env2 = self._emission(scene, si2, ray2.d, si1, si1.p, n1, pdf1, delta1, ok1, smooth1, leaf1s)
         v2 = ok1 & si2.is_valid()
         bsdf2 = si2.bsdf(ray2)
         a2, n2 = self._diffuse_albedo(si2, bsdf2, v2)
@@ -476,6 +486,8 @@ class NeePT(Technique):
         cam = np.asarray(frame.camera.origin, np.float64)
         ctx = FrameCtx(self.scene.mi_scene, self.tris, frame.index, frame.time, self.octree, self.bounds, cam)
         with t.stage("preprocess"):
+            if self.motion is not None:
+                self.motion.advance()
             if self.cdq is not None:
                 self.cdq.begin_frame(ctx)
             self.selector.begin_frame(ctx)
