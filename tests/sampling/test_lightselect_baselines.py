@@ -356,3 +356,38 @@ def test_steady_state_compiles_nothing(warehouse, selectors):
             dr.eval(lid, pmf, q)
 
     assert_steady_state_compiles_nothing(step, frames=4, warmup=1, nonempty=True)
+
+
+def test_lighttree_rebuild_on_change_only(backend):
+    """rebuild="change" (ours) skips the build while no light changed and rebuilds when one moves, giving the
+    same tree as the per-frame rebuild (the paper's baseline, default); a bad policy is a DyngiError."""
+    from dyngi.backend import mi
+    from dyngi.errors import DyngiError
+    from dyngi.sampling.emitter_triangles import EmitterTriangles
+    from dyngi.sampling.light_select import FrameCtx
+    from dyngi.sampling.lighttree import LightTreeSelector
+    from dyngi.scene import load_scene
+    sc = load_scene("cornell-moving-light")
+    sc.at(0.0)
+    tris = EmitterTriangles(sc.mi_scene)
+    lazy = LightTreeSelector(tris, rebuild="change")
+    eager = LightTreeSelector(tris)
+    for i in range(3):
+        ctx = FrameCtx(sc.mi_scene, tris, i, 0.0)
+        lazy.begin_frame(ctx)
+        eager.begin_frame(ctx)
+    assert lazy.builds == 1 and eager.builds == 4
+    sc.at(0.5)
+    tris.refresh(sc.mi_scene)
+    ctx = FrameCtx(sc.mi_scene, tris, 3, 0.5)
+    lazy.begin_frame(ctx)
+    eager.begin_frame(ctx)
+    assert lazy.builds == 2
+    P = _v(mi, [[0.1, 0.01, 0.2], [-0.5, 0.5, 0.3]])
+    N = _v(mi, [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]], mi.Vector3f)
+    for k in range(tris.count):
+        a = lazy.pmf(P, N, mi.UInt32([k, k]), True).numpy()
+        b = eager.pmf(P, N, mi.UInt32([k, k]), True).numpy()
+        assert np.allclose(a, b)
+    with pytest.raises(DyngiError):
+        LightTreeSelector(tris, rebuild="sometimes")
