@@ -42,8 +42,9 @@ that chain bottom-up with the same importance code that ``sample`` evaluates
 top-down (equal up to float rounding of the product order).
 
 Rebuild policy: ``rebuild="frame"`` (default) rebuilds every frame, as the paper's baseline does (Sec. 7);
-``rebuild="change"`` (ours, labelled so) rebuilds only when a light's triangle or power changed. Not
-done (issue 28): the build on the device; the wide-tree collapse below is a host loop over wide nodes.
+``rebuild="change"`` (ours, labelled so) rebuilds only when a light's triangle or power changed. The build
+has no per-node Python loop (level-synchronous NumPy: the binary SAH levels and the wide levels are each
+processed as arrays); not done (issue 28): the build on the device.
 
 CPU fast path (documented): the build runs in NumPy/Python on the host over
 the L triangle lights (a few hundred; O(L) nodes, level-synchronous NumPy) from the host arrays
@@ -82,13 +83,17 @@ def _build_binary(tlo, thi, cen, power, normal):
     order ``perm``. Returns arrays over the binary nodes (children, ranges, bounds, power, cone) and perm."""
     L = len(cen)
     perm = np.arange(L)
-    start, end = [0], [L]
-    left, right = [-1], [-1]
-    clus = {}                       # node id -> (lo, hi, power, axis, cos_o)
+    M = max(2 * L - 1, 1)           # a binary tree with >= 1 light per leaf has at most 2L - 1 nodes
+    start, end = np.zeros(M, np.int64), np.zeros(M, np.int64)
+    end[0] = L
+    left, right = np.full(M, -1, np.int64), np.full(M, -1, np.int64)
+    c_lo, c_hi, c_axis = np.zeros((M, 3)), np.zeros((M, 3)), np.zeros((M, 3))
+    c_pow, c_cos = np.zeros(M), np.zeros(M)
+    nb = 1
     level = np.array([0])
     while len(level):
-        s = np.array([start[i] for i in level])
-        e = np.array([end[i] for i in level])
+        s = start[level]
+        e = end[level]
         n = e - s
         cs = np.concatenate([[0], np.cumsum(n)[:-1]])
         seg = np.repeat(np.arange(len(level)), n)
@@ -105,8 +110,7 @@ def _build_binary(tlo, thi, cen, power, normal):
         axis = np.where(degenerate[:, None], [0.0, 0.0, 1.0], wsum / np.maximum(wn, 1e-300)[:, None])
         cos_o = _seg_reduce(np.einsum("ij,ij->i", normal[lid], axis[seg]), cs, np.minimum)
         cos_o = np.where(degenerate, -1.0, np.clip(cos_o, -1.0, 1.0))
-        for k, node in enumerate(level):
-            clus[int(node)] = (lo[k], hi[k], float(pw[k]), axis[k], float(cos_o[k]))
+        c_lo[level], c_hi[level], c_pow[level], c_axis[level], c_cos[level] = lo, hi, pw, axis, cos_o
         # -- split the nodes with more than LEAF_SIZE lights --
         sp = n > LEAF_SIZE
         if not sp.any():
@@ -156,23 +160,16 @@ def _build_binary(tlo, thi, cen, power, normal):
         new = np.lexsort((np.arange(len(sg)), go_right, sg))
         perm[idx2] = lid2[new]
         nL = np.bincount(sg, weights=~go_right, minlength=K).astype(np.int64)
-        children = []
-        for k, node in enumerate(level[sp]):
-            s0, e0 = start[node], end[node]
-            m = s0 + int(nL[k])
-            left[node], right[node] = len(start), len(start) + 1
-            start += [s0, m]
-            end += [m, e0]
-            left += [-1, -1]
-            right += [-1, -1]
-            children += [left[node], right[node]]
-        level = np.array(children, np.int64)
-    nb = len(start)
-    lo = np.array([clus[i][0] for i in range(nb)])
-    hi = np.array([clus[i][1] for i in range(nb)])
-    return dict(perm=perm, start=np.array(start), end=np.array(end), left=np.array(left), right=np.array(right),
-                lo=lo, hi=hi, power=np.array([clus[i][2] for i in range(nb)]),
-                axis=np.array([clus[i][3] for i in range(nb)]), cos_o=np.array([clus[i][4] for i in range(nb)]))
+        parents = level[sp]           # children ids in order: (left, right) of each split node
+        lc = nb + 2 * np.arange(K)
+        rc = lc + 1
+        m = start[parents] + nL
+        start[lc], end[lc], start[rc], end[rc] = start[parents], m, m, end[parents]
+        left[parents], right[parents] = lc, rc
+        nb += 2 * K
+        level = np.stack([lc, rc], 1).ravel()
+    return dict(perm=perm, start=start[:nb], end=end[:nb], left=left[:nb], right=right[:nb], lo=c_lo[:nb],
+                hi=c_hi[:nb], power=c_pow[:nb], axis=c_axis[:nb], cos_o=c_cos[:nb])
 
 
 class LightTreeSelector:
@@ -211,45 +208,61 @@ class LightTreeSelector:
         power = np.maximum(h["power"], 0.0)
         normal = h["normal"]
         bt = _build_binary(tlo, thi, h["centroid"], power, normal)
-        b_left, b_right = bt["left"].tolist(), bt["right"].tolist()
+        b_left, b_right = bt["left"], bt["right"]
         d = np.maximum(bt["hi"] - bt["lo"], 0.0)
-        b_area = (d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0]).tolist()
-        # -- collapse to WIDTH children per node (top down, BFS; the largest inner child is expanded first) --
-        slots = []           # per wide inner node: list of binary children
-        parents = []         # per wide inner node: (parent wide node, slot)
-        leaves = []          # per wide leaf: binary node
-        leaf_par = []
-        inner_nodes = [0]    # binary node of each wide inner node (BFS order == queue order)
-        queue = [(0, INVALID, 0)]
-        qi = 0
-        while qi < len(queue):
-            bn, par, slot = queue[qi]
-            qi += 1
-            idx = len(slots)
-            kids = [bn] if b_left[bn] < 0 else [b_left[bn], b_right[bn]]
-            while len(kids) < WIDTH:
-                inner = [k for k in kids if b_left[k] >= 0]
-                if not inner:
+        b_area = d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0]
+        # -- collapse to WIDTH children per node, one wide level at a time (all its nodes at once): a node's
+        #    children are expanded, the largest-area inner child first, until WIDTH or all are leaves --
+        inner_nodes, par_rows, slot_rows, leaf_rows, leaf_par_rows = [], [], [], [], []
+        frontier = np.array([0], np.int64)              # binary node of each wide node of this level
+        fpar = np.array([[INVALID, 0]], np.int64)       # (parent wide node, slot) of each
+        n_wide = 0
+        while len(frontier):
+            F = len(frontier)
+            kids = np.full((F, WIDTH), -1, np.int64)
+            is_in = b_left[frontier] >= 0
+            kids[:, 0] = np.where(is_in, b_left[frontier], frontier)
+            kids[:, 1] = np.where(is_in, b_right[frontier], -1)
+            cnt = np.where(is_in, 2, 1)
+            for _ in range(WIDTH - 2):                  # at most WIDTH - 2 more expansions (vectorized over F)
+                k_ok = kids >= 0
+                inner = k_ok & (b_left[np.maximum(kids, 0)] >= 0)
+                ar = np.where(inner, b_area[np.maximum(kids, 0)], -np.inf)
+                big = np.argmax(ar, 1)
+                go = np.isfinite(ar[np.arange(F), big]) & (cnt < WIDTH)
+                if not go.any():
                     break
-                big = max(inner, key=b_area.__getitem__)
-                i = kids.index(big)
-                kids[i:i + 1] = [b_left[big], b_right[big]]
-            slots.append(kids)
-            parents.append((par, slot))
-            for s_, k in enumerate(kids):
-                if b_left[k] < 0:
-                    leaf_par.append((idx, s_))
-                    leaves.append(k)
-                else:
-                    queue.append((k, idx, s_))
-                    inner_nodes.append(k)
-        N = len(slots)
+                rows = np.nonzero(go)[0]
+                bn = kids[rows, big[rows]]
+                kids[rows, big[rows]] = b_left[bn]
+                kids[rows, cnt[rows]] = b_right[bn]
+                cnt[rows] += 1
+            ids = n_wide + np.arange(F)
+            inner_nodes.append(frontier)
+            par_rows.append(fpar)
+            slot_rows.append(kids)
+            k_ok = kids >= 0
+            leaf_k = k_ok & (b_left[np.maximum(kids, 0)] < 0)
+            r, c = np.nonzero(leaf_k)                   # row-major: (node, slot) order, as a BFS visits them
+            leaf_rows.append(kids[r, c])
+            leaf_par_rows.append(np.stack([ids[r], c], 1))
+            r, c = np.nonzero(k_ok & ~leaf_k)
+            frontier = kids[r, c]
+            fpar = np.stack([ids[r], c], 1)
+            n_wide += F
+        inner_nodes = np.concatenate(inner_nodes)
+        slots_arr = np.concatenate(slot_rows)
+        parents = np.concatenate(par_rows)
+        leaves = np.concatenate(leaf_rows)
+        leaf_par = np.concatenate(leaf_par_rows)
+        N = len(slots_arr)
         wide_of = np.full(len(b_left), -1, np.int64)
-        wide_of[np.array(inner_nodes)] = np.arange(N)
+        wide_of[inner_nodes] = np.arange(N)
         leaf_of = np.full(len(b_left), -1, np.int64)
-        leaf_of[np.array(leaves, np.int64)] = np.arange(len(leaves))
-        j = np.array([n_i * WIDTH + s_ for n_i, kids in enumerate(slots) for s_ in range(len(kids))], np.int64)
-        kb = np.array([k for kids in slots for k in kids], np.int64)
+        leaf_of[leaves] = np.arange(len(leaves))
+        r, c = np.nonzero(slots_arr >= 0)
+        j = r * WIDTH + c
+        kb = slots_arr[r, c]
         child = np.full(N * WIDTH, INVALID, np.int64)
         clo = np.zeros((N * WIDTH, 3))
         chi = np.zeros((N * WIDTH, 3))
@@ -261,7 +274,7 @@ class LightTreeSelector:
         clo[j], chi[j], caxis[j], ccos[j] = bt["lo"][kb], bt["hi"][kb], bt["axis"][kb], bt["cos_o"][kb]
         cpow[j] = np.maximum(bt["power"][kb], 1e-30)     # > 0: the power fallback never picks an empty slot
         nl = len(leaves)
-        lb = np.array(leaves, np.int64)
+        lb = leaves
         ls, le = bt["start"][lb], bt["end"][lb]
         leaf_lights = np.full((nl, LEAF_SIZE), INVALID, np.int64)
         perm = bt["perm"]
@@ -275,12 +288,9 @@ class LightTreeSelector:
         light_slot = np.zeros(L, np.int64)
         light_leaf[a0], light_slot[a0] = np.arange(nl), 0
         light_leaf[a1[two]], light_slot[a1[two]] = np.arange(nl)[two], 1
-        par = np.array(parents, np.int64).reshape(-1, 2)
-        lpar = np.array(leaf_par, np.int64).reshape(-1, 2)
-        wd = np.ones(N, np.int64)          # depth of the wide tree (stats only): BFS order, parents first
-        for i in range(1, N):
-            wd[i] = wd[par[i, 0]] + 1
-        depth = int(wd.max())
+        par = parents.reshape(-1, 2)
+        lpar = leaf_par.reshape(-1, 2)
+        depth = len(par_rows)              # wide levels (one per pass of the collapse)
         # -- upload --
         f32 = lambda a: mi.Float(np.ascontiguousarray(a, np.float32))
         u32 = lambda a: mi.UInt32(np.ascontiguousarray(a, np.uint32))
