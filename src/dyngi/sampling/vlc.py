@@ -83,8 +83,16 @@ warehouse-lights 160x90, frames 1..19, MSE 0.00477 -> 0.00174 (SLL 0.00125, LH 0
 specifies the global alias table.
 
 Sampling uses the shading point's previous-frame position (Sec. 6.3) to find the
-leaf when the caller passes ``p_prev``; ``nee-pt`` passes the current position (no
-motion vectors: the geometry of our scenes is static where it matters, our choice).
+leaf when the caller passes ``p_prev`` (or a ``leaf`` looked up with it): ``nee-pt`` looks up its primary
+hits' sampling leaf at the previous position given by the motion vectors of animated meshes
+(:mod:`dyngi.sampling.motion`, ``octree.lookup_pair``) and records at the current one (issue 28).
+
+Samples per leaf: the paper's leaves hold 2048-4096 samples per frame (split 4096, collapse 2048 at
+1080p); ours hold what ``octree.scaled_thresholds`` gives at the rendered resolution (~110-160 placed
+samples per leaf per frame on warehouse-rooms from 64x36 to 640x360 at the defaults, ~950 with
+``leaf_samples=4096``); ``reproduce vlc`` states the count beside each figure. With few samples per
+leaf a light visible from a small part of a leaf is often missing from its cache and is then reached
+only by exploration: fireflies (docs/benchmarks.md, "VLC + CDQ (issue 28)").
 """
 from __future__ import annotations
 
