@@ -167,3 +167,19 @@ def test_cli_sweep_with_cluster_auto_uses_the_running_cluster(ray_cluster, cache
     s = json.loads((tmp_path / "sw" / "summary.json").read_text())
     assert s["cluster"]["kind"] == "ray" and not s["cluster"]["started_here"] and len(s["points"]) == 4
     assert (tmp_path / "sw" / "report.html").stat().st_size > 1000
+
+
+def test_compare_on_the_cluster_equals_the_local_run(executor, cache, tmp_path):
+    """Sequences come back from the workers (images writable: the report writes them as EXR) with the
+    numbers of the in-process run."""
+    from dyngi.experiments import cluster
+    from dyngi.experiments.compare import run_compare
+
+    kw = dict(frames=3, res=(24, 16), ref_spp=32, metrics=["mse", "relmse"], tracked=False)
+    a = run_compare("cornell-moving-light", ["ddgi", "path"], str(tmp_path / "a"), **kw)
+    with cluster.use(executor):
+        b = run_compare("cornell-moving-light", ["ddgi", "path"], str(tmp_path / "b"), **kw)
+    sa, sb = (json.loads(open(os.path.join(d, "summary.json")).read())["techniques"] for d in (a, b))
+    for t in ("ddgi", "path"):
+        assert sa[t]["mean"] == sb[t]["mean"] and sa[t]["E"] == sb[t]["E"], t
+    assert os.path.getsize(os.path.join(b, "ddgi", "frame_0002.exr")) > 0 and not executor.failures

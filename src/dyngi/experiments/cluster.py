@@ -327,6 +327,9 @@ class RayExecutor(Executor):
     def __init__(self, address: str | None = "auto", num_cpus: int | None = None, retries: int | None = None,
                  threads: int | None = None, quiet: bool = True):
         super().__init__(default_retries() if retries is None else retries, fail_fast=False)
+        if (address or "").startswith("ray://") and "RAY_AUTH_MODE" not in os.environ and (
+                os.environ.get("RAY_AUTH_TOKEN") or os.path.isfile(os.path.expanduser("~/.ray/auth_token"))):
+            os.environ["RAY_AUTH_MODE"] = "token"   # Ray Client sends the token only when told to (read at import)
         ray = require_ray(f"--cluster {address or 'auto'}")
         self.address = address or "auto"
         self.threads = worker_threads() if threads is None else int(threads)
@@ -347,6 +350,10 @@ class RayExecutor(Executor):
             except ConnectionError as e:
                 raise DyngiError(f"cannot connect to the Ray cluster at {self.address}: {e}") from None
             self._connected_here = True
+            if not os.environ.get("DYNGI_CACHE"):
+                print("dyngi: warning: $DYNGI_CACHE is not set: the cluster's workers will not share this "
+                      "machine's reference cache (set it to a directory on shared storage; docs/cluster.md)",
+                      file=sys.stderr)
         else:
             try:
                 ray.init(address="auto", **init_kw)
@@ -387,7 +394,7 @@ class RayExecutor(Executor):
                 for ref in ready:
                     i, attempt = pending.pop(ref)
                     try:
-                        val = ray.get(ref)
+                        val = _writable(ray.get(ref))
                     except Exception as e:   # the task raised, or its worker (or node) died
                         if not _is_user_error(e) and attempt <= self.retries:
                             self.retried[tasks[i].name] = attempt + 1
@@ -415,6 +422,14 @@ class RayExecutor(Executor):
         if (self._started or self._connected_here) and ray.is_initialized():
             ray.shutdown()     # a local instance we started stops; a cluster we attached to keeps running
         self._started = self._connected_here = False
+
+
+def _writable(value):
+    """``value`` with its NumPy arrays as ordinary writable copies: Ray hands arrays back as read-only views
+    of its object store, which in-place NumPy code and Mitsuba's bindings (``mi.Bitmap``) refuse."""
+    import pickle
+
+    return pickle.loads(pickle.dumps(value, protocol=4))      # protocol 5 would keep them read-only
 
 
 def _ray_name(name: str) -> str:

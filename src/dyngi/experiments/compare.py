@@ -17,6 +17,13 @@ labelled by the spec as typed, so ``ddgi,ddgi:hysteresis=0.9`` runs two settings
 ``params`` (``--set``): ``NAME.KEY=VALUE`` applies to every spec of technique NAME, ``KEY=VALUE`` to
 every compared technique that has KEY; a spec's own settings win.
 
+Each technique's sequence is one task of the job's executor (:mod:`~dyngi.experiments.cluster`,
+``--cluster``): in this process one after another by default, exactly as before; on a Ray cluster the
+missing references are rendered first as chunk tasks (:func:`~dyngi.experiments.reference.reference_job`),
+then every sequence runs on a worker that loads the scene and makes the technique itself (under a budget,
+the first technique first), and the images come back here to be measured and written. A technique that
+fails there (after retries) is left out with a warning; the rest is written.
+
 This module orchestrates; budgets are :mod:`~dyngi.experiments.budgets`, measuring is
 :mod:`~dyngi.experiments.evaluate`, the files are :mod:`~dyngi.experiments.report`.
 """

@@ -8,6 +8,11 @@ beside ours. Where a paper publishes no figure for a quantity, the table says so
 made up. ``quick`` runs a small version (the ``ddgi`` one in under 3 minutes on 2 CPU cores, tested in
 the fast suite). Later technique issues add their experiments here.
 
+An experiment's independent runs (its scenes, seeds or parts) go through
+:func:`dyngi.experiments.cluster.run_named`: one task each on the executor of ``--cluster``, in this
+process one after another by default; a run that fails on a cluster (after retries) is left out and
+named in the report (experiments whose tables need every run stop with the failures named).
+
 Experiments
 -----------
 ``ddgi``  Majercik, Guertin, Nowrouzezahrai, McGuire, "Dynamic Diffuse Global Illumination with
