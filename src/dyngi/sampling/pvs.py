@@ -243,11 +243,21 @@ class PVSLightLists(SLLSelector):
         thi = np.maximum(np.maximum(p0, p1), p2)
         lo, hi, _ = self._boxes()
         eps = 1e-3 * self.cell.astype(np.float64)
-        over = np.all((tlo[:, None, :] <= hi[None] + eps) & (thi[:, None, :] >= lo[None] - eps), 2)
+        over = np.zeros((len(lights), self.n_cells), bool)
+        step = max(1, (1 << 22) // max(1, 3 * self.n_cells))
+        for a in range(0, len(lights), step):    # chunks of lights (memory), each an array pass over all leaves
+            over[a:a + step] = np.all((tlo[a:a + step, None, :] <= hi[None] + eps) &
+                                      (thi[a:a + step, None, :] >= lo[None] - eps), 2)
         ng = np.cross(h["e1"][lights], h["e2"][lights]).astype(np.float64)
         corners = np.stack([np.where(np.array([(k >> j) & 1 for j in range(3)], bool), hi, lo) for k in range(8)], 1)
-        rel = corners[None, :, :, :] - p0[:, None, None, :]                      # [L, C, 8, 3]
-        facing = (np.einsum("lcki,li->lck", rel, ng) > 0.0).any(2)
+        # facing: dot(ng, corner - p0) > 0 for some corner = dot(ng, corner) > dot(ng, p0); chunked over lights
+        # so that the [lights, leaves, 8] products stay small for scenes with many emitter triangles
+        facing = np.zeros((len(lights), self.n_cells), bool)
+        off = np.einsum("li,li->l", ng, p0)
+        step = max(1, (1 << 22) // max(1, 8 * self.n_cells))
+        for a in range(0, len(lights), step):
+            dots = np.einsum("cki,li->lck", corners, ng[a:a + step])
+            facing[a:a + step] = (dots > off[a:a + step, None, None]).any(2)
         return over, facing
 
     def _lists(self) -> np.ndarray:
