@@ -17,8 +17,8 @@ and lights in neighbouring rooms that a potentially-visible set keeps:
   it (high unoccluded irradiance) but the deck hides them, as a Quake level's catwalks do;
 * a shelf rack per room (local occlusion).
 
-86 emitter quads in all (172 triangle lights: 54 ceiling lights, 30 wall lamps, 2 in the
-store). The walls sit on the leaf boundaries of ``lights=sll``'s default PVS grid (9 leaves
+134 emitter quads in all (268 triangle lights: 54 ceiling lights, 48 above the decks, 30 wall
+lamps, 2 in the store). The walls sit on the leaf boundaries of ``lights=sll``'s default PVS grid (9 leaves
 along x: ~3.03 m leaves, 3 x 3 leaves per room), so the grid stands in for BSP leaves that follow
 the walls. The camera walks from room (0, 0) through the door into room (1, 0)
 and turns towards the window into room (2, 0) over 6 s, looking ~20 degrees down (no light in view:
@@ -140,13 +140,13 @@ def _build():
     look = [[9.0, -1.0, 3.0], [12.0, -0.5, 3.5], [18.0, -1.0, 4.0], [20.0, -0.5, 2.5]]
     times = [0.0, 2.0, 4.0, 6.0]
     cam = CameraPath(Track(times, walk, interp="smooth"), Track(times, look, interp="smooth"), (0, 1, 0), 70.0)
-    return b.build(cam, "Six industrial rooms with doors, windows and 86 lights (lamps on both faces of the "
-                   "walls, a closed store)", duration=6.0,
+    return b.build(cam, "Six industrial rooms with doors, windows, mezzanine decks and 134 lights (lamps on "
+                   "both faces of the walls, a closed store)", duration=6.0,
                    probe_box=((0.3, 0.3, 0.3), (X - 0.3, H - 0.3, Z - 0.3)), probe_counts=(24, 4, 16))
 
 
-@builtin("warehouse-rooms", "Quake-like industrial level: six rooms joined by doors and windows, 86 lights "
-         "(ceiling lights, lamps on both faces of every interior wall, a closed store)",
+@builtin("warehouse-rooms", "Quake-like industrial level: six rooms joined by doors and windows, mezzanine decks, "
+         "134 lights (ceiling lights, lights over the decks, wall lamps, a closed store)",
          "VLC/CDQ scene (a): Quake 2 RTX warehouse (many lights in neighbouring rooms and behind walls)")
 def warehouse_rooms():
     """See the module docstring."""
