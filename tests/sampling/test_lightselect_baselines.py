@@ -391,3 +391,35 @@ def test_lighttree_rebuild_on_change_only(backend):
         assert np.allclose(a, b)
     with pytest.raises(DyngiError):
         LightTreeSelector(tris, rebuild="sometimes")
+
+
+def test_lighttree_device_build(warehouse):
+    """build="device" (Dr.Jit SAH levels): a valid 8-wide tree over every light (<= 2 per leaf, nested boxes), the
+    same node and leaf counts as the host build, pmfs summing to 1 and matching sampling frequencies (chi^2)."""
+    from dyngi.backend import mi
+    from dyngi.sampling.lighttree import LightTreeSelector
+    sc, tris = warehouse
+    dev = LightTreeSelector(tris, build="device")
+    host = LightTreeSelector(tris, build="host")
+    assert dev.device_build and not host.device_build
+    assert (dev.nodes, dev.leaves) == (host.nodes, host.leaves)
+    ll = dev._host["leaf_lights"]
+    assert np.array_equal(np.sort(ll[ll != INVALID]), np.arange(tris.count))
+    child = dev._host["child"].reshape(-1, 8)
+    used = child != INVALID
+    par = dev._host["node_parent"]
+    for n in range(1, dev.nodes):
+        j = par[n][0] * 8 + par[n][1]
+        k = np.nonzero(used[n])[0] + 8 * n
+        assert np.all(dev._host["lo"][k] >= dev._host["lo"][j] - 1e-4)
+        assert np.all(dev._host["hi"][k] <= dev._host["hi"][j] + 1e-4)
+    rng = np.random.default_rng(5)
+    P, N = _points(rng, 6)
+    pm = _all_pmfs(mi, dev, P, N, tris.count)
+    assert np.allclose(pm.sum(1), 1.0, atol=1e-4)
+    M = 200_000
+    p, nrm = P[:1], N[:1]
+    lid, pmf = dev.sample(_v(mi, p.repeat(M, 0)), _v(mi, nrm.repeat(M, 0), mi.Vector3f),
+                          mi.Float(rng.random(M).astype(np.float32)), True)
+    ok, pv = chi2_uniform(np.bincount(lid.numpy(), minlength=tris.count), pm[0] * M)
+    assert ok, pv
