@@ -28,15 +28,16 @@ future -- gets, with no per-technique test code:
   a sun, a point light and a sky. The furnace checks the indirect image too
   (its value: the full one minus ``e`` and ``a e``).
 
-Convention: class attributes a technique may declare (read with ``getattr``;
-none is required)
--------------------------------------------------------------------------------
+Per-technique settings and capabilities
+---------------------------------------
+Test-only settings live in :data:`PROFILES` below (one entry per technique, issue 23 item 2); what a
+technique declares about itself is a class attribute. A class attribute wins over the table (the
+self-tests at the end build techniques that way); a technique with neither gets the default.
+
+Settings (:data:`PROFILES`):
 ``BATTERY_PARAMS: dict``   cheap settings (small probe grids, few rays, low
-                           spp) used by every battery test; default ``{}``.
-``FURNACE: bool``          False when the furnace test does not apply to the
-                           technique's estimator; default True.
-``FURNACE_REASON: str``    required (non-empty) when ``FURNACE`` is False; it
-                           is the skip message. The battery fails otherwise.
+                           spp) used by the battery tests (not the steady-state
+                           one, which runs the defaults); default ``{}``.
 ``FURNACE_PARAMS: dict``   settings for the analytic tests (furnace, lit plane) on
                            top of BATTERY_PARAMS (e.g. a low hysteresis so probes
                            converge in ``FURNACE_FRAMES``); default ``{}``.
@@ -44,16 +45,18 @@ none is required)
                            (static scene); default 32.
 ``FURNACE_TOL: float``     relative tolerance on the image mean; default 0.02
                            (a technique with a known, documented bias, such
-                           as a quantised encoding, declares a larger one).
+                           as a quantised encoding, gets a larger one).
+
+Capabilities (class attributes):
+``FURNACE: bool``          False when the furnace test does not apply to the
+                           technique's estimator; default True.
+``FURNACE_REASON: str``    required (non-empty) when ``FURNACE`` is False; it
+                           is the skip message. The battery fails otherwise.
 ``DETERMINISTIC: bool``    True when the output does not depend on the seed
                            (the rerun test then skips its "another seed
                            differs" check); default False.
-``HAS_INDIRECT``           (base class, for ``compare --indirect``) checked
-                           too: True -> every frame has ``indirect``, False -> none.
-
-Until a technique module declares these itself, ``_FALLBACK`` below gives the
-values for the techniques registered when this battery was written; a class
-attribute always wins over it.
+``BUDGETS``, ``HAS_INDIRECT`` (base class) are checked too: the steady-state test runs
+                           each declared budget; True -> every frame has ``indirect``, False -> none.
 
 Durations of the fast and slow parts: docs/benchmarks.md ("Steady frames compile nothing").
 """
@@ -76,7 +79,16 @@ FAST_SCENES = ("sky-pit", "maze", "glossy-floor")
 """Varied: sun + sky (directional + constant environment); point + area lights with a walking camera and
 heavy occlusion; glossy (rough plastic, GGX alpha 0.04) floor under sky + area light, moving object."""
 
-_FALLBACK = {
+_DDGI_RESAMPLING = {
+    "BATTERY_PARAMS": {"candidates": 4, "spatial": 2, "probe_counts": "4", "rays_per_probe": 64, "warmup": 2,
+                       "max_glossy": 1},
+    # the furnace runs without the emission heuristic of Sec. 3.3: (t / (t + d))^2 is a deliberate bias
+    # for small emitters and darkens a closed emitting shell (the probes' E then lies ~25% low)
+    "FURNACE_PARAMS": {"candidates": 8, "hysteresis": 0.5, "warmup": 16, "rays_per_probe": 128,
+                       "irradiance_gamma": 1.0, "emission_attenuation": "none"},
+    "FURNACE_TOL": 0.03}
+
+PROFILES = {
     "path": {"BATTERY_PARAMS": {"spp": 1, "max_depth": 4},
              "FURNACE_PARAMS": {"spp": 4, "max_depth": -1}},
     "ddgi": {"BATTERY_PARAMS": {"probe_counts": "3", "rays_per_probe": 16, "warmup": 1},
@@ -89,13 +101,51 @@ _FALLBACK = {
     "probes-reference": {"BATTERY_PARAMS": {"probe_counts": "3", "texels": 4, "rays_per_texel": 2},
                          "FURNACE_PARAMS": {"probe_counts": "4", "texels": 8, "rays_per_texel": 8,
                                             "direct_samples": 4}},
+    "adgi": {"BATTERY_PARAMS": {"probe_counts": "3", "static_chains": 256, "dynamic_chains": 64, "iterations": 6,
+                                "burn_in": 2, "dynamic_rays": 16, "warmup": 1, "warmup_rays": 16},
+             "FURNACE_PARAMS": {"probe_counts": "4", "static_chains": 2048, "iterations": 12, "warmup": 8,
+                                "warmup_rays": 64, "direct_samples": 4},
+             "FURNACE_TOL": 0.03},      # round-to-lowest 9-9-8 storage biases low (as qddgi)
+    "isddgi": {"BATTERY_PARAMS": {"probe_counts": "3", "x_init": 16, "x_min": 8, "x_max": 32, "importance_rays": 4.0,
+                                  "warmup": 1},
+               "FURNACE_PARAMS": {"probe_counts": "4", "x_init": 64, "x_max": 64, "hysteresis": 0.5,
+                                  "irradiance_gamma": 1.0, "direct_samples": 4}},
+    "ddgi-primary": {"BATTERY_PARAMS": {"candidates": 4, "spatial": 2, "probe_counts": "3", "rays_per_probe": 16,
+                                        "warmup": 1, "glossy_depth": 2},
+                     "FURNACE_PARAMS": {"candidates": 8, "probe_counts": "4", "rays_per_probe": 64,
+                                        "hysteresis": 0.5, "irradiance_gamma": 1.0, "warmup": 8}},
+    "ddgi-secondary": _DDGI_RESAMPLING,
+    "ddgi-resampling": _DDGI_RESAMPLING,
+    "restir-pt": {"BATTERY_PARAMS": {"candidates": 4, "spatial": 2, "max_depth": 4},
+                  "FURNACE_PARAMS": {"candidates": 8, "max_depth": -1}},
+    "nee-pt": {"BATTERY_PARAMS": {"spp": 1},
+               "FURNACE_PARAMS": {"spp": 4, "progressive": True}},
+    # the furnace's indirect image carries the one photon set's noise (all pixels share it): ~1-2%
+    "ir": {"BATTERY_PARAMS": {"vpls": 48},
+           "FURNACE_PARAMS": {"vpls": 6144, "shading": "exhaustive"},
+           "FURNACE_TOL": 0.04},
+    # one VPL set per frame, shared by all pixels, and the kNN density of the raw hits
+    "mir": {"BATTERY_PARAMS": {"vpls": 32, "resampling_rate": 16},
+            "FURNACE_PARAMS": {"vpls": 512, "resampling_rate": 32, "shading": "exhaustive"},
+            "FURNACE_TOL": 0.05},
+    # Eq. 8's k = 1 over-estimates the furnace's indirect light once replacements have made the set
+    # blue-noise-like (+26-28% at 2048 VPLs; density_k=32: +2-3%, docs/benchmarks.md): the furnace checks
+    # the rest of the machinery with k = 32 (the kNN bias of Sec. 3.3); the defaults' own bias is bounded
+    # by tests/techniques/test_smcir_bias.py
+    "smcir": {"BATTERY_PARAMS": {"vpls": 32, "warmup": 2, "radiosity_spp": 4, "candidate_rate": 8},
+              "FURNACE_PARAMS": {"vpls": 1024, "warmup": 4, "shading": "exhaustive", "radiosity_spp": 8,
+                                 "density_k": 32},
+              "FURNACE_TOL": 0.05},
+    "tcas": {"BATTERY_PARAMS": {"vpls": 32, "iterations": 4, "view_samples": 16}},
 }
+"""The battery's settings per technique (issue 23 item 2: test-only settings live in the tests, not on the
+production classes); a technique without an entry runs its defaults."""
 _DEFAULTS = {"BATTERY_PARAMS": {}, "FURNACE": True, "FURNACE_REASON": "", "FURNACE_PARAMS": {},
              "FURNACE_FRAMES": 32, "FURNACE_TOL": 0.02, "DETERMINISTIC": False}
 
 
 def attr(name: str, key: str):
-    """Battery attribute ``key`` of technique ``name``: class attribute, else the fallback, else the default."""
+    """Battery attribute ``key`` of technique ``name``: class attribute, else :data:`PROFILES`, else the default."""
     from dyngi.techniques import Technique
 
     for c in get_technique(name).__mro__:      # declared by the technique or a parent, not the base class
@@ -103,7 +153,7 @@ def attr(name: str, key: str):
             break
         if key in vars(c):
             return vars(c)[key]
-    return _FALLBACK.get(name, {}).get(key, _DEFAULTS[key])
+    return PROFILES.get(name, {}).get(key, _DEFAULTS[key])
 
 
 def make(name: str, scene, **extra):

@@ -140,10 +140,6 @@ class DDGIPrimaryTechnique(Technique):
     HAS_INDIRECT = True
     INDIRECT_INCLUDES_PROBE_SKY = False   # the probes' rays NEE every emitter: they hold bounced light only
     PARAMS = _params()
-    BATTERY_PARAMS = {"candidates": 4, "spatial": 2, "probe_counts": "3", "rays_per_probe": 16, "warmup": 1,
-                      "glossy_depth": 2}
-    FURNACE_PARAMS = {"candidates": 8, "probe_counts": "4", "rays_per_probe": 64, "hysteresis": 0.5,
-                      "irradiance_gamma": 1.0, "warmup": 8}
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)

@@ -40,10 +40,6 @@ class InstantRadiosity(VPLTechnique):
     PARAMS = {**COMMON_PARAMS,
               "photons": Param("per-frame", "photon set: 'per-frame' (new random numbers each frame, the paper's "
                                "IR) or 'fixed' (one set for the sequence)", choices=PHOTON_MODES)}
-    BATTERY_PARAMS = {"vpls": 48}
-    FURNACE_PARAMS = {"vpls": 6144, "shading": "exhaustive"}
-    FURNACE_TOL = 0.04
-    """The furnace's indirect image carries the one photon set's noise (all pixels share it): ~1-2%."""
 
     def update_vpls(self, frame: Frame, t: StageTimer):
         b = self.bounces

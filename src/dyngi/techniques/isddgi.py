@@ -109,10 +109,6 @@ class ISDDGITechnique(_ProbeTechniqueBase):
                                     min=0.0, max=1.0),
         "reclassify_interval": Param(8, "frames between updates of inactive probes (ours)", min=1),
     }
-    BATTERY_PARAMS = {"probe_counts": "3", "x_init": 16, "x_min": 8, "x_max": 32, "importance_rays": 4.0,
-                      "warmup": 1}
-    FURNACE_PARAMS = {"probe_counts": "4", "x_init": 64, "x_max": 64, "hysteresis": 0.5, "irradiance_gamma": 1.0,
-                      "direct_samples": 4}
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)

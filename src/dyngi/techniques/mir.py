@@ -69,10 +69,6 @@ class MetropolisIR(VPLTechnique):
     PARAMS = {**COMMON_PARAMS,
               "resampling_rate": Param(256, "camera paths per VPL, resampled by image contribution", min=1,
                                        max=4096)}
-    BATTERY_PARAMS = {"vpls": 32, "resampling_rate": 16}
-    FURNACE_PARAMS = {"vpls": 512, "resampling_rate": 32, "shading": "exhaustive"}
-    FURNACE_TOL = 0.05
-    """One VPL set per frame, shared by all pixels, and the kNN density of the raw hits."""
 
     def update_vpls(self, frame: Frame, t: StageTimer):
         I, p = self.budget, self.params

@@ -176,8 +176,6 @@ class NeePT(Technique):
                               "to the resolution, floored at 512", min=0, max=1 << 20),
         "progressive": Param(False, "accumulate over frames while the scene is static"),
     }
-    BATTERY_PARAMS = {"spp": 1}
-    FURNACE_PARAMS = {"spp": 4, "progressive": True}
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)

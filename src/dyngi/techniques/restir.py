@@ -86,8 +86,6 @@ class ReSTIRPTTechnique(Technique):
         "rr_depth": Param(5, "Russian roulette start depth", min=1),
         "progressive": Param(True, "accumulate over frames while the scene is static"),
     }
-    BATTERY_PARAMS = {"candidates": 4, "spatial": 2, "max_depth": 4}
-    FURNACE_PARAMS = {"candidates": 8, "max_depth": -1}
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)

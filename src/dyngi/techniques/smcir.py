@@ -130,14 +130,6 @@ class SMCIR(VPLTechnique):
         "quantile": Param(0.95, "M_strong threshold: candidates above this quantile of the VPL intensities",
                           min=0.0, max=1.0),
     }
-    BATTERY_PARAMS = {"vpls": 32, "warmup": 2, "radiosity_spp": 4, "candidate_rate": 8}
-    FURNACE_PARAMS = {"vpls": 1024, "warmup": 4, "shading": "exhaustive", "radiosity_spp": 8, "density_k": 32}
-    FURNACE_TOL = 0.05
-    """Eq. 8's k = 1 over-estimates the furnace's indirect light once replacements have made the set
-    blue-noise-like (measured, 2048 VPLs, 4-30 warm-up iterations: +28% sphere, +26% ellipsoid; with no
-    replacements: +5% / +1%; density_k=8: +7%; density_k=32: +2% / +3%): the furnace checks the rest of
-    the machinery with k = 32 (the kNN bias of Sec. 3.3, documented, not hidden); the defaults' own
-    bias (~1.4x on cornell-static) is bounded by tests/techniques/test_smcir_bias.py."""
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)

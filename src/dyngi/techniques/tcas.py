@@ -75,7 +75,6 @@ class TCAS(VPLTechnique):
     PARAMS = {**COMMON_PARAMS,
               "iterations": Param(16, "Metropolis-Hastings iterations per frame", min=1, max=1024),
               "view_samples": Param(64, "camera-visible points of the view importance", min=1, max=4096)}
-    BATTERY_PARAMS = {"vpls": 32, "iterations": 4, "view_samples": 16}
     FURNACE = False
     FURNACE_REASON = ("TCAS carries a single bounce of indirect light by design (Sec. 5.1), so it cannot "
                       "reach the furnace's multi-bounce value; its max_depth only caps it")

@@ -216,11 +216,6 @@ class ADGITechnique(_ProbeTechniqueBase):
                            "0: the texel itself)", min=0, max=3),
     }
     BUDGETS = ("equal-rays", "equal-time")
-    BATTERY_PARAMS = {"probe_counts": "3", "static_chains": 256, "dynamic_chains": 64, "iterations": 6,
-                      "burn_in": 2, "dynamic_rays": 16, "warmup": 1, "warmup_rays": 16}
-    FURNACE_PARAMS = {"probe_counts": "4", "static_chains": 2048, "iterations": 12, "warmup": 8,
-                      "warmup_rays": 64, "direct_samples": 4}
-    FURNACE_TOL = 0.03        # round-to-lowest 9-9-8 storage biases low (as qddgi)
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)

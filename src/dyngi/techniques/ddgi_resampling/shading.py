@@ -115,13 +115,6 @@ class SecondaryShading(Technique):
     """What ``ddgi-secondary`` and ``ddgi-resampling`` share (module docstring); not registered."""
 
     HAS_INDIRECT = True
-    BATTERY_PARAMS = {"candidates": 4, "spatial": 2, "probe_counts": "4", "rays_per_probe": 64, "warmup": 2,
-                      "max_glossy": 1}
-    # the furnace runs without the emission heuristic of Sec. 3.3: (t / (t + d))^2 is a deliberate bias
-    # for small emitters and darkens a closed emitting shell (the probes' E then lies ~25% low)
-    FURNACE_PARAMS = {"candidates": 8, "hysteresis": 0.5, "warmup": 16, "rays_per_probe": 128,
-                      "irradiance_gamma": 1.0, "emission_attenuation": "none"}
-    FURNACE_TOL = 0.03
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
