@@ -122,7 +122,7 @@ def _busy_workers(prefix: str) -> list[int]:
 def test_a_killed_worker_loses_no_finished_frame_and_the_job_completes(executor, cache):
     from dyngi.experiments import reference as ref
 
-    sc, res, spp, frames = _scene(), (64, 48), 128, 6
+    sc, res, spp, frames = _scene(), (64, 48), 256, 6
     box = {}
 
     def run():
@@ -183,3 +183,16 @@ def test_compare_on_the_cluster_equals_the_local_run(executor, cache, tmp_path):
     for t in ("ddgi", "path"):
         assert sa[t]["mean"] == sb[t]["mean"] and sa[t]["E"] == sb[t]["E"], t
     assert os.path.getsize(os.path.join(b, "ddgi", "frame_0002.exr")) > 0 and not executor.failures
+
+
+def test_cli_reference_on_the_cluster_fills_the_cache_a_second_run_hits_it(ray_cluster, cache, tmp_path):
+    env = dict(os.environ, DYNGI_CACHE=str(cache.parent))
+    cmd = [sys.executable, "-m", "dyngi", "reference", "cornell-moving-light", "--frames", "2", "--spp", "256",
+           "--res", "16x12", "--chunks", "2", "--cluster", "auto", "--quiet"]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "holds 2 of 2 frame(s)" in r.stdout and "(0 already cached)" in r.stdout
+    metas = [json.loads(p.read_text()) for p in cache.glob("*.json")]
+    assert len(metas) == 4 and all(m["chunks"] == 2 for m in metas)
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=600)
+    assert r.returncode == 0 and "(2 already cached)" in r.stdout, r.stderr

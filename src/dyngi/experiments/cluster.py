@@ -40,7 +40,6 @@ import contextvars
 import os
 import re
 import sys
-import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -540,7 +539,3 @@ def report_failures(executor: Executor, stream=None) -> int:
     for f in executor.failures:
         print(f"  {f}", file=stream)
     return 1
-
-
-def now() -> float:
-    return time.perf_counter()
