@@ -149,5 +149,8 @@ def _build():
          "134 lights (ceiling lights, lights over the decks, wall lamps, a closed store)",
          "VLC/CDQ scene (a): Quake 2 RTX warehouse (many lights in neighbouring rooms and behind walls)")
 def warehouse_rooms():
-    """See the module docstring."""
+    """The VLC paper's warehouse (Quake 2 RTX) stand-in: six rooms joined by doors and windows, mezzanine
+    decks with lights above them that the floor cannot see, wall lamps and a closed store, so that many
+    lights are potentially visible but occluded (the case that separates the VLC from the SLL's PVS and
+    from the light hierarchy). Details in the module docstring."""
     return _build()
