@@ -359,7 +359,15 @@ class RayExecutor(Executor):
                 self._connected_here = True
             except ConnectionError:
                 n = int(num_cpus or os.cpu_count() or 1)
-                ray.init(num_cpus=n, include_dashboard=False, **init_kw)
+                # Ray's notice that the instance it starts uses token authentication: ours lives as long as
+                # this command, on this machine only
+                notice = logging.getLogger("ray._private.authentication.authentication_token_setup")
+                level = notice.level
+                notice.setLevel(logging.ERROR)
+                try:
+                    ray.init(num_cpus=n, include_dashboard=False, **init_kw)
+                finally:
+                    notice.setLevel(level)
                 self._started = True
         self._ray = ray
         cpus = ray.cluster_resources().get("CPU", 1)
