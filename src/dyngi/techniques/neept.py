@@ -15,7 +15,8 @@ combined by the balance heuristic with the light selector's exact ``pmf``.
 Lights
 ------
 A light is an emitter triangle (:mod:`dyngi.sampling.emitter_triangles`). The
-``lights`` parameter chooses how NEE selects one (:mod:`dyngi.sampling.light_select`):
+``lights`` parameter chooses how NEE selects one, through the one light-sampler interface
+(:mod:`dyngi.lights`; any registered sampler, e.g. ``power``):
 ``uniform`` (pmf 1/L), ``lighttree`` (light BVH, H2), ``sll`` (static light
 lists from a conservative PVS, :mod:`dyngi.sampling.pvs`, the paper's), ``sll-oracle`` (ray-cast
 per-cell visible lists, an oracle baseline, :mod:`dyngi.sampling.sll`), ``vlc`` (Visibility Light Cache, :mod:`dyngi.sampling.vlc`, default).
@@ -84,11 +85,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import lights as light_samplers
 from ..backend import dr, mi
 from ..errors import DyngiError
 from ..sampling.diffuse import diffuse_albedo
 from ..sampling.emitter_triangles import INVALID, EmitterTriangles
-from ..sampling.light_select import FrameCtx, UniformSelector
+from ..sampling.light_select import FrameCtx
 from ..sampling.lights import EmitterSubsetSampling
 from ..sampling.rng import make_sampler, mix_seed
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
@@ -126,22 +128,10 @@ def _make_selector(kind: str, tris, mi_scene, bounds, octree, params, dynamic_sh
                 capacity=params["capacity"],
                 hysteresis=params["hysteresis"], merge_neighbours=params["merge_neighbours"], memory=params["memory"],
                 explore_weights=_weights(params["explore_weights"]), explorer=params["explorer"])
-    if kind == "uniform":
-        return UniformSelector(tris, mi_scene=mi_scene, bounds=bounds, **opts)
-    if kind == "vlc":
-        from ..sampling.vlc import VLCSelector
-        return VLCSelector(tris, mi_scene=mi_scene, bounds=bounds, **opts)
-    try:
-        if kind == "lighttree":
-            from ..sampling.lighttree import LightTreeSelector as cls
-        elif kind == "sll":      # the paper's SLL: conservative PVS over coarse leaves (issue 28)
-            from ..sampling.pvs import PVSLightLists as cls
-        else:                    # sll-oracle: ray-cast per-cell visible lists (an oracle baseline)
-            from ..sampling.sll import SLLSelector as cls
-    except ImportError as e:
-        raise DyngiError(f"nee-pt: lights={kind} is not available in this build ({e}); "
-                         "valid values: uniform, lighttree, sll, sll-oracle, vlc") from None
-    return cls(tris, mi_scene=mi_scene, bounds=bounds, **opts)
+    # the one light-sampler interface (dyngi.lights): each sampler takes the options it declares
+    accepted = light_samplers.options(kind)
+    return light_samplers.make(kind, tris, mi_scene=mi_scene, bounds=bounds,
+                               **{k: v for k, v in opts.items() if k in accepted})
 
 
 @register
@@ -154,8 +144,8 @@ class NeePT(Technique):
     HAS_INDIRECT = True
     REFERENCE_DEPTH = 3   # compare renders its reference at this depth without --ref-depth (Sec. 7's 5-ray path)
     PARAMS = {
-        "lights": Param("vlc", "NEE light selection (sll: the paper's PVS lists; sll-oracle: ray-cast lists, "
-                        "an oracle baseline)", choices=("uniform", "lighttree", "sll", "sll-oracle", "vlc")),
+        "lights": Param("vlc", "NEE light sampler (dyngi.lights; sll: the paper's PVS lists; sll-oracle: ray-cast "
+                        "lists, an oracle baseline)", choices=light_samplers.names()),
         "directions": Param("bsdf", "indirect-ray sampling", choices=("bsdf", "cdq")),
         "spp": Param(1, "samples per pixel per frame", min=1, max=1 << 12),
         "seed": Param(0, "seed mixed with the frame's seed", min=0),
@@ -207,14 +197,6 @@ class NeePT(Technique):
         self._res = None
         self.selector = None
         _weights(p["explore_weights"])          # bad values fail here, not at the first frame
-        if p["lights"] in ("lighttree", "sll", "sll-oracle"):
-            import importlib
-            mod = {"sll": "pvs", "sll-oracle": "sll"}.get(p["lights"], p["lights"])
-            try:
-                importlib.import_module(f"dyngi.sampling.{mod}")
-            except ImportError as e:
-                raise DyngiError(f"nee-pt: lights={p['lights']} is not available in this build ({e}); "
-                                 "valid values: uniform, lighttree, sll, sll-oracle, vlc") from None
         if p["directions"] == "cdq":
             try:
                 from ..sampling.cdq import CDQDirections  # noqa: F401

@@ -5,7 +5,9 @@ importance sampling (Veach 1997, Ch. 9; power or balance heuristic); Russian
 roulette from ``rr_depth`` on with survival probability
 ``min(max(beta) * eta^2, 0.95)``; ``max_depth`` counts path vertices as in
 Mitsuba (1: emitters seen directly, 2: direct illumination). Light sampling is
-a pluggable strategy (:mod:`dyngi.sampling.lights`). The walk is the
+Mitsuba's emitter sampling (``lights=scene``, the default) or any light sampler of
+:mod:`dyngi.lights` over the emitter triangles (``lights=uniform|power|lighttree|sll|vlc...``,
+:class:`dyngi.lights.nee.LightNEE`; other emitters through Mitsuba). The walk is the
 transport layer's (:func:`dyngi.transport.path_walk.walk`, from camera rays):
 one symbolic ``@dr.syntax`` loop, so a frame is a handful of kernels and a
 steady-state frame compiles nothing new.
@@ -25,6 +27,7 @@ indirect : bool = True  also return ``FrameResult.indirect``: the same paths
                         without the emission and the direct light at the
                         primary vertex (vertices >= 3; :func:`~dyngi.transport.path_walk.trace_paths_split`),
                         unclamped; costs < 1% (measured, cornell-static 160x120)
+lights : str = 'scene'  NEE light sampler (``dyngi techniques`` lists the registered ones)
 
 Budgets: with ``Frame.ray_budget`` the frame's spp is the budget divided by
 the rays per sample measured on the previous frame; with
@@ -37,7 +40,9 @@ from __future__ import annotations
 
 import math
 
+from .. import lights as light_samplers
 from ..backend import dr, mi
+from ..lights.nee import LightNEE
 from ..sampling.lights import EmitterSampling
 from ..sampling.rng import mix_seed
 from ..transport.accumulate import ProgressiveMean
@@ -67,11 +72,14 @@ class PathTechnique(Technique):
         "mis": Param("power", "MIS heuristic", choices=("power", "balance")),
         "progressive": Param(True, "accumulate over frames while the scene is static"),
         "indirect": Param(True, "also return the indirect-only image (same paths, vertices >= 3)"),
+        "lights": Param("scene", "NEE light sampler: 'scene' (Mitsuba's emitter sampling) or a dyngi.lights "
+                        "sampler over the emitter triangles", choices=("scene",) + light_samplers.names()),
     }
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
-        self.lights = EmitterSampling()
+        kind = self.params["lights"]
+        self.lights = EmitterSampling() if kind == "scene" else LightNEE(scene, kind)
         self.accum = ProgressiveMean()   # running mean, and its indirect part (with the 'indirect' parameter)
         self._rays_per_sample = None   # measured on the previous frame
         self._ms_per_sample = None
@@ -94,6 +102,10 @@ class PathTechnique(Technique):
         spp = self.frame_spp(frame)
         pilot = None
         split = p["indirect"]
+        learned = isinstance(self.lights, LightNEE)
+        if learned:     # the light sampler's per-frame hook (rebuild, cache construction)
+            with t.stage("lights"):
+                self.lights.begin_frame(self.scene, frame, 2 * npix * spp)
         if (frame.ray_budget is not None or frame.time_budget_ms is not None) and self._rays_per_sample is None:
             # -- first budgeted frame: nothing measured yet; a 1-spp pilot measures rays and ms per
             #    sample, and its sample counts towards the frame's budget --
@@ -124,6 +136,9 @@ class PathTechnique(Technique):
                            accumulate=p["progressive"] and frame.static)
             dr.eval(rays)
         t.add_rays("trace", int(rays[0]))
+        if learned:
+            with t.stage("lights adapt"):
+                self.lights.end_frame()
         if spp > 0:
             self._rays_per_sample = t.rays["trace"] / (npix * spp)
             self._ms_per_sample = t.ms["trace"] / spp

@@ -71,6 +71,22 @@ def _terminate(hook, si, ray, depth, active, active_next, beta, L, L_ind, L_near
     return L, L_ind, L_near, active_next & ~stop
 
 
+def _light_pdf(lights, scene, prev_si, si, ds, active):
+    """Solid-angle pdf of light sampling for the emission hit at ``si`` from ``prev_si``: a light sampler
+    (:class:`dyngi.lights.nee.LightNEE`) reads the light's id from the hit, a strategy only ``ds``."""
+    if getattr(lights, "walk_aware", False):
+        return lights.pdf_hit(scene, prev_si, si, ds, active)
+    return lights.pdf(scene, prev_si, ds, active)
+
+
+def _light_sample(lights, scene, si, sampler, active, depth):
+    """One NEE sample: (ds, weight, lanes that cast a shadow ray). A light sampler draws its own numbers
+    (a 2D point and a 1D light choice); a strategy one 2D number (the default's stream is unchanged)."""
+    if getattr(lights, "walk_aware", False):
+        return lights.sample_walk(scene, si, sampler, active, depth)
+    return sample_traced(lights, scene, si, sampler.next_2d(), active)
+
+
 @dr.syntax
 def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None, power_heuristic: bool = True,
          si=None, emission=None, nee=None, terminate=None, total: bool = True, split: bool = False,
@@ -92,6 +108,8 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
         si = mi.SurfaceInteraction3f(si)
         n_rays = dr.zeros(mi.UInt32, dr.width(active))
     first_valid = active & si.is_valid()
+    if hasattr(lights, "begin_walk"):     # a learning light sampler's record buffers (dyngi.lights.nee)
+        lights.begin_walk(dr.width(active))
     L = mi.Spectrum(0.0)
     L_ind = mi.Spectrum(0.0)
     L_near = mi.Spectrum(0.0)
@@ -106,7 +124,7 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
         ds = mi.DirectionSample3f(scene, si, prev_si)
         em_pdf = mi.Float(0.0)
         if ~prev_delta:
-            em_pdf = lights.pdf(scene, prev_si, ds, active & ~prev_delta)
+            em_pdf = _light_pdf(lights, scene, prev_si, si, ds, active & ~prev_delta)
         w_bsdf = mis_weight(prev_pdf, em_pdf, power_heuristic)
         em_on = _mask(emission, active, depth, prev_delta)
         Le = ds.emitter.eval(si, em_on & (prev_pdf > 0))
@@ -127,7 +145,7 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
 
         # -- next-event estimation --
         active_em = _mask(nee, active_next, depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        ds_em, em_weight, active_em = sample_traced(lights, scene, si, sampler.next_2d(), active_em)
+        ds_em, em_weight, active_em = _light_sample(lights, scene, si, sampler, active_em, depth)
         n_rays += mi.UInt32(active_em)
         wo = si.to_local(ds_em.d)
         bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)

@@ -1,0 +1,34 @@
+"""Light samplers (DESIGN.md ``lights/``): one interface (:mod:`dyngi.lights.base`), one emitter table,
+one emitter classification; each sampler is one module of this package that registers itself, found by
+:func:`discover` (a new sampler is one new file). :class:`~dyngi.lights.nee.LightNEE` turns a sampler
+into the path walk's next-event estimation."""
+from __future__ import annotations
+
+import importlib
+import pkgutil
+
+from .base import (INVALID, REGISTRY, EmitterTable, FrameCtx, LightSampler, describe, emitter_kind, entry, make,
+                   names, options, register)
+
+_INFRA = {"base", "nee"}
+_found = False
+UNAVAILABLE: dict = {}
+"""Sampler modules that failed to import (name -> reason): not registered, so not a valid ``lights=``."""
+
+
+def discover() -> None:
+    """Import every module of this package once (each registers its sampler)."""
+    global _found
+    if _found:
+        return
+    _found = True
+    for m in pkgutil.iter_modules(__path__):
+        if m.name not in _INFRA and not m.name.startswith("_"):
+            try:
+                importlib.import_module(f"{__name__}.{m.name}")
+            except ImportError as e:     # an optional dependency missing: the others stay usable
+                UNAVAILABLE[m.name] = str(e)
+
+
+__all__ = ["INVALID", "REGISTRY", "EmitterTable", "FrameCtx", "LightSampler", "describe", "discover",
+           "emitter_kind", "entry", "make", "names", "options", "register"]

@@ -1,0 +1,214 @@
+"""Next-event estimation through a light sampler: the path walk's light strategy for ``lights=NAME``.
+
+:class:`LightNEE` holds the one emitter table (:class:`~dyngi.lights.base.EmitterTable`), one light
+sampler over it (:func:`dyngi.lights.make`) and, for the emitters that are not triangles (delta lights,
+analytic area shapes, the environment; :func:`~dyngi.lights.base.emitter_kind`), Mitsuba's emitter
+sampling restricted to them. One NEE sample (pbrt-v4's ``PathIntegrator::SampleLd``, Sec. 13.3.3):
+
+1. with probability ``p_tri`` (1 without other emitters, 0 without triangles, else 0.5: our choice) a
+   triangle: the sampler picks light ``k`` with ``pmf(k | p, n)``, a point ``y`` on it is drawn by area
+   sampling, so the solid-angle pdf is ``p_tri * pmf * |y - p|^2 / (area * cos_l)``;
+2. else one of the other emitters through Mitsuba (its pdf times ``1 - p_tri``).
+
+:meth:`LightNEE.pdf_hit` is the same density for emission reached by BSDF sampling (the light's id from
+the hit), so the walk's MIS weights are exact and the estimator is unbiased for every sampler whose
+``pmf`` is that of its ``sample`` (``tests/lights/``). ``n`` is the shading normal turned to the side
+of ``wi`` (the importance of the light tree, SLL and VLC is the diffuse irradiance above it).
+
+Known bias: the triangles' radiance is the table's (the emitter at each triangle's centroid), exact for
+uniform emitters, an approximation for textured ones (:mod:`dyngi.sampling.emitter_triangles`).
+
+Learning samplers (the VLC): every NEE sample's light, visibility and octree leaf is scattered into
+per-lane buffers inside the walk's loop (the first ``RECORD_VERTICES`` vertices of each path) and
+handed to ``record`` in :meth:`end_frame`; path vertices are placed in the octree (VLC Sec. 6), which
+adapts at the end of the frame.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..backend import dr, mi
+from ..errors import DyngiError
+from ..sampling.lights import EmitterSubsetSampling
+from .base import INVALID, EmitterTable, FrameCtx, entry, make
+
+RECORD_VERTICES = 3
+"""Path vertices per lane whose NEE samples a learning sampler records (the VLC paper's path has 2)."""
+P_TRI = 0.5
+"""Probability of sampling the triangle lights when the scene also has other emitters (our choice)."""
+
+
+def shading_normal(si):
+    """The shading normal turned to the side of ``si.wi``."""
+    return mi.Vector3f(dr.select(mi.Frame3f.cos_theta(si.wi) >= 0.0, si.sh_frame.n, -si.sh_frame.n))
+
+
+class LightNEE:
+    """The walk's light strategy for light sampler ``kind`` (module docstring)."""
+
+    walk_aware = True     # the walk calls sample_walk / pdf_hit / begin_walk
+
+    def __init__(self, scene, kind: str, **opts):
+        ms = scene.mi_scene if hasattr(scene, "mi_scene") else scene
+        self.kind = kind
+        self.entry = entry(kind)
+        self.name = f"lights={kind}"
+        self.tris = EmitterTable(ms)
+        self._tri_emitters = [sh.emitter() for sh in self.tris._shapes]   # compared by identity
+        meta = getattr(scene, "meta", None)
+        self.dynamic = tuple(getattr(meta, "dynamic_shapes", ()) or ())
+        tri_shapes = {sid for sid, _, _ in self.tris.shape_slices()}
+        self._lights_move = bool(tri_shapes & set(self.dynamic))
+
+        def keep(e):
+            return not any(e is x for x in self._tri_emitters)
+
+        self.others = EmitterSubsetSampling(ms, keep) if any(keep(e) for e in ms.emitters()) else None
+        if self.others is not None:
+            self.others.glass = False      # shadow rays stop at glass, as Mitsuba's path (the reference)
+        n_other = self.others.count if self.others is not None else 0
+        self.p_tri = 1.0 if n_other == 0 else (0.0 if self.tris.count == 0 else P_TRI)
+        if meta is not None and getattr(meta, "bounds", None) is not None:
+            lo, hi = (np.asarray(b, np.float64) for b in meta.bounds)
+        else:
+            bb = ms.bbox()
+            lo, hi = np.array(bb.min, np.float64), np.array(bb.max, np.float64)
+        ext = hi - lo
+        grow = np.maximum(0.01 * max(float(ext.max()), 1e-3) - ext, 0.0)   # a flat scene: as nee-pt
+        self.bounds = (lo - 0.5 * grow, hi + 0.5 * grow)
+        if "dynamic_shapes" in self.entry.options and "dynamic_shapes" not in opts:
+            opts["dynamic_shapes"] = list(self.dynamic)
+        self.octree = None
+        self._opts = opts
+        self.sampler = None
+        if not self.entry.needs_octree:
+            self.sampler = make(kind, self.tris, mi_scene=ms, bounds=self.bounds, **opts)
+        else:   # an octree-based sampler is built in begin_frame, once the vertex count is known
+            bad = sorted(set(opts) - set(self.entry.options) - {"octree"})
+            if bad:
+                raise DyngiError(f"light sampler '{kind}': unknown option(s) {', '.join(bad)}; valid: "
+                                 f"{', '.join(self.entry.options)}")
+        self._ms = ms
+        self._walks: list = []
+        self._verts = None
+
+    # -- per-frame hooks ---------------------------------------------------------------------------
+    def begin_frame(self, scene, frame, vertices_per_frame: int = 0) -> None:
+        """Refresh the table of moving lights, build the octree (first frame), call the sampler's hook."""
+        if self.entry.needs_octree and self.sampler is None:
+            from ..sampling.octree import AdaptiveOctree, scaled_thresholds
+            split, collapse = scaled_thresholds(max(int(vertices_per_frame), 1))
+            self.octree = AdaptiveOctree(self.bounds[0], self.bounds[1], split, collapse)
+            self.sampler = make(self.kind, self.tris, mi_scene=self._ms, bounds=self.bounds, octree=self.octree,
+                                **{k: v for k, v in self._opts.items() if k != "octree"})
+        if self._lights_move and frame.index > 0:
+            self.tris.refresh(self._ms)
+        cam = np.asarray(frame.camera.origin, np.float64) if getattr(frame, "camera", None) is not None else None
+        self.sampler.begin_frame(FrameCtx(self._ms, self.tris, frame.index, frame.time, self.octree, self.bounds,
+                                          cam))
+
+    def end_frame(self) -> None:
+        """Hand the recorded NEE samples to a learning sampler; adapt the octree."""
+        if self.entry.learns:
+            for leaf, light, vis in self._walks:
+                kw = {"leaf": leaf} if getattr(self.sampler, "accepts_leaf", False) else {}
+                self.sampler.record(None, None, light, vis != 0, light != INVALID, **kw)
+        self._walks = []
+        self.sampler.end_frame()
+        if self.octree is not None:
+            self.octree.adapt()
+
+    def stats(self) -> dict:
+        return self.sampler.stats() if self.sampler is not None else {}
+
+    def begin_walk(self, n: int) -> None:
+        """Before a walk of ``n`` lanes: the record buffers of a learning sampler."""
+        if not self.entry.learns:
+            return
+        size = n * RECORD_VERTICES
+        bufs = (dr.full(mi.UInt32, INVALID, size), dr.full(mi.UInt32, INVALID, size), dr.zeros(mi.UInt32, size))
+        dr.make_opaque(*bufs)
+        self._lane = dr.arange(mi.UInt32, n)
+        self._walks.append(bufs)
+
+    # -- the walk's strategy -----------------------------------------------------------------------
+    def _leaf(self, p, active):
+        return self.octree.lookup(p, active) if self.octree is not None else None
+
+    def _lk(self, leaf):
+        return {"leaf": leaf} if (leaf is not None and getattr(self.sampler, "accepts_leaf", False)) else {}
+
+    def sample_walk(self, scene, si, sampler, active, depth=None):
+        """One NEE sample at ``si``: (ds, weight = Le * visibility / pdf, lanes that cast a shadow ray)."""
+        u2 = sampler.next_2d()
+        u_sel = sampler.next_1d()
+        active = mi.Bool(active)
+        p_tri = self.p_tri
+        pick = active & (u_sel < p_tri) if 0.0 < p_tri < 1.0 else active & (p_tri > 0.0)
+        ds = dr.zeros(mi.DirectionSample3f, dr.width(active))
+        weight = mi.Color3f(0.0)
+        traced = mi.Bool(False)
+        if self.tris.count and p_tri > 0.0:
+            n = shading_normal(si)
+            u_s = dr.minimum(u_sel / p_tri, 0.99999994) if p_tri < 1.0 else u_sel
+            leaf = self._leaf(si.p, pick)
+            if self.octree is not None:
+                self.octree.place_leaf(leaf, pick)
+            k, pmf = self.sampler.sample(si.p, n, u_s, pick, **self._lk(leaf))
+            ok = pick & (k != INVALID) & (pmf > 0.0)
+            pl, nl, pdf_a = self.tris.sample_point(k, u2, ok)
+            d = pl - si.p
+            dist2 = dr.squared_norm(d)
+            wi = d * dr.rsqrt(dist2)
+            cos_l = -dr.dot(nl, wi)
+            ok &= (cos_l > 0.0) & (dist2 > 0.0) & (pdf_a > 0.0)
+            pdf = p_tri * pmf * pdf_a * dist2 / cos_l
+            vis = ok & ~scene.ray_test(si.spawn_ray_to(pl), ok)
+            Le = self.tris.gather_radiance(k, vis)
+            weight = dr.select(vis, Le / pdf, 0.0)
+            traced = ok
+            ds.p, ds.n, ds.d, ds.dist = mi.Point3f(pl), mi.Normal3f(nl), wi, dr.sqrt(dist2)
+            ds.pdf = dr.select(ok, pdf, 0.0)
+            if self.entry.learns and depth is not None:
+                rec = ok & (mi.UInt32(depth) < RECORD_VERTICES)
+                slot = self._lane * RECORD_VERTICES + mi.UInt32(depth)
+                leaf_b, light_b, vis_b = self._walks[-1]
+                dr.scatter(leaf_b, leaf if leaf is not None else mi.UInt32(0), slot, rec)
+                dr.scatter(light_b, k, slot, rec)
+                dr.scatter(vis_b, dr.select(vis, mi.UInt32(1), mi.UInt32(0)), slot, rec)
+        if self.others is not None and p_tri < 1.0:
+            other = active & ~pick
+            ds_o, w_o, tr_o = self.others.sample_traced(scene, si, u2, other)
+            q = 1.0 - p_tri
+            ds.p = dr.select(other, ds_o.p, ds.p)
+            ds.n = dr.select(other, ds_o.n, ds.n)
+            ds.d = dr.select(other, ds_o.d, ds.d)
+            ds.dist = dr.select(other, ds_o.dist, ds.dist)
+            ds.delta = dr.select(other, ds_o.delta, ds.delta)
+            ds.pdf = dr.select(other, ds_o.pdf * q, ds.pdf)
+            weight = dr.select(other, w_o / q, weight)
+            traced = dr.select(other, tr_o, traced)
+        return ds, mi.Color3f(weight), traced
+
+    def pdf_hit(self, scene, prev_si, si, ds, active):
+        """Solid-angle pdf with which :meth:`sample_walk` at ``prev_si`` produces the emission hit at ``si``."""
+        active = mi.Bool(active)
+        pdf = mi.Float(0.0)
+        is_tri = mi.Bool(False)
+        if self.tris.count and self.p_tri > 0.0:
+            k = self.tris.light_id(si, active)
+            is_tri = active & (k != INVALID)
+            nl = dr.gather(mi.Normal3f, self.tris.normal, k, is_tri)
+            cos_l = -dr.dot(nl, ds.d)
+            front = is_tri & (cos_l > 0.0)
+            area = dr.gather(mi.Float, self.tris.area, k, front)
+            leaf = self._leaf(prev_si.p, front)
+            pmf = self.sampler.pmf(prev_si.p, shading_normal(prev_si), k, front, **self._lk(leaf))
+            pdf = dr.select(front, self.p_tri * pmf * dr.square(ds.dist) / (area * cos_l), 0.0)
+        if self.others is not None and self.p_tri < 1.0:
+            pdf += dr.select(active & ~is_tri,
+                             (1.0 - self.p_tri) * self.others.pdf(scene, prev_si, ds, active & ~is_tri), 0.0)
+        return pdf
+
+    def pdf(self, scene, ref_si, ds, active):   # the strategy interface without the hit (not used by the walk)
+        raise NotImplementedError("LightNEE needs the hit: the walk calls pdf_hit")
