@@ -26,8 +26,6 @@ ALLOWED = {
     "probes/primary.py": "one rough-glossy sample for the primary glossy probe lookup",
     # S(x_n): the footprint-terminated glossy recursion and the full-BSDF sample at the primary vertex
     "techniques/ddgi_resampling/shading.py": "DDGI Resampling Sec. 3.4: glossy recursion into the probes",
-    # the VLC paper's 5-ray path with the BSDF/CDQ mixture (direction-sampler interface: issue 24 item 3)
-    "techniques/neept.py": "nee-pt's BSDF/CDQ mixture (until the directions/ layer exists)",
 }
 
 

@@ -28,6 +28,7 @@ sampling only (the paper's NEE ignores it).
 
 Directions
 ----------
+Through the direction-sampler interface (:mod:`dyngi.directions`).
 ``directions=bsdf``: the indirect rays sample the (real at the primary hit,
 cosine at the secondary) BSDF. ``directions=cdq``: with probability 0.5 from the
 CDQ of the octree leaf (:mod:`dyngi.sampling.cdq`, issue 18) and 0.5 from the
@@ -85,7 +86,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import directions as direction_samplers
 from .. import lights as light_samplers
+from ..directions.base import Vertex
+from ..directions.mixture import CDQ_FRACTION  # noqa: F401  (re-exported: Sec. 7's "brdf fraction of 50%")
 from ..backend import dr, mi
 from ..errors import DyngiError
 from ..sampling.diffuse import diffuse_albedo
@@ -97,8 +101,6 @@ from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to
 
 MAX_DEPTH = 3
 """Mitsuba's vertex count of nee-pt's paths (emission at the tertiary hit): compare with --ref-depth 3."""
-CDQ_FRACTION = 0.5
-"""Probability of drawing an indirect ray from the CDQ with directions=cdq (Sec. 7: "brdf fraction of 50%")."""
 
 
 def _lum(c):
@@ -146,7 +148,7 @@ class NeePT(Technique):
     PARAMS = {
         "lights": Param("vlc", "NEE light sampler (dyngi.lights; sll: the paper's PVS lists; sll-oracle: ray-cast "
                         "lists, an oracle baseline)", choices=light_samplers.names()),
-        "directions": Param("bsdf", "indirect-ray sampling", choices=("bsdf", "cdq")),
+        "directions": Param("bsdf", "indirect-ray sampling (dyngi.directions)", choices=direction_samplers.names()),
         "spp": Param(1, "samples per pixel per frame", min=1, max=1 << 12),
         "seed": Param(0, "seed mixed with the frame's seed", min=0),
         "exploration": Param(0.1, "VLC exploration fraction (Sec. 4.3)", min=1e-3, max=1.0),
@@ -223,6 +225,7 @@ class NeePT(Technique):
             from ..sampling.cdq import CDQDirections
             self.cdq = CDQDirections(self.octree, bits=p["cdq_bits"], stability=p["cdq_stability"],
                                      memory=p["cdq_memory"])
+        self.directions = direction_samplers.make(p["directions"], guide=self.cdq)
         self.selector = _make_selector(p["lights"], self.tris, self.scene.mi_scene, self.bounds, self.octree, p,
                                        self.scene.meta.dynamic_shapes)
         self._record_hits = p["record_hits"] and p["lights"] == "vlc"
@@ -323,61 +326,18 @@ class NeePT(Technique):
         return a, mi.Vector3f(n)
 
     def _bounce(self, si, n, real_bsdf, albedo, leaf, sampler, active):
-        """Indirect ray: (world direction, weight f cos / pdf, pdf, delta flag, dir_pdf function)."""
-        ctx = mi.BSDFContext()
-        cdq = self.cdq
-        if real_bsdf is not None:
-            use_cdq = active & ~mi.has_flag(real_bsdf.flags(), mi.BSDFFlags.Delta) if cdq is not None else None
-
-            def bsdf_pdf(wo, act):
-                return real_bsdf.pdf(ctx, si, si.to_local(wo), act)
-        else:
-            use_cdq = mi.Bool(active) if cdq is not None else None
-
-            def bsdf_pdf(wo, act):
-                return dr.select(act, dr.maximum(dr.dot(n, wo), 0.0) * dr.inv_pi, 0.0)
-
-        if cdq is not None:
-            def dir_pdf(wo, act):
-                pc = cdq.pdf(leaf, wo, act & use_cdq)
-                pb = bsdf_pdf(wo, act)
-                return dr.select(use_cdq, CDQ_FRACTION * pc + (1.0 - CDQ_FRACTION) * pb, pb)
-        else:
-            dir_pdf = bsdf_pdf
-
+        """Indirect ray through the direction sampler (:mod:`dyngi.directions`): (world direction, weight
+        f cos / pdf, pdf, delta flag, usable lanes, dir_pdf function for the NEE/BSDF MIS weight)."""
+        v = Vertex(si, n, real_bsdf, albedo, leaf, active)
         u_sel = sampler.next_1d()
         u1 = sampler.next_1d()
         u2 = sampler.next_2d()
-        if real_bsdf is not None:
-            bs, bw = real_bsdf.sample(ctx, si, u1, u2, active)
-            wo_b = si.to_world(bs.wo)
-            delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-            pdf_b = bs.pdf
-            w_b = mi.Color3f(bw)
-            ok_b = active & (bs.pdf > 0.0)
-        else:
-            lw = mi.warp.square_to_cosine_hemisphere(u2)
-            wo_b = mi.Frame3f(n).to_world(lw)
-            pdf_b = mi.warp.square_to_cosine_hemisphere_pdf(lw)
-            w_b = mi.Color3f(albedo)
-            delta = mi.Bool(False)
-            ok_b = active & (pdf_b > 0.0)
-        if cdq is None:
-            return wo_b, w_b, pdf_b, delta, ok_b, dir_pdf
-        take_cdq = use_cdq & (u_sel < CDQ_FRACTION)
-        wo_c, _ = cdq.sample(leaf, u2, take_cdq)
-        wo = dr.select(take_cdq, wo_c, wo_b)
-        # one-sample MIS (balance): weight = f cos / (0.5 p_cdq + 0.5 p_bsdf) for either strategy
-        p_mix = dir_pdf(wo, active)
-        if real_bsdf is not None:
-            f = mi.Color3f(real_bsdf.eval(ctx, si, si.to_local(wo), active & ~delta))
-        else:
-            f = albedo * dr.maximum(dr.dot(n, wo), 0.0) * dr.inv_pi
-        w_mix = dr.select(p_mix > 0.0, f / p_mix, 0.0)
-        weight = dr.select(use_cdq & ~delta, w_mix, w_b)
-        pdf = dr.select(use_cdq & ~delta, p_mix, pdf_b)
-        ok = dr.select(take_cdq, active & (p_mix > 0.0), ok_b)
-        return wo, mi.Color3f(weight), pdf, delta & ~take_cdq, ok, dir_pdf
+        d = self.directions.sample(v, u_sel, u1, u2, active)
+
+        def dir_pdf(wo, act):
+            return self.directions.pdf(v, wo, act)
+
+        return d.wo, d.weight, d.pdf, d.delta, d.ok, dir_pdf
 
     def _trace(self, frame, spp):
         scene = self.scene.mi_scene

@@ -1,0 +1,26 @@
+"""Direction samplers (DESIGN.md ``directions/``): one interface (:mod:`dyngi.directions.base`); ``bsdf``,
+the CDQ (:mod:`dyngi.directions.cdq`) and their one-sample MIS mixture (:mod:`dyngi.directions.mixture`).
+Each registered sampler is one module of this package, found by :func:`discover`."""
+from __future__ import annotations
+
+import importlib
+import pkgutil
+
+from .base import REGISTRY, DirectionSampler, DirSample, Vertex, make, names, register
+
+_INFRA = {"base"}
+_found = False
+
+
+def discover() -> None:
+    """Import every module of this package once (each registers its sampler)."""
+    global _found
+    if _found:
+        return
+    _found = True
+    for m in pkgutil.iter_modules(__path__):
+        if m.name not in _INFRA and not m.name.startswith("_"):
+            importlib.import_module(f"{__name__}.{m.name}")
+
+
+__all__ = ["REGISTRY", "DirectionSampler", "DirSample", "Vertex", "discover", "make", "names", "register"]

@@ -1,0 +1,97 @@
+"""The one direction-sampler interface (dyngi.directions, issue 24 item 3): every sampler's directions
+follow the pdf it reports (chi^2 on the sphere with Mitsuba's harness, pbrt/Mitsuba's BSDF test), for a
+real BSDF, the diffuse stand-in and the CDQ/BSDF mixture with a learned CDQ; unknown names raise."""
+import numpy as np
+import pytest
+
+from dyngi.backend import dr, mi
+
+
+class _FakeOctree:
+    def __init__(self, n):
+        self.leaf_count = n
+        self.prev_leaf = mi.UInt32(np.arange(n, dtype=np.uint32))
+
+
+def _learned_cdq():
+    """A CDQ whose leaf 0 learned a narrow lobe (tests/sampling/test_cdq.py's scripted peak)."""
+    from dyngi.sampling import cdq
+    g = cdq.CDQDirections(_FakeOctree(2), bits=64)
+    peak = np.array([0.3, 0.5, 0.81])
+    peak /= np.linalg.norm(peak)
+    rng = np.random.default_rng(0)
+    n = 20_000
+    leaf = mi.UInt32(np.zeros(n, np.uint32))
+    for _ in range(6):
+        g.begin_frame()
+        d, pdf = g.sample(leaf, mi.Point2f(rng.random(n), rng.random(n)), True)
+        L = dr.exp(8.0 * (d.x * peak[0] + d.y * peak[1] + d.z * peak[2] - 1.0))
+        g.record(leaf, d, L / pdf, True)
+        g.end_frame()
+    return g
+
+
+def _vertex(material, wi=(0.3, -0.2, 0.93)):
+    from dyngi.directions import Vertex
+    bsdf = mi.load_dict(material) if material is not None else None
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+    si.n = mi.Normal3f(0, 0, 1)
+    w = np.asarray(wi) / np.linalg.norm(wi)
+    si.wi = mi.Vector3f(*(float(x) for x in w))
+    si.p = mi.Point3f(0.0)
+    albedo = mi.Color3f(0.5) if bsdf is None else None
+    return Vertex(si, mi.Vector3f(0, 0, 1), bsdf, albedo, mi.UInt32(0), True)
+
+
+CASES = {
+    "bsdf-diffuse-standin": ("bsdf", None),
+    "bsdf-roughplastic": ("bsdf", {"type": "roughplastic", "alpha": 0.2}),
+    "cdq-mixture-diffuse-standin": ("cdq", None),
+    "cdq-mixture-roughconductor": ("cdq", {"type": "roughconductor", "alpha": 0.3}),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_directions_follow_their_pdf_chi2(backend, case):
+    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
+    from dyngi import directions
+    name, material = CASES[case]
+    ds = directions.make(name, guide=_learned_cdq() if name == "cdq" else None)
+    v = _vertex(material)
+
+    def sample(s):
+        n = dr.width(s)
+        vv = _vertex(material)
+        vv.si = dr.gather(mi.SurfaceInteraction3f, v.si, dr.zeros(mi.UInt32, n))
+        vv.leaf = dr.zeros(mi.UInt32, n)
+        vv.active = mi.Bool(True)
+        if vv.albedo is not None:
+            vv.albedo = mi.Color3f(0.5)
+        u1 = dr.select(s.x < 0.5, 2.0 * s.x, 2.0 * s.x - 1.0)    # independent of the component choice
+        d = ds.sample(vv, s.x, u1, mi.Point2f(s.y, s.z), mi.Bool(True))
+        return d.wo, dr.select(d.ok, mi.Float(1.0), mi.Float(0.0))      # failed samples carry no mass
+
+    def pdf(wo):
+        n = dr.width(wo)
+        vv = _vertex(material)
+        vv.si = dr.gather(mi.SurfaceInteraction3f, v.si, dr.zeros(mi.UInt32, n))
+        vv.leaf = dr.zeros(mi.UInt32, n)
+        vv.active = mi.Bool(True)
+        if vv.albedo is not None:
+            vv.albedo = mi.Color3f(0.5)
+        return ds.pdf(vv, wo, mi.Bool(True))
+
+    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
+                         sample_count=400_000, res=61, ires=8, seed=3)
+    assert test.run(0.01, len(CASES)), f"{case}: directions disagree with the pdf\n{test.messages}"
+
+
+def test_unknown_direction_sampler_raises(backend):
+    from dyngi import directions
+    from dyngi.errors import DyngiError
+    assert set(directions.names()) == {"bsdf", "cdq"}
+    with pytest.raises(DyngiError):
+        directions.make("nope")
+    with pytest.raises(DyngiError):
+        directions.make("cdq")          # the mixture needs a learned CDQ
