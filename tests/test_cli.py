@@ -128,3 +128,21 @@ def test_scenes_listing_has_timing():
     r = run("scenes")
     assert "2 s at 30 fps (60 frames, loops)" in r.stdout      # cornell-moving-light
     assert "static" in r.stdout                                  # cornell-static
+
+
+def test_demo_options_and_bad_section(tmp_path):
+    """`dyngi demo` (issue 30): the tour's options are there; a bad section is a one-line error, nothing written."""
+    r = run("demo", "--help")
+    assert r.returncode == 0
+    for opt in ("--out", "--quick", "--sections", "--classic", "--frames", "--res", "--ref-spp", "--quiet"):
+        assert opt in r.stdout, opt
+    r = run("demo", "--quick", "--sections", "adgi,nope", "--out", str(tmp_path / "o"))
+    assert r.returncode == 2, r.stderr
+    lines = [l for l in r.stderr.strip().splitlines() if l.strip()]
+    assert len(lines) == 1 and "unknown demo section 'nope'; sections: adgi, isddgi" in lines[0], r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_reproduce_has_smoke_size():
+    r = run("reproduce", "--help")
+    assert r.returncode == 0 and "--smoke" in r.stdout

@@ -9,7 +9,7 @@
     dyngi reproduce NAME [--quick]     a paper's comparison on the analog scenes, beside its figures
     dyngi probe-view SCENE             the probe volume of ddgi as spheres
     dyngi view SCENE [--techniques a,b]  interactive browser viewer (camera, techniques, probes, error view)
-    dyngi demo                         the main job on a built-in scene
+    dyngi demo                         the main job: a tour of the five papers, one report.html
 
 Errors caused by input print one line (``dyngi: error: ...``) and exit 2.
 """
@@ -287,7 +287,8 @@ def cmd_reproduce(args) -> int:
                          + ", ".join(experiment_names()))
     get_experiment(args.name)
     _setup(args)
-    out = args.out or os.path.join("out", "reproduce", args.name + ("-quick" if args.quick else ""))
+    out = args.out or os.path.join("out", "reproduce", args.name + ("-smoke" if args.smoke else
+                                                                      "-quick" if args.quick else ""))
     opts = _reference_options(args)
     if opts:       # --reference / --untextured / --no-tracked: only experiments whose function takes them
         import inspect
@@ -300,9 +301,16 @@ def cmd_reproduce(args) -> int:
             raise DyngiError(f"experiment '{args.name}' takes no --reference/--untextured/--no-tracked; "
                              "experiments that do: smcir")
         check_writable(out)
-        out, bad = _cluster_run(args, lambda: exp.fn(os.path.abspath(out), args.quick, args.quiet, **opts))
+        import contextlib
+
+        from .experiments.reproduce import smoke_size
+
+        with smoke_size(args.name) if args.smoke else contextlib.nullcontext():
+            out, bad = _cluster_run(args, lambda: exp.fn(os.path.abspath(out), args.quick or args.smoke, args.quiet,
+                                                         **opts))
     else:
-        out, bad = _cluster_run(args, lambda: run_experiment(args.name, out, quick=args.quick, quiet=args.quiet))
+        out, bad = _cluster_run(args, lambda: run_experiment(args.name, out, quick=args.quick, quiet=args.quiet,
+                                                             smoke=args.smoke))
     print(f"wrote reproduction '{args.name}' to {out} (open {os.path.join(out, 'report.html')})")
     return max(_report_failures(out), bad)
 
@@ -383,18 +391,39 @@ def cmd_view(args) -> int:
 
 
 def cmd_demo(args) -> int:
-    from .experiments.compare import run_compare
     from .experiments.runner import parse_res
-    from .techniques.base import technique_names
 
     _setup(args)
-    names = technique_names()
-    techs = [t for t in ("ddgi", "path") if t in names]
-    out = run_compare("cornell-moving-light", techs, args.out, frames=args.frames, res=parse_res(args.res),
-                      budget="equal-frames", seed=0, ref_spp=args.ref_spp, quiet=args.quiet, params={})
-    print(f"demo written to {out}: frames, video, metrics.csv, summary.md, report.html")
-    with open(os.path.join(out, "summary.md")) as f:
-        print(f.read())
+    res = parse_res(args.res) if args.res else None
+    if args.classic:     # the former demo: ddgi and path on the animated Cornell box
+        from .experiments.compare import run_compare
+        from .techniques.base import technique_names
+
+        names = technique_names()
+        techs = [t for t in ("ddgi", "path") if t in names]
+        out = run_compare("cornell-moving-light", techs, args.out, frames=args.frames or 16, res=res or (160, 120),
+                          budget="equal-frames", seed=0, ref_spp=args.ref_spp or 256, quiet=args.quiet, params={})
+        print(f"demo written to {out}: frames, video, metrics.csv, summary.md, report.html")
+        with open(os.path.join(out, "summary.md")) as f:
+            print(f.read())
+        return _report_failures(out)
+    import json
+
+    from .experiments.demo import run_tour, select_sections
+
+    secs = select_sections(args.sections.split(",") if args.sections else None)
+    out = run_tour(args.out, "quick" if args.quick else "tour", [s.key for s in secs], quiet=args.quiet, res=res,
+                   frames=args.frames, ref_spp=args.ref_spp)
+    with open(os.path.join(out, "summary.json")) as f:
+        summary = json.load(f)
+    print(f"demo written to {out} in {summary['wall_s']:.0f} s: one section per paper, each against its baseline")
+    for s in summary["sections"]:
+        agrees = {True: "yes", False: "no"}.get(s["measured"]["agrees"], "n/a")
+        print(f"  {s['title']} ({s['scene']}): {s['measured']['text']} [as the paper: {agrees}]")
+    print(f"open {os.path.join(out, 'report.html')}")
+    prog = os.path.relpath(sys.argv[0]) if os.path.basename(sys.argv[0]) == "dyngi" else "dyngi"
+    view = summary["sections"][0]["view"] if summary["sections"] else "dyngi view tunnel-gate --techniques qddgi,adgi"
+    print(f"explore further in the browser: {prog}{view[len('dyngi'):]}")
     return _report_failures(out)
 
 
@@ -529,6 +558,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("name", nargs="?", help="experiment name (see --list)")
     s.add_argument("--list", action="store_true", help="list the registered experiments")
     s.add_argument("--quick", action="store_true", help="a small version (minutes on 2 CPU cores)")
+    s.add_argument("--smoke", action="store_true",
+                   help="the --quick code path at a tiny size (seconds): checks that it runs, measures nothing")
     s.add_argument("--out", default=None, help="output folder (default out/reproduce/NAME[-quick])")
     s.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
                    help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
@@ -563,11 +594,23 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
     s.set_defaults(fn=cmd_view)
 
-    s = sub.add_parser("demo", help="the main job: compare techniques on an animated Cornell box")
+    s = sub.add_parser("demo", help="the main job: a short tour of the five papers' techniques, each on its analog "
+                                    "scene against its baseline, in one report.html")
     s.add_argument("--out", default="out/demo")
-    s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=256,
-                   help="ground-truth spp (256: relMSE of the reference ~7e-4, far below the errors shown)")
-    common(s, frames_default=16, res_default="160x120")
+    s.add_argument("--quick", action="store_true",
+                   help="a tiny tour (32x18, 2 frames, 4-spp references): the set-up and the report, not the claims")
+    s.add_argument("--sections", default=None, metavar="A,B,...",
+                   help="only these sections (adgi, isddgi, ddgi-resampling, smcir, vlc, cdq; default all)")
+    s.add_argument("--classic", action="store_true",
+                   help="the former demo instead: ddgi and path on cornell-moving-light (16 frames, 160x120, 256 spp)")
+    s.add_argument("--ref-spp", type=_positive("--ref-spp"), default=None,
+                   help="ground-truth spp (default 64 for the tour, 4 with --quick, 256 with --classic)")
+    s.add_argument("--frames", type=_positive("--frames"), default=None,
+                   help="frames per section (default 8; 2 with --quick; 16 with --classic)")
+    s.add_argument("--res", default=None, help="image size WxH (default 96x54; 32x18 with --quick; 160x120 with --classic)")
+    s.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
+                   help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.set_defaults(fn=cmd_demo)
     return p
 

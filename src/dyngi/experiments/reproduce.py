@@ -27,6 +27,7 @@ Experiments
 """
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import os
@@ -82,11 +83,65 @@ def get_experiment(name: str) -> Experiment:
     return EXPERIMENTS[name]
 
 
-def run_experiment(name: str, out_dir: str, quick: bool = False, quiet: bool = True) -> str:
-    """Run experiment ``name`` into ``out_dir`` (written atomically); return its absolute path."""
+def run_experiment(name: str, out_dir: str, quick: bool = False, quiet: bool = True, smoke: bool = False) -> str:
+    """Run experiment ``name`` into ``out_dir`` (written atomically); return its absolute path.
+    ``smoke``: the ``--quick`` run at the smoke size (:func:`smoke_size`)."""
     exp = get_experiment(name)
     check_writable(out_dir)
+    if smoke:
+        with smoke_size(name):
+            return exp.fn(os.path.abspath(out_dir), True, quiet)
     return exp.fn(os.path.abspath(out_dir), quick, quiet)
+
+
+_R = "dyngi.experiments.reproductions."
+SMOKE: dict[str, tuple[str, str, dict]] = {
+    "ddgi": (__name__, "DDGI_QUICK", {"res": (32, 24), "frames": 3, "ref_spp": 8, "before": 3, "after": 5}),
+    "adgi": (_R + "adgi", "ADGI_QUICK", {"res": (16, 12), "dt": 1.0, "hold": 2, "ref_spp": 4, "static_frames": 3,
+                                         "reference": {"texels": 4, "rays_per_texel": 2}}),
+    "isddgi": (_R + "isddgi", "ISDDGI_QUICK", {"scenes": ("corridor-rooms",), "res": (16, 12), "frames": 2,
+                                               "ref_spp": 4}),
+    "ddgi-resampling": (_R + "ddgi_resampling", "QUICK", {"scenes": ("cornell-static",), "res": (16, 9),
+                                                          "max_frames": 6, "ref_spp": 4}),
+    "smcir": (_R + "smcir", "SMCIR_QUICK", {"scenes": ("maze",), "res": (16, 12), "frames": 2, "ref_spp": 4,
+                                            "specs": ("mir:resampling_rate=16", "ir", "tcas:iterations=2",
+                                                      "smcir:warmup=2")}),
+    "vlc": (_R + "vlc", "VLC_QUICK", {"res": (16, 9), "frames": 2, "ref_spp": 4, "extras_on": ()}),
+    "cdq": (_R + "cdq", "CDQ_QUICK", {"scenes_a": ("sky-pit-sun-disc",), "res_a": (16, 9), "frames_a": 4,
+                                      "warmup_a": 2, "res_b": (12, 12), "pre_b": 10, "post_b": 4, "runs_b": 1,
+                                      "ref_spp": 4, "bits": (32,)}),
+}
+"""The smoke size of every experiment: ``(module, name of its --quick configuration, the settings that
+replace the quick ones)``. A smoke run takes the ``--quick`` code path at a tiny size (seconds to ~30 s on
+2 cores, references included): a test that every reproduction runs end to end and writes its report,
+not a measurement (its report still calls itself a quick run)."""
+
+
+@contextlib.contextmanager
+def smoke_size(name: str):
+    """Within this block experiment ``name``'s ``--quick`` configuration holds its :data:`SMOKE` settings
+    (changed in place, restored on exit; the experiment reads it when it starts). An experiment without a
+    smoke size, or whose quick configuration lost a key the smoke size sets, is an error."""
+    import importlib
+
+    from ..errors import DyngiError
+
+    get_experiment(name)
+    if name not in SMOKE:
+        raise DyngiError(f"experiment '{name}' has no smoke size (reproduce.SMOKE); experiments with one: "
+                         + ", ".join(sorted(SMOKE)))
+    module, attr, settings = SMOKE[name]
+    cfg = getattr(importlib.import_module(module), attr)
+    missing = sorted(set(settings) - set(cfg))
+    if missing:
+        raise DyngiError(f"smoke size of '{name}': {module}.{attr} has no setting(s) {', '.join(missing)}")
+    saved = dict(cfg)
+    cfg.update(settings)
+    try:
+        yield cfg
+    finally:
+        cfg.clear()
+        cfg.update(saved)
 
 
 def paper_table(rows) -> str:
