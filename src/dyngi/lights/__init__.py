@@ -10,7 +10,7 @@ import pkgutil
 from .base import (INVALID, REGISTRY, EmitterTable, FrameCtx, LightSampler, describe, emitter_kind, entry, make,
                    names, options, register)
 
-_INFRA = {"base", "nee"}
+_INFRA = {"base", "nee", "candidates"}
 _found = False
 UNAVAILABLE: dict = {}
 """Sampler modules that failed to import (name -> reason): not registered, so not a valid ``lights=``."""

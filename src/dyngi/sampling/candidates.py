@@ -74,15 +74,24 @@ class LightEval:
 class EmitterCandidates:
     """Samples and evaluates light candidates ``(k, payload)`` of a Mitsuba scene (see module docstring)."""
 
-    def __init__(self, mi_scene):
+    def __init__(self, mi_scene, keep=None):
+        """``keep(emitter) -> bool`` (optional): only these emitters are sampled (the others get pmf 0;
+        ``count_kept`` of them), as :class:`dyngi.lights.candidates.LightCandidates` needs for the
+        emitters that are not triangles of the emitter table."""
         self.mi_scene = mi_scene
         self.emitters = list(mi_scene.emitters())
         self.count = len(self.emitters)
+        kept = np.array([keep is None or bool(keep(e)) for e in self.emitters], bool)
+        self.count_kept = int(kept.sum())
         if not self.count:
             return
         w = np.array([float(e.sampling_weight()) for e in self.emitters], np.float64)
         if w.sum() <= 0:
             w[:] = 1.0
+        if keep is not None and self.count_kept:
+            w = np.where(kept, w, 0.0)
+            if w.sum() <= 0:
+                w = kept.astype(np.float64)
         self.pmf_host = w / w.sum()
         self.kinds_host = np.array([emitter_kind(e) for e in self.emitters], np.uint32)
         self.table = mi.DiscreteDistribution(self.pmf_host.astype(np.float32))

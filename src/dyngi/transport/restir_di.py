@@ -173,7 +173,7 @@ class ReSTIRDI:
     reservoir) uses the same temporal and spatial reuse."""
 
     def __init__(self, scene, candidates: int = 32, temporal: bool = True, m_cap: float = 20.0, spatial: int = 3,
-                 radius: float = 30.0, combine: str = "mis", target_fn=target):
+                 radius: float = 30.0, combine: str = "mis", target_fn=target, cand=None):
         self.scene = scene
         self.target_fn = target_fn
         self.m = int(candidates)
@@ -182,7 +182,8 @@ class ReSTIRDI:
         self.spatial = int(spatial)
         self.radius = float(radius)
         self.combine = combine
-        self.cand = EmitterCandidates(scene.mi_scene)
+        # the candidates' source: Mitsuba's emitters (default) or a light sampler's (dyngi.lights.candidates)
+        self.cand = cand if cand is not None else EmitterCandidates(scene.mi_scene)
         ids = self.cand.fast_shape_ids() if self.cand.count else set()
         # animators that move an emissive mesh or change its radiance: the triangle table follows them
         self.light_anim = any((getattr(a, "shape", None) in ids)
