@@ -422,7 +422,7 @@ def write_tour_report(out_dir: str, secs, results, size: Size, wall_s: float) ->
              "<table><tr><th>section</th><th>scene</th><th>measured here</th><th>as the paper?</th></tr>"]
     for sec, r in zip(secs, results):
         v = r["measured"]["agrees"]
-        parts.append(f"<tr><td><a href='#{sec.key}'>{html.escape(sec.title)}</a></td><td>{sec.scene}</td>"
+        parts.append(f"<tr><td><a href='#{sec.key}'>{html.escape(sec.title)}</a></td><td style='text-align:left'>{sec.scene}</td>"
                      f"<td style='text-align:left'>{html.escape(r['measured']['text'])}</td>"
                      f"<td class='{'yes' if v else 'no'}' title='{html.escape(sec.check)}'>{_verdict(v)}</td></tr>")
     parts.append("</table>")
