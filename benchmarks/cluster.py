@@ -1,7 +1,7 @@
 """Speed-up of `dyngi reference` and `dyngi sweep` on 1, 2 and 4 local Ray workers against the serial run.
 
     .venv/bin/python benchmarks/cluster.py [--frames 4] [--spp 512] [--res 160x120] [--workers 1,2,4]
-                                           [--sweep-frames 10] [--out bench-cluster.json]
+                                           [--sweep-frames 10] [--repeat K] [--out bench-cluster.json]
 
 Every configuration runs in a fresh process (its own Dr.Jit thread pool, its own Ray instance) on a fresh
 reference cache, in one run of this script, so the serial baselines and the cluster runs see the same
@@ -113,6 +113,9 @@ def main(argv=None) -> int:
     p.add_argument("--sweep-ref-spp", type=int, default=64)
     p.add_argument("--seeds", type=int, default=2)
     p.add_argument("--skip", default="", help="comma-separated jobs to skip: reference, sweep")
+    p.add_argument("--repeat", type=int, default=1,
+                   help="run the whole list this many times, interleaved, and report each run's median "
+                        "(the load of a shared machine drifts between runs)")
     p.add_argument("--out", default=None, help="also write the results as JSON here")
     a = p.parse_args(argv)
     if a.one:
@@ -136,15 +139,21 @@ def main(argv=None) -> int:
                 "seeds": a.seeds}
         jobs += [dict(base, name="sweep serial", mode="serial")]
         jobs += [dict(base, name=f"sweep ray-{n}", mode="ray", workers=n) for n in workers]
-    for cfg in jobs:
-        cfg["cache"] = tempfile.mkdtemp(prefix="dyngi-bench-")
-        r = _run(cfg)
-        results["runs"].append(r)
-        print(f"{r['name']:<22} job {r['job_s']:7.1f} s" + (f"  (Ray start {r['start_s']:.1f} s, "
-              f"{r['workers']} workers)" if "start_s" in r else f"  ({r['threads']} Dr.Jit threads)"), flush=True)
+    for rep in range(a.repeat):
+        for cfg in jobs:
+            cfg = dict(cfg, cache=tempfile.mkdtemp(prefix="dyngi-bench-"))
+            r = _run(cfg)
+            r["repeat"] = rep
+            results["runs"].append(r)
+            print(f"{r['name']:<22} job {r['job_s']:7.1f} s" + (f"  (Ray start {r['start_s']:.1f} s, "
+                  f"{r['workers']} workers)" if "start_s" in r else f"  ({r['threads']} Dr.Jit threads)")
+                  + f"  [{_uptime().split('load average:')[-1].strip()}]", flush=True)
     results["uptime_after"] = _uptime()
     print(f"after: {results['uptime_after']}")
-    by = {r["name"]: r for r in results["runs"]}
+    by = {}
+    for r in results["runs"]:      # the median run of each configuration
+        by.setdefault(r["name"], []).append(r)
+    by = {k: sorted(v, key=lambda r: r["job_s"])[len(v) // 2] for k, v in by.items()}
     lines = ["", "| job | run | seconds | speed-up vs ray-1 | ideal | vs serial |", "|---|---|---|---|---|---|"]
     for job in ("reference", "sweep"):
         one, ser = by.get(f"{job} ray-1"), by.get(f"{job} serial")
