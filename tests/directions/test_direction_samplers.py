@@ -95,3 +95,32 @@ def test_unknown_direction_sampler_raises(backend):
         directions.make("nope")
     with pytest.raises(DyngiError):
         directions.make("cdq")          # the mixture needs a learned CDQ
+
+
+def test_path_with_cdq_directions_is_unbiased(backend):
+    """path:directions=cdq (the walk with the CDQ/BSDF mixture, learning over the frames) against path."""
+    import os
+    import sys
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "techniques"))
+    from stats import z_test_images
+    from test_path import _glossy_scene, _ours
+    from dyngi.directions.walk import WalkDirections
+    sc = _glossy_scene()
+    res, spp, K = (16, 12), 8, 12
+
+    class F:
+        time = 0.0
+
+    wd = WalkDirections(sc, "cdq", bits=64)
+    a = []
+    for i in range(K):
+        F.index = i
+        wd.begin_frame(sc, F, 2 * res[0] * res[1] * spp)
+        a.append(_ours(sc, res, spp, i, 4, directions=wd))
+        wd.end_frame()
+    assert wd.stats()["cdq_migrations_total"] > 0          # it learned something
+    b = np.stack([_ours(sc, res, spp, i, 4, seed0=9000) for i in range(K)])
+    a = np.stack(a)
+    assert np.all(np.isfinite(a)) and a.mean() > 0
+    ok, info = z_test_images(a, b)
+    assert ok, f"path:directions=cdq disagrees with path: {info}"

@@ -28,6 +28,7 @@ indirect : bool = True  also return ``FrameResult.indirect``: the same paths
                         primary vertex (vertices >= 3; :func:`~dyngi.transport.path_walk.trace_paths_split`),
                         unclamped; costs < 1% (measured, cornell-static 160x120)
 lights : str = 'scene'  NEE light sampler (``dyngi techniques`` lists the registered ones)
+directions : str = 'bsdf'  indirect directions: the BSDF, or 'cdq' (:class:`dyngi.directions.walk.WalkDirections`)
 
 Budgets: with ``Frame.ray_budget`` the frame's spp is the budget divided by
 the rays per sample measured on the previous frame; with
@@ -40,7 +41,9 @@ from __future__ import annotations
 
 import math
 
+from .. import directions as direction_samplers
 from .. import lights as light_samplers
+from ..directions.walk import WalkDirections
 from ..backend import dr, mi
 from ..lights.nee import LightNEE
 from ..sampling.lights import EmitterSampling
@@ -74,12 +77,18 @@ class PathTechnique(Technique):
         "indirect": Param(True, "also return the indirect-only image (same paths, vertices >= 3)"),
         "lights": Param("scene", "NEE light sampler: 'scene' (Mitsuba's emitter sampling) or a dyngi.lights "
                         "sampler over the emitter triangles", choices=("scene",) + light_samplers.names()),
+        "directions": Param("bsdf", "indirect directions (dyngi.directions): the BSDF's own sampling, or 'cdq' "
+                            "(CDQ/BSDF one-sample MIS mixture, learned per octree leaf)",
+                            choices=direction_samplers.names()),
     }
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
         kind = self.params["lights"]
         self.lights = EmitterSampling() if kind == "scene" else LightNEE(scene, kind)
+        # the BSDF's own sampling is the walk's default (None): bit-identical to before
+        self.directions = None if self.params["directions"] == "bsdf" else WalkDirections(scene,
+                                                                                          self.params["directions"])
         self.accum = ProgressiveMean()   # running mean, and its indirect part (with the 'indirect' parameter)
         self._rays_per_sample = None   # measured on the previous frame
         self._ms_per_sample = None
@@ -106,13 +115,17 @@ class PathTechnique(Technique):
         if learned:     # the light sampler's per-frame hook (rebuild, cache construction)
             with t.stage("lights"):
                 self.lights.begin_frame(self.scene, frame, 2 * npix * spp)
+        if self.directions is not None:
+            with t.stage("directions"):
+                self.directions.begin_frame(self.scene, frame, 2 * npix * spp)
         if (frame.ray_budget is not None or frame.time_budget_ms is not None) and self._rays_per_sample is None:
             # -- first budgeted frame: nothing measured yet; a 1-spp pilot measures rays and ms per
             #    sample, and its sample counts towards the frame's budget --
             with t.stage("pilot"):
                 pilot = render_paths_split(self.scene, frame.camera, frame.res, 1,
                                            mix_seed(frame.seed, 1, _PILOT_STREAM), frame.index, p["max_depth"],
-                                           p["rr_depth"], self.lights, p["mis"] == "power", split)
+                                           p["rr_depth"], self.lights, p["mis"] == "power", split,
+                                           self.directions)
                 dr.eval(*pilot)
             t.add_rays("pilot", int(pilot[2][0]))
             self._rays_per_sample = t.rays["pilot"] / npix
@@ -122,7 +135,7 @@ class PathTechnique(Technique):
             if spp > 0:
                 L, L_ind, rays = render_paths_split(self.scene, frame.camera, frame.res, spp, frame.seed,
                                                     frame.index, p["max_depth"], p["rr_depth"], self.lights,
-                                                    p["mis"] == "power", split)
+                                                    p["mis"] == "power", split, self.directions)
                 if pilot is not None:   # sample-weighted mean of pilot and trace
                     wp = dr.opaque(mi.Float, 1.0 / (spp + 1))
                     L = dr.fma(pilot[0] - L, wp, L)
@@ -139,6 +152,9 @@ class PathTechnique(Technique):
         if learned:
             with t.stage("lights adapt"):
                 self.lights.end_frame()
+        if self.directions is not None:
+            with t.stage("directions adapt"):
+                self.directions.end_frame()
         if spp > 0:
             self._rays_per_sample = t.rays["trace"] / (npix * spp)
             self._ms_per_sample = t.ms["trace"] / spp

@@ -87,13 +87,36 @@ def _light_sample(lights, scene, si, sampler, active, depth):
     return sample_traced(lights, scene, si, sampler.next_2d(), active)
 
 
+def _dir_vertex(directions, si, bsdf, active):
+    """The vertex a direction strategy sees (None for the BSDF's own sampling)."""
+    return None if directions is None else directions.vertex(si, bsdf, active)
+
+
+def _dir_pdf(directions, vtx, wo, active, bsdf_pdf):
+    """BSDF-side pdf of the NEE sample's MIS weight: the BSDF's, or the direction strategy's."""
+    return bsdf_pdf if directions is None else directions.pdf(vtx, wo, active)
+
+
+def _bounce(directions, vtx, bsdf, ctx, si, sampler, active, L, beta, depth):
+    """Next direction: (world direction, weight f cos / pdf, pdf, delta lobe, eta), by the BSDF or by a
+    direction strategy (which records its sample for learning)."""
+    if directions is None:
+        bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active)
+        return si.to_world(bs.wo), bsdf_weight, bs.pdf, mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta), bs.eta
+    d = directions.sample(vtx, sampler, active)
+    directions.record(vtx, d, L, beta, depth)
+    ok = mi.Bool(d.ok)
+    return d.wo, dr.select(ok, d.weight, 0.0), dr.select(ok, d.pdf, 0.0), mi.Bool(d.delta), mi.Float(1.0)
+
+
 @dr.syntax
 def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None, power_heuristic: bool = True,
          si=None, emission=None, nee=None, terminate=None, total: bool = True, split: bool = False,
-         near: bool = False) -> PathResult:
+         near: bool = False, directions=None) -> PathResult:
     """Trace one path per lane (module docstring); ``si``: start at these surface interactions
     (``ray``: the rays that reached them), else intersect ``ray`` first. ``total``/``split``/``near``:
-    which of ``L``/``L_ind``/``L_near`` to sum."""
+    which of ``L``/``L_ind``/``L_near`` to sum. ``directions``: a direction strategy
+    (:class:`dyngi.directions.walk.WalkDirections`) instead of the BSDF's own sampling."""
     lights = lights if lights is not None else EmitterSampling()
     max_depth = mi.UInt32(0xFFFFFFFF) if max_depth < 0 else mi.UInt32(max_depth)
     rr_depth_u = mi.UInt32(rr_depth)
@@ -110,6 +133,8 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
     first_valid = active & si.is_valid()
     if hasattr(lights, "begin_walk"):     # a learning light sampler's record buffers (dyngi.lights.nee)
         lights.begin_walk(dr.width(active))
+    if directions is not None:            # a learning direction sampler's record buffers
+        directions.begin_walk(dr.width(active))
     L = mi.Spectrum(0.0)
     L_ind = mi.Spectrum(0.0)
     L_near = mi.Spectrum(0.0)
@@ -149,6 +174,8 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
         n_rays += mi.UInt32(active_em)
         wo = si.to_local(ds_em.d)
         bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
+        vtx = _dir_vertex(directions, si, bsdf, active_next)
+        bsdf_pdf = _dir_pdf(directions, vtx, ds_em.d, active_em, bsdf_pdf)
         w_em = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, bsdf_pdf, power_heuristic))
         if total:
             L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_em, L)
@@ -158,12 +185,12 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
             L_near[active_em & (depth == 0)] = dr.fma(beta, bsdf_val * em_weight * w_em, L_near)
 
         # -- BSDF sampling --
-        bs, bsdf_weight = bsdf.sample(ctx, si, sampler.next_1d(), sampler.next_2d(), active_next)
-        delta_lobe = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        ray = si.spawn_ray(si.to_world(bs.wo))
+        wo_w, bsdf_weight, s_pdf, delta_lobe, s_eta = _bounce(directions, vtx, bsdf, ctx, si, sampler, active_next,
+                                                               L, beta, depth)
+        ray = si.spawn_ray(wo_w)
         beta *= bsdf_weight
         prev_si = dr.detach(si, True)
-        prev_pdf = bs.pdf
+        prev_pdf = s_pdf
         prev_delta = delta_lobe
         depth += 1
         # the next vertex contributes if it counts emission or is not the last one
@@ -172,20 +199,22 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
         # -- Russian roulette --
         beta_max = dr.max(beta)
         rr_active = depth >= rr_depth_u
-        rr_prob = dr.minimum(beta_max * dr.square(bs.eta), 0.95)
+        rr_prob = dr.minimum(beta_max * dr.square(s_eta), 0.95)
         rr_continue = sampler.next_1d() < rr_prob
         beta[rr_active] *= dr.rcp(rr_prob)
-        active = active_next & useful & (~rr_active | rr_continue) & (beta_max != 0.0) & (bs.pdf > 0.0)
+        active = active_next & useful & (~rr_active | rr_continue) & (beta_max != 0.0) & (s_pdf > 0.0)
 
         si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
         n_rays += mi.UInt32(active)
 
+    if directions is not None:
+        directions.end_walk(L)
     return PathResult(L if total else None, L_ind if split else None, L_near if near else None, n_rays,
                       first_valid)
 
 
 def trace_paths_split(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None,
-                      power_heuristic: bool = True, split: bool = True):
+                      power_heuristic: bool = True, split: bool = True, directions=None):
     """Camera-ray paths; return (radiance, indirect radiance, rays per lane, first-hit validity).
 
     The indirect part (with ``split``; else it is 0) sums the same terms as the full radiance except
@@ -193,7 +222,8 @@ def trace_paths_split(scene, sampler, ray, active, max_depth: int, rr_depth: int
     sample: light that reflected at least once before the first vertex (vertices >= 3). Both come from
     the same paths, so ``full - indirect`` is each sample's emission + direct light, and
     ``indirect <= full`` per sample."""
-    r = walk(scene, sampler, ray, active, max_depth, rr_depth, lights, power_heuristic, split=split)
+    r = walk(scene, sampler, ray, active, max_depth, rr_depth, lights, power_heuristic, split=split,
+             directions=directions)
     L_ind = r.L_ind if split else mi.Spectrum(0.0)
     return r.L, L_ind, r.n_rays, r.first_valid
 
@@ -206,22 +236,22 @@ def trace_paths(scene, sampler, ray, active, max_depth: int, rr_depth: int, ligh
     the papers compare (same definition as the indirect reference: depth-D minus depth-2). Nothing is
     clamped: every term dropped is a non-negative sample contribution."""
     L, L_ind, n_rays, first_valid = trace_paths_split(scene, sampler, ray, active, max_depth, rr_depth, lights,
-                                                      power_heuristic, split=indirect_only)
+                                                      power_heuristic, split=indirect_only, directions=directions)
     return (L_ind if indirect_only else L), n_rays, first_valid
 
 
 def render_paths(scene, camera, res, spp: int, seed: int, frame_index: int, max_depth: int,
-                 rr_depth: int, lights=None, power_heuristic=True, indirect_only=False):
+                 rr_depth: int, lights=None, power_heuristic=True, indirect_only=False, directions=None):
     """Render ``spp`` paths per pixel; return (mean colour per pixel, total rays as a Dr.Jit UInt32 sum).
 
     ``indirect_only``: the indirect part only (see :func:`trace_paths`)."""
     L, L_ind, rays = render_paths_split(scene, camera, res, spp, seed, frame_index, max_depth, rr_depth, lights,
-                                        power_heuristic, split=indirect_only)
+                                        power_heuristic, split=indirect_only, directions=directions)
     return (L_ind if indirect_only else L), rays
 
 
 def render_paths_split(scene, camera, res, spp: int, seed: int, frame_index: int, max_depth: int,
-                       rr_depth: int, lights=None, power_heuristic=True, split: bool = True):
+                       rr_depth: int, lights=None, power_heuristic=True, split: bool = True, directions=None):
     """Render ``spp`` paths per pixel; return (mean colour, mean indirect colour, total rays as a UInt32 sum).
 
     The indirect image comes from the same paths (:func:`trace_paths_split`); without ``split`` it is
@@ -233,7 +263,8 @@ def render_paths_split(scene, camera, res, spp: int, seed: int, frame_index: int
     pix = idx // dr.opaque(mi.UInt32, spp) if spp > 1 else idx
     ray = camera.sample_rays(res, pix, sampler.next_2d())
     L, L_ind, n_rays, _ = trace_paths_split(scene.mi_scene if hasattr(scene, "mi_scene") else scene, sampler,
-                                            ray, mi.Bool(True), max_depth, rr_depth, lights, power_heuristic, split)
+                                            ray, mi.Bool(True), max_depth, rr_depth, lights, power_heuristic, split,
+                                            directions)
     if split:
         dr.eval(L, L_ind, n_rays)  # one kernel for the whole path loop; outputs evaluated together
     else:
