@@ -143,3 +143,19 @@ def test_restir_pt_candidates_from_light_sampler_are_unbiased(backend, kind):
     assert np.all(np.isfinite(a)) and a.mean() > 0
     ok, info = z_test_images(a, b)
     assert ok, f"restir-pt:lights={kind} disagrees with restir-pt: {info}"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("spec", ["path:lights=vlc", "path:directions=cdq", "restir-pt:lights=vlc"])
+def test_steady_frames_with_samplers_compile_nothing(backend, spec):
+    from helpers import assert_steady_state_compiles_nothing
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+    sc = load_scene("warehouse-lights")
+    tech = create_technique(spec, sc)
+
+    def step(f):
+        sc.at(0.0)
+        tech.step(Frame(f, 0.0, sc.camera(0.0), (32, 24), seed=7 + f))
+
+    assert_steady_state_compiles_nothing(step, 7, 4, nonempty=True)
