@@ -607,7 +607,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="ground-truth spp (default 64 for the tour, 4 with --quick, 256 with --classic)")
     s.add_argument("--frames", type=_positive("--frames"), default=None,
                    help="frames per section (default 8; 2 with --quick; 16 with --classic)")
-    s.add_argument("--res", default=None, help="image size WxH (default 96x54; 32x18 with --quick; 160x120 with --classic)")
+    s.add_argument("--res", default=None, help="image size WxH (default 96x54; 32x18 with --quick; 160x120 with "
+                                               "--classic); the tour's VLC section runs at twice it")
     s.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
                    help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
     s.add_argument("--quiet", action="store_true", help="no progress bar")

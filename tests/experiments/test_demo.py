@@ -181,6 +181,23 @@ def test_tour_report_figures_readable_in_chromium(tmp_path):
     assert len(boxes) == 2 * len(demo.SECTIONS)
 
 
+@pytest.mark.timeout(120)
+def test_figure_check_fails_on_overlap_and_broken_images(tmp_path):
+    """The figure check can fail: a figure drawn over another, and an image that does not load."""
+    from dyngi.experiments.report import data_uri
+
+    _need_chromium()
+    _png(str(tmp_path / "a.png"), 300, 200)
+    uri = data_uri(str(tmp_path / "a.png"), "image/png")
+    (tmp_path / "overlap.html").write_text(
+        f"<html><body><img src='{uri}'><img src='{uri}' style='position:absolute;left:100px;top:50px'></body></html>")
+    with pytest.raises(AssertionError):
+        figures_readable(str(tmp_path / "overlap.html"))
+    (tmp_path / "broken.html").write_text(f"<html><body><img src='{uri}'><img src='missing.png'></body></html>")
+    with pytest.raises(AssertionError):
+        figures_readable(str(tmp_path / "broken.html"))
+
+
 @pytest.fixture(scope="module")
 def quick_tour(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo") / "out"
