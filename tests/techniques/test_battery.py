@@ -223,8 +223,17 @@ def furnace_indirect_expected(a: float, e: float, max_depth) -> float:
     return furnace_expected(a, e, max_depth) - furnace_expected(a, e, direct_depth)
 
 
-@pytest.mark.parametrize("kind", sorted(FURNACES))
-@pytest.mark.parametrize("name", NAMES)
+def _sampled(values, id_of=str):
+    """The fast suite samples a technique x variant grid: technique ``i`` runs variant ``i mod n`` in the
+    fast suite and the others as ``slow`` (so every variant is covered in the fast suite by some technique,
+    and every pair by ``-m slow``)."""
+    for i, name in enumerate(NAMES):
+        for j, v in enumerate(values):
+            marks = [] if j == i % len(values) else [pytest.mark.slow]
+            yield pytest.param(name, v, marks=marks, id=f"{name}-{id_of(v)}")
+
+
+@pytest.mark.parametrize("name, kind", list(_sampled(sorted(FURNACES))))
 def test_furnace(backend, name, kind):
     if not attr(name, "FURNACE"):
         reason = attr(name, "FURNACE_REASON")
@@ -257,8 +266,7 @@ def test_furnace(backend, name, kind):
     assert worst < slack, f"{name} furnace-{kind}: a block mean is off by {worst:.4f} (allowed {slack:.4f})"
 
 
-@pytest.mark.parametrize("depth", [2, 3])
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name, depth", list(_sampled([2, 3])))
 def test_furnace_depth_limited(backend, name, depth):
     """Techniques with a ``max_depth`` parameter: the furnace gives the truncated geometric series."""
     if "max_depth" not in get_technique(name).PARAMS:
@@ -330,10 +338,13 @@ def plane_scene(light: str):
 
 
 def _plane_cases():
-    for name in NAMES:
-        for light in PLANE_LIGHTS:
+    """Each technique under one light in the fast suite (rotated, as :func:`_sampled`), the others slow."""
+    for i, name in enumerate(NAMES):
+        for j, light in enumerate(PLANE_LIGHTS):
             reason = _known_failure(name, light)
             marks = [pytest.mark.xfail(reason=reason, strict=True)] if reason else []
+            if j != i % len(PLANE_LIGHTS):
+                marks.append(pytest.mark.slow)
             yield pytest.param(name, light, marks=marks, id=f"{name}-{light}")
 
 
