@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # dyngi launcher: sets up .venv (packages + the libLLVM runtime Dr.Jit needs) on first use, then
-#   bash run.sh demo [--out DIR] [...]   the main job (frames, video, metrics table, report)
+#   bash run.sh demo [--out DIR] [...]   the main job: a tour of the five papers, each vs its baseline (report.html)
 #   bash run.sh test [pytest args]       the test suite (installs Debian's chromium for the browser tests)
 #   bash run.sh dyngi ARGS...            any dyngi command
 set -euo pipefail
