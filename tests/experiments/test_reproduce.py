@@ -22,6 +22,7 @@ def test_list_and_unknown_experiment(backend, capsys):
     assert f"registered experiments: {valid}" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_ddgi_quick_writes_report_with_paper_table(backend, tmp_path, monkeypatch):
     """Under 3 minutes on 2 cores (references included); reuses the evaluation and the report writer,
     not ``run_compare``."""

@@ -141,7 +141,7 @@ ANALOGS = {
     "light-behind-glass": lambda: load_scene("light-behind-glass"),
     "room-metal-furniture": lambda: load_scene("room-metal-furniture"),
 }
-SLOW_ANALOGS = ("sun-only", "sky-only")
+SLOW_ANALOGS = ("sun-only", "sky-only", "light-behind-glass", "room-sun-blinds")   # the longest: slow (CI budget)
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_ANALOGS else n

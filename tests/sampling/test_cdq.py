@@ -288,7 +288,8 @@ def _neept_frames(scene, spec, frames, res, keep_from, seed=0):
     return np.stack(out), tech
 
 
-@pytest.mark.parametrize("lights", ("vlc", "sll", "lighttree"))
+@pytest.mark.parametrize("lights", ("vlc", pytest.param("sll", marks=pytest.mark.slow),
+                                    pytest.param("lighttree", marks=pytest.mark.slow)))
 def test_all_six_combinations_run(backend, lights):
     """Sec. 7.1's six combinations {vlc, sll, lighttree} x {cdq, bsdf} run and give finite images."""
     from dyngi.scene.library import make_builtin

@@ -58,6 +58,7 @@ def test_static_scene_converges_to_ddgi(adgi):
     assert np.all(np.asarray(a.hstate.fdv) == 0) and np.all(np.asarray(a.hstate.fdr) == 0)
 
 
+@pytest.mark.slow
 def test_moving_object_is_finite_and_fires_the_dynamic_chains(adgi):
     sc = load_scene("cornell-moving-box")
     lo, hi = (np.asarray(v, float) for v in sc.meta.probe_box)
