@@ -229,7 +229,7 @@ def trace_paths_split(scene, sampler, ray, active, max_depth: int, rr_depth: int
 
 
 def trace_paths(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None,
-                power_heuristic: bool = True, indirect_only: bool = False):
+                power_heuristic: bool = True, indirect_only: bool = False, directions=None):
     """Camera-ray paths; return (radiance, rays traced per lane, first-hit validity).
 
     ``indirect_only`` keeps only the indirect part (:func:`trace_paths_split`): the "indirect" image
