@@ -148,8 +148,12 @@ def test_stochastic_lookup_loop_matches_unrolled(cornell_volume):
 
 def _dead_cell_volume(values=None, seed=0):
     """A 4x4x4 unit grid whose centre cell (probes (1..2)^3) is all inactive; the other probes hold
-    ``values`` (default: random per probe and texel) as stored E/pi."""
+    ``values`` (default: random per probe and texel) as stored E/pi, and distance moments of open space
+    (nothing nearer than the clamp): the fallback reads only candidates that the visibility test accepts
+    (issue 22), and zero moments would put every point behind a wall."""
     vol = ProbeVolume(ProbeGrid.from_box((0.0, 0.0, 0.0), (3.0, 3.0, 3.0), (4, 4, 4)))
+    vol.state.distance[..., 0] = vol.max_distance
+    vol.state.distance[..., 1] = vol.max_distance ** 2
     rng = np.random.default_rng(seed)
     if values is None:
         vol.state.irradiance[...] = rng.uniform(0.5, 2.0, vol.state.irradiance.shape).astype(np.float32)

@@ -1,14 +1,15 @@
-"""The thin-walled sunlit ``living-room`` (issue 15, item 7): single-layer walls, and the leak it shows.
+"""The thin-walled sunlit ``living-room`` (issue 15, item 7): single-layer walls, and the leak that stays small.
 
 * ``test_walls_are_single_layer`` -- the outer walls, the roof and the floor
   are flat polygons without thickness: every wall triangle lies in one of the
   planes ``x = +-3`` / ``z = +-2.5`` (no second, parallel layer), the ceiling
-  and the floor are one quad each;
-* ``test_ddgi_leaks_near_the_walls`` -- ``ddgi`` and ``ddgi-primary`` against
-  Mitsuba's ``path``: the luminance error of the pixels within 0.3 m of a
-  wall's or the ceiling's inside is a large positive leak (light of the sunlit
-  outside interpolated through the walls), bounded below by the recorded
-  figure and well above the error of the rest of the room.
+  and the floor are one quad each; the probe volume lies inside the house
+  (issue 22: no layer of probes outside the walls, in the sun);
+* ``test_ddgi_leak_near_the_walls_stays_small`` -- ``ddgi`` and ``ddgi-primary``
+  against Mitsuba's ``path``: the luminance error of the pixels within 0.3 m
+  of a wall's or the ceiling's inside stays small (measured +8% / +9%; with the
+  volume over the whole house, whose outer layers lay in the sun, it was
+  +65% / +60%, and this file required it to be above +35%).
 """
 from __future__ import annotations
 
@@ -44,9 +45,10 @@ def test_walls_are_single_layer():
     for name, y in (("ceiling", LIVING_H), ("floor", 0.0)):
         V, F = _mesh(sc, name)
         assert len(F) == 2 and np.allclose(V[:, 1], y)
-    # the probe volume reaches outside the walls (the configuration that leaks)
+    # the probe volume lies inside the house: no layer of probes outside the walls or above the roof
     lo, hi = (np.asarray(b) for b in sc.meta.probe_box)
-    assert lo[0] < -LIVING_X and hi[0] > LIVING_X and hi[1] > LIVING_H
+    assert lo[0] > -LIVING_X and hi[0] < LIVING_X and lo[2] > -LIVING_Z and hi[2] < LIVING_Z
+    assert 0.0 < lo[1] and hi[1] < LIVING_H
 
 
 def _near_wall_mask(sc, res):
@@ -64,7 +66,7 @@ def _leak(tech, sc, ref, near, far, frames=12, res=(64, 36)):
     return e[near].mean() / r[near].mean(), e[far].mean() / r[far].mean()
 
 
-def test_ddgi_leaks_near_the_walls():
+def test_ddgi_leak_near_the_walls_stays_small():
     sc = load_scene("living-room")
     res = (64, 36)
     ref = np.asarray(mi.render(sc.mi_scene, sensor=sc.camera(0.0).to_sensor(res, 256),
@@ -72,10 +74,14 @@ def test_ddgi_leaks_near_the_walls():
                      np.float64)
     near, far = _near_wall_mask(sc, res)
     assert near.mean() > 0.2 and far.mean() > 0.1
-    # measured (2026-12-02, 80x45, frames 8-15): ddgi +66% near the walls' inside vs +9% elsewhere;
-    # ddgi-primary +66% vs +12% (the same probes)
+    # measured (issue 22, 64x36, frames 6-11): ddgi +0.08 near the walls' inside, +0.03 elsewhere;
+    # ddgi-primary +0.09 / +0.01 (with the volume over the whole house: +0.65 / +0.11 and +0.60 / +0.08)
     for spec, params in (("ddgi", {}), ("ddgi-primary", {"candidates": 8})):
         lk, rest = _leak(create_technique(spec, sc, params), sc, ref, near, far)
         print(f"living-room leak {spec}: {lk:+.3f} near walls, {rest:+.3f} elsewhere")
-        assert lk > 0.35, (spec, lk, rest)
-        assert lk > 2.0 * abs(rest), (spec, lk, rest)
+        assert abs(lk) < LEAK_NEAR, (spec, lk, rest)
+        assert abs(rest) < LEAK_REST, (spec, lk, rest)
+
+
+LEAK_NEAR, LEAK_REST = 0.2, 0.1
+"""Bounds of the relative luminance error near the walls' inside and elsewhere (issue 22; see the test)."""

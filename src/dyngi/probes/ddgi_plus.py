@@ -270,7 +270,7 @@ class DDGIPlusVolume:
         self.grid = ProbeGrid.from_scene(scene, counts)
         self.volume = ProbeVolume(self.grid, p["irradiance_texels"], p["distance_texels"],
                                   max_distance=max(p["max_distance"] * self.grid.max_spacing,
-                                                   self.grid.cell_diagonal))
+                                                   self.grid.cell_diagonal), two_sided=p["two_sided"])
         self.query = ProbeQuery(self.volume, p["normal_bias"], p["view_bias"], visibility=p["visibility"])
         mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
         self.routing = PlusRouting(mscene)

@@ -18,13 +18,19 @@ reference GLSL; biases as in Majercik et al., JCGT 2021, Sec. 4):
    all 8 probes inactive, as behind a thin wall whose probes were all
    classified away -- the lookup reads the ``FALLBACK_PROBES`` active probes
    nearest to the cell's centre instead, weighted by the wrap weight times
-   the inverse squared distance to ``x'``, *without* the visibility test
-   (the nearest active probes may lie outside the cell, where the Chebyshev
-   test of the cell's geometry means nothing). The candidate table (per cell,
+   the inverse squared distance to ``x'`` times the corners' Chebyshev factor;
+   a candidate that the corners' visibility test would reject -- ``x'`` farther
+   than its stored mean distance, that mean short of the distance clamp (a
+   surface stored in between) and ``p^3`` at or below the floor
+   (:data:`CHEBYSHEV_FLOOR`), i.e. behind a wall as seen from it -- gets no
+   weight at all (issue 22: without the test, the nearest active probes of a
+   cell inside a sealed room were those on the sunlit roof). A lane none of
+   whose candidates is visible gets 0 (black), as the papers' blend does. The
+   test reads the candidate's own moments towards ``x'``, so it means the same
+   outside the cell as inside it. The candidate table (per cell,
    built on the host with a k-d tree) is rebuilt only when the probe states
    change (:meth:`ProbeQuery.fallback_table`); in the kernel it is
-   a second symbolic loop that only the lanes needing it enter. Only a volume
-   without any active probe returns 0.
+   a second symbolic loop that only the lanes needing it enter.
 
 The result is the irradiance ``E`` (W/m^2); the stored texels hold ``E / pi``
 (see :mod:`dyngi.probes.volume`). Interpolation is linear in ``E`` (DDGI's
@@ -60,6 +66,7 @@ ONE_MINUS_EPS = 0.99999994   # largest float32 below 1
 FALLBACK_WEIGHT = 1e-20      # a cell whose 8 weights sum to at most this falls back to the nearest active probes
 FALLBACK_PROBES = 4          # active probes per cell that the fallback reads
 FALLBACK_MIN_DISTANCE = 0.01  # floor of the fallback's inverse-distance weight, in units of the smallest spacing
+FALLBACK_OPEN = 0.999        # a candidate's stored mean distance at this fraction of the clamp: no wall that way
 
 
 def bilinear_gather(atlas, probe, coords, texels: int, channels: int):
@@ -205,6 +212,20 @@ class ProbeQuery:
 
         irr_coords = direction_to_texel_coords(lookup, vol.irradiance_texels)
 
+        def chebyshev(probe, ppos):
+            """(visible, factor): is the biased point no farther than the mean distance the probe's
+            moments store towards it, and the one-sided Chebyshev bound ``p^3`` where it is farther."""
+            bvec = ppos - bpos
+            bdist = dr.norm(bvec)
+            # the octahedral map is scale-invariant: -bvec needs no normalisation
+            dc = direction_to_texel_coords(-bvec, vol.distance_texels)
+            mom = bilinear_gather(dev.distance, probe, dc, vol.distance_texels, 2)
+            mean = mom.x
+            var = dr.abs(mom.y - mean * mean)
+            diff = dr.maximum(bdist - mean, 0.0)
+            cheb = var / dr.maximum(var + diff * diff, 1e-12)
+            return bdist <= mean, cheb * cheb * cheb, mean
+
         def corner_weight(ox, oy, oz):
             """Index and weight of one of the 8 cell corners (ox, oy, oz in {0, 1})."""
             probe = (base.x + ox) + nx * ((base.y + oy) + ny * (base.z + oz))
@@ -221,18 +242,9 @@ class ProbeQuery:
                 cos = dr.dot(to_probe, normal) * dr.rsqrt(dr.maximum(dr.squared_norm(to_probe), 1e-20))
                 w = dr.square((cos + 1.0) * 0.5) + WRAP_OFFSET
             if self.visibility:
-                bvec = ppos - bpos
-                bdist = dr.norm(bvec)
-                # the octahedral map is scale-invariant: -bvec needs no normalisation
-                dc = direction_to_texel_coords(-bvec, vol.distance_texels)
                 # dead corners read probe 0 (a cached line) instead of a masked gather (slower in Dr.Jit)
-                mom = bilinear_gather(dev.distance, dr.select(live, probe, 0), dc, vol.distance_texels, 2)
-                mean = mom.x
-                var = dr.abs(mom.y - mean * mean)
-                diff = dr.maximum(bdist - mean, 0.0)
-                cheb = var / dr.maximum(var + diff * diff, 1e-12)
-                cheb = cheb * cheb * cheb
-                w *= dr.select(bdist <= mean, 1.0, dr.maximum(cheb, CHEBYSHEV_FLOOR))
+                seen, cheb, _ = chebyshev(dr.select(live, probe, 0), ppos)
+                w *= dr.select(seen, 1.0, dr.maximum(cheb, CHEBYSHEV_FLOOR))
             w = dr.maximum(w, MIN_WEIGHT)
             w = dr.select(w < CRUSH_THRESHOLD, w * w * w * (1.0 / (CRUSH_THRESHOLD * CRUSH_THRESHOLD)), w)
             return probe, dr.select(live, w * tri, 0.0)
@@ -240,8 +252,9 @@ class ProbeQuery:
         def corner(c):
             return corner_weight(c & 1, (c >> 1) & 1, (c >> 2) & 1)
 
-        # -- fallback (step 5): the active probes nearest to the cell, no visibility test --
+        # -- fallback (step 5): the visible active probes nearest to the cell --
         table = self.fallback_table()
+        clamp = dr.opaque(mi.Float, FALLBACK_OPEN * vol.max_distance)
         cell = base.x + (nx - 1) * (base.y + (ny - 1) * base.z)
 
         def fallback_weight(j, need):
@@ -255,7 +268,16 @@ class ProbeQuery:
                 to_probe = ppos - pos
                 cos = dr.dot(to_probe, normal) * dr.rsqrt(dr.maximum(dr.squared_norm(to_probe), 1e-20))
                 w *= dr.square((cos + 1.0) * 0.5) + WRAP_OFFSET
-            return probe, dr.select(need & (pdata.w > 0.0), w, 0.0)
+            ok = need & (pdata.w > 0.0)
+            if self.visibility:
+                # the corners' test, without its floor: a candidate it would reject behind a wall -- a
+                # surface stored nearer than x' -- is out; moments at the clamp (nothing nearer than it in
+                # that direction) put no wall in between
+                seen, cheb, mean = chebyshev(dr.select(ok, probe, 0), ppos)
+                seen |= mean >= clamp
+                w *= dr.select(seen, 1.0, cheb)
+                ok &= seen | (cheb > CHEBYSHEV_FLOOR)
+            return probe, dr.select(ok, w, 0.0)
 
         def irradiance_of(probe, w):
             probe = dr.select(w > 0.0, probe, 0)      # zero-weight corners read a cached line

@@ -9,6 +9,16 @@ faces negative as ``-0.2 t``):
   (to ``t + 0.5 * min_frontface``); otherwise, if the closest front face is
   nearer than ``min_frontface``, it moves away from it. The offset is clamped
   to ``max_offset`` cells per axis (0.45: a probe never leaves its cell).
+  **A move never passes through a surface** (ours; issue 22): where the
+  volume knows the geometry its rays were traced in (``volume.geometry``), every
+  wanted move is checked by a ray along it -- a probe moving away from a front
+  face stops short of the first surface behind it (keeping ``min(min_frontface,
+  s / 2)`` from it, ``s`` that surface's distance), and a probe leaving geometry
+  crosses exactly the one surface it is inside of and stops short of the next
+  the same way. Which back hits mean "inside" is the tracer's two-sided rule
+  (:mod:`dyngi.probes.trace`): without the check a probe inside a slab thinner
+  than ``min_frontface`` (or pushed from one face of a thin wall) left through
+  the other side -- the roof layer of a sealed room ended above the sunlit roof.
 * **classification**: a probe is inactive when its back-face ratio exceeds the
   threshold or no front-face hit lies within its cell neighbourhood
   (``|t w_i| <= spacing_i`` on every axis, unbounded outwards for probes on the
@@ -94,6 +104,12 @@ class ProbeStates:
             lim = self.max_offset * spacing
             clamped = np.any(np.abs(new) > lim, axis=1)
             new = np.clip(new, -lim, lim)
+            if volume.geometry is not None:
+                want = (inside | close) & (np.max(np.abs(new - off) / spacing, axis=1) > 1e-4)
+                if want.any():
+                    base = volume.grid.base_positions()[pid[want]]
+                    new[want] = safe_moves(volume.geometry, base + off[want], base + new[want],
+                                           inside[want], min_front) - base
             # a probe whose wanted move hit the bound cannot escape: let classification decide now
             moved = (np.max(np.abs(new - off) / spacing, axis=1) > 1e-4) & ~(inside & clamped)
             st.offsets[pid] = new.astype(np.float32)
@@ -196,3 +212,66 @@ def _summaries_drjit(volume, pid, dirs, dist):
     return lambda: {"back_ratio": np.asarray(n_back, np.float64) / N, "t_back": np.asarray(tb, np.float32),
                     "t_front": np.asarray(tf, np.float32), "i_back": np.minimum(np.asarray(ib, np.int64), N - 1),
                     "i_front": np.minimum(np.asarray(i_f, np.int64), N - 1), "near_any": np.asarray(n_near) > 0}
+
+
+def _pad(n: int) -> int:
+    """Lane count for ``n`` checked moves: the next power of two (at least 16), so that the checks of
+    differently many moving probes reuse a few kernels."""
+    return max(16, 1 << (int(n) - 1).bit_length())
+
+
+def safe_moves(mscene, p0: np.ndarray, p1: np.ndarray, cross: np.ndarray, clearance: float) -> np.ndarray:
+    """(M, 3) positions the probes may move to on the segments ``p0 -> p1`` without passing through a
+    surface: lanes with ``cross`` (a probe inside geometry) pass the first surface on the way and stop
+    before the second, the others stop before the first. Before a surface at distance ``s`` from the
+    segment's start (or from the crossed surface) a probe keeps ``min(clearance, s / 2)``. Clear
+    surfaces (glass) are no geometry here, as for the probe rays. Two masked ray casts (Dr.Jit)."""
+    from ..backend import dr, mi
+    from ..sampling.passthrough import intersect_through_glass, scene_has_glass
+    from .volume import upload
+
+    p0 = np.asarray(p0, np.float64)
+    p1 = np.asarray(p1, np.float64)
+    M = len(p0)
+    d = p1 - p0
+    L = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(L, 1e-30)[:, None]
+    W = _pad(M)
+    buf = np.zeros((W, 7), np.float32)
+    buf[:M, :3] = p0
+    buf[:M, 3:6] = u
+    buf[M:, 3] = 1.0
+    buf[:M, 6] = np.asarray(cross, np.float32)
+    flat = upload(buf)
+    idx = dr.arange(mi.UInt32, W)
+    ray = mi.Ray3f(mi.Point3f(dr.gather(mi.Float, flat, idx * 7), dr.gather(mi.Float, flat, idx * 7 + 1),
+                              dr.gather(mi.Float, flat, idx * 7 + 2)),
+                   mi.Vector3f(dr.gather(mi.Float, flat, idx * 7 + 3), dr.gather(mi.Float, flat, idx * 7 + 4),
+                               dr.gather(mi.Float, flat, idx * 7 + 5)))
+    go2 = dr.gather(mi.Float, flat, idx * 7 + 6) > 0.5
+    glass = scene_has_glass(mscene)
+
+    def first_hit(r, active):
+        if glass:
+            si, _, t, _ = intersect_through_glass(mscene, r, active)
+            return si, dr.select(active & si.is_valid(), t, dr.inf)
+        si = mscene.ray_intersect(r, ray_flags=mi.RayFlags.Minimal, coherent=False, active=active)
+        return si, dr.select(active & si.is_valid(), si.t, dr.inf)
+
+    si1, s1 = first_hit(ray, mi.Bool(True))
+    again = go2 & dr.isfinite(s1)
+    ray2 = si1.spawn_ray(ray.d)
+    _, t2 = first_hit(ray2, again)
+    s2 = s1 + t2
+    dr.eval(s1, s2)
+    s1 = np.asarray(s1, np.float64)[:M]
+    s2 = np.asarray(s2, np.float64)[:M]
+    cross = np.asarray(cross, bool)
+    # the surface the move must not reach, and where the free stretch before it begins
+    stop = np.where(cross, np.where(s1 < L, s2, np.inf), s1)
+    start = np.where(cross & (s1 < L), s1, 0.0)
+    room = stop - start
+    with np.errstate(invalid="ignore"):
+        limit = stop - np.minimum(clearance, 0.5 * room)
+    Lf = np.where(np.isfinite(stop), np.clip(np.minimum(L, limit), 0.0, None), L)
+    return p0 + u * Lf[:, None]

@@ -12,10 +12,39 @@ sample lies below the shading normal, where it adds nothing) and
 the cache). ``albedo`` is the diffuse lobe's reflectance only
 (:func:`dyngi.sampling.diffuse.diffuse_albedo`: 0 for metals and glass).
 Back-face hits return a negative distance ``-0.2 t`` (the DDGI/RTXGI
-convention used for classification and relocation) and radiance 0; the back of
-a two-sided surface is no back face: it is shaded like its front
-(:func:`shading_side`, :data:`TWO_SIDED_FRONT_DISTANCE`). Misses return
-distance ``+inf`` (clamped when blending). Probe rays and shadow rays pass
+convention used for classification and relocation) and radiance 0. The back of
+a two-sided surface is *shaded* like its front (:func:`shading_side`: Mitsuba
+does); whether it also counts as a front face for the distance sign is the
+**two-sided rule** below. Misses return distance ``+inf`` (clamped when blending).
+
+**The two-sided rule** (one decision for the distance moments, relocation and
+classification alike: all three read the one signed distance the tracer
+returns; the rule is the probe volume's :attr:`~dyngi.probes.volume.ProbeVolume.two_sided`,
+a parameter of every probe technique). A one-sided surface has an inside (its
+back), a two-sided one has none by itself: scenes model single walls as
+two-sided planes whose normals may point either way (veach-bidir's room is
+closed by outward-facing planes), and solids as closed two-sided meshes
+(thick slabs). Only the *shape of the enclosure* tells the two apart, so:
+
+* ``'enclosed'`` (default, ours): a ray that hits the back of a two-sided
+  surface reports a back face iff the probe is *enclosed* along that line by
+  something thinner than a cell: the opposite ray (from the probe, ``-d``)
+  hits a two-sided surface (either side) or a one-sided back face, and the two
+  hits are nearer together than the chord of one cell along ``d``
+  (``min_i spacing_i / |d_i|``). A probe inside a two-sided slab, wall or step
+  thinner than a cell is therefore inside geometry -- relocated out of it and,
+  where it cannot leave, classified away -- exactly as inside a one-sided
+  solid; a probe in a room bounded by two-sided planes (a chord across the
+  room, longer than a cell) sees their backs as the front faces they are for
+  the light. Costs one short extra ray per two-sided back hit nearer than a
+  cell chord (:func:`probe_hit_front`).
+* ``'front'``: every two-sided back hit is a front face (commit 7d79077): no
+  probe ever finds itself inside a two-sided solid, so probes in thick slabs
+  stay active there or are pushed out on the wrong side (the sealed-room leak
+  of issue 22);
+* ``'back'``: the geometric normal decides (before 7d79077): rooms closed by
+  outward-facing two-sided planes classify all their probes away
+  (veach-bidir 0.36 of Mitsuba's mean). Probe rays and shadow rays pass
 straight through clear surfaces (``dielectric``, ``thindielectric``,
 ``null``), attenuated by their transmittance, up to
 :data:`~dyngi.sampling.passthrough.MAX_GLASS_LAYERS` of them: a deliberate
@@ -63,13 +92,16 @@ from .rays import RayPlan
 DIRECT_MODES = ("sun", "sky", "nee", "emissive")
 DEFAULT_DIRECT = "sun"
 BACKFACE_DISTANCE_SCALE = 0.2
-# Does the back of a two-sided surface count as a *front* face for the probe-ray distance sign
-# (classification, relocation, visibility) too, not only for shading? Measured (160x90, frames 20-29,
-# ddgi defaults, mean vs Mitsuba path at 1024 spp / max frame-to-frame change of the mean):
-#   True:  cornell-box 1.02 / 0.6%, veach-bidir 0.79 / 1.5-4%, staircase2 0.93 / 5-17%, veach-ajar 0.78 / 5%
-#   False: cornell-box 0.89 / 1.1%, veach-bidir 0.34 / 8.6%, staircase2 0.99 / 14%,  veach-ajar 0.75 / 0.3%
-# (walls modelled as single outward-facing two-sided planes vs closed two-sided solids). Our choice: True.
-TWO_SIDED_FRONT_DISTANCE = True
+TWO_SIDED_RULES = ("enclosed", "front", "back")
+"""How the back of a two-sided surface signs a probe ray's distance (module docstring, "The two-sided rule")."""
+DEFAULT_TWO_SIDED = "enclosed"
+
+
+def check_two_sided(rule: str) -> str:
+    """The one validation of the two-sided rule: returns it, or raises a DyngiError listing the choices."""
+    if rule not in TWO_SIDED_RULES:
+        raise unknown_choice("two-sided rule", rule, TWO_SIDED_RULES)
+    return rule
 
 
 def check_direct_mode(mode: str) -> str:
@@ -240,7 +272,7 @@ def shading_side(si, ray, bsdf, hit):
     where its BSDF reflects on both sides (``BSDFFlags.BackSide``: ``twosided``, as real scenes model
     single walls); there the shading normal is flipped to the ray's side. Our choice: Mitsuba shades
     the back of a two-sided surface like its front, so must the probes and the primary shading. The
-    probe-ray distance sign follows it where :data:`TWO_SIDED_FRONT_DISTANCE` (measured trade-off there).
+    probe-ray distance sign is another matter: :func:`probe_hit_front` (the two-sided rule).
     """
     geo_front = dr.dot(si.n, ray.d) < 0.0
     two_sided = mi.has_flag(bsdf.flags(), mi.BSDFFlags.BackSide) & (bsdf != None)   # noqa: E711
@@ -336,6 +368,7 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
     Python time hides behind it; it counts towards ``trace probes``.
     """
     mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
+    volume.geometry = mscene      # relocation checks its moves against the geometry the rays saw
     n = dr.width(plan.direction)
     with maybe_stage(timer, "trace probes"):
         origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
@@ -355,7 +388,7 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
         L, hit, front, shadow = shader.shade(mscene, ray, si, sampler, query, mi.Bool(True))
         if glass:
             L = L * throughput
-        signed_front = front if TWO_SIDED_FRONT_DISTANCE else hit & (dr.dot(si.n, ray.d) < 0.0)
+        signed_front = probe_hit_front(mscene, volume, ray, si, t_hit, hit, glass)
         dist = dr.select(hit, dr.select(signed_front, t_hit, -BACKFACE_DISTANCE_SCALE * t_hit), dr.inf)
         L = dr.select(dr.isfinite(L), L, 0.0)   # guard: a NaN/Inf sample must never enter the cache
     if timer is not None:
@@ -370,18 +403,61 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
 def trace_probe_distances(scene, volume, plan: RayPlan) -> "mi.Float":
     """Signed hit distances only (classification rays): back faces ``-0.2 t``, misses ``+inf``."""
     mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
+    volume.geometry = mscene
     origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
     ray = mi.Ray3f(origin, plan.direction)
-    if scene_has_glass(mscene):     # clear surfaces are no geometry for classification either
+    glass = scene_has_glass(mscene)
+    if glass:     # clear surfaces are no geometry for classification either
         si, _, t_hit, _ = intersect_through_glass(mscene, ray, mi.Bool(True))
     else:
         si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=False)
         t_hit = si.t
     hit = si.is_valid()
-    if TWO_SIDED_FRONT_DISTANCE:
-        front, _ = shading_side(si, ray, si.bsdf(ray), hit)
-    else:
-        front = dr.dot(si.n, ray.d) < 0.0
+    front = probe_hit_front(mscene, volume, ray, si, t_hit, hit, glass)
     dist = dr.select(hit, dr.select(front, t_hit, -BACKFACE_DISTANCE_SCALE * t_hit), dr.inf)
     dr.eval(dist)
     return dist
+
+
+def _two_sided_hit(si, ray, hit):
+    """(geometric front, two-sided) masks of the hits ``si`` of ``ray``."""
+    geo_front = hit & (dr.dot(si.n, ray.d) < 0.0)
+    bsdf = si.bsdf(ray)
+    two = hit & mi.has_flag(bsdf.flags(), mi.BSDFFlags.BackSide) & (bsdf != None)   # noqa: E711
+    return geo_front, two
+
+
+def probe_hit_front(mscene, volume, ray, si, t_hit, hit, glass: bool = False):
+    """Per probe ray: does its hit count as a *front* face for the distance sign (hence for the distance
+    moments, relocation and classification)? The two-sided rule of ``volume`` (module docstring).
+
+    One-sided surfaces: the geometric normal decides. Two-sided ones hit from behind, under
+    ``'enclosed'``: a back face iff the opposite ray from the probe meets a two-sided surface or a
+    one-sided back face within the chord of one cell along the ray's line (``min_i s_i / |d_i|``) minus
+    the hit distance -- the probe sits inside something thinner than a cell. Only the lanes with such
+    a near two-sided back hit trace the opposite ray (masked; bounded by ``maxt``)."""
+    rule = check_two_sided(getattr(volume, "two_sided", DEFAULT_TWO_SIDED))
+    geo_front, two = _two_sided_hit(si, ray, hit)
+    if rule == "back":
+        return geo_front
+    if rule == "front":
+        return geo_front | two
+    back2 = two & ~geo_front
+    _, spacing, _ = volume.grid.opaque_params()
+    ad = dr.abs(ray.d)
+    big = 3.0e38
+    chord = dr.minimum(dr.minimum(dr.select(ad.x > 0.0, spacing.x / ad.x, big),
+                                  dr.select(ad.y > 0.0, spacing.y / ad.y, big)),
+                       dr.select(ad.z > 0.0, spacing.z / ad.z, big))
+    near = back2 & (t_hit < chord)
+    opp = mi.Ray3f(ray.o, -ray.d)
+    if glass:    # clear surfaces are no enclosure either
+        si2, _, t2, _ = intersect_through_glass(mscene, opp, near)
+    else:
+        opp.maxt = dr.select(near, chord - t_hit, 0.0)
+        si2 = mscene.ray_intersect(opp, ray_flags=mi.RayFlags.Minimal, coherent=False, active=near)
+        t2 = si2.t
+    hit2 = near & si2.is_valid() & (t2 <= chord - t_hit)
+    front2, two2 = _two_sided_hit(si2, opp, hit2)
+    enclosed = hit2 & (two2 | ~front2)
+    return geo_front | (back2 & ~enclosed)

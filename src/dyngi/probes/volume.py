@@ -32,6 +32,7 @@ import numpy as np
 from ..backend import dr, mi
 from ..errors import DyngiError
 from .grid import PROBE_ACTIVE, ProbeGrid
+from .trace import check_two_sided
 
 
 class _DeviceBacked:
@@ -166,10 +167,17 @@ class ProbeVolume:
     distance_texels : int = 16    texels per side incl. border (DDGI default 16)
     max_distance : float | None   distances are clamped to this (default 1.5 x the largest spacing, at
                                   least the cell diagonal: a probe must see across its cell, issue 11 item 2)
+    two_sided : str = 'enclosed'  the two-sided rule: how the tracer signs a ray that hits the back of a
+                                  two-sided surface, for the distance moments, relocation and classification
+                                  alike (:mod:`dyngi.probes.trace`, "The two-sided rule")
+
+    ``geometry``: the Mitsuba scene the probes were last traced in (set by the tracer,
+    :func:`~dyngi.probes.trace.trace_probe_rays`); relocation checks its moves against it
+    (:class:`~dyngi.probes.states.ProbeStates`).
     """
 
     def __init__(self, grid: ProbeGrid, irradiance_texels: int = 8, distance_texels: int = 16,
-                 max_distance: float | None = None):
+                 max_distance: float | None = None, two_sided: str = "enclosed"):
         for name, t in (("irradiance_texels", irradiance_texels), ("distance_texels", distance_texels)):
             if int(t) < 3:
                 raise DyngiError(f"parameter '{name}' must be >= 3 (1-texel border on each side), got {t}")
@@ -178,6 +186,8 @@ class ProbeVolume:
         self.distance_texels = int(distance_texels)
         self.max_distance = (float(max_distance) if max_distance is not None
                              else max(1.5 * grid.max_spacing, grid.cell_diagonal))
+        self.two_sided = check_two_sided(two_sided)
+        self.geometry = None
         self.state = ProbeVolumeState.zeros(grid.n_probes, self.irradiance_texels, self.distance_texels)
         self.device: DeviceAtlas | None = None
         self.sync()

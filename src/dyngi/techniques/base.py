@@ -179,6 +179,9 @@ class Technique:
     BUDGETS: ClassVar[tuple] = ()
     #: whether ``step`` fills ``FrameResult.indirect`` (``dyngi compare --indirect``); None: not declared
     HAS_INDIRECT: ClassVar[bool | None] = None
+    #: whether the technique traces a DDGI probe volume (dyngi.probes): :func:`probe_technique_names`
+    #: lists these; the probe-leak tests run on every one of them
+    PROBE_TECHNIQUE: ClassVar[bool] = False
 
     def __init__(self, scene, params: dict | None = None):
         self.scene = scene
@@ -221,6 +224,11 @@ def _discover() -> None:
 def technique_names() -> list[str]:
     _discover()
     return sorted(REGISTRY)
+
+
+def probe_technique_names() -> list[str]:
+    """The registered techniques that trace a DDGI probe volume (``PROBE_TECHNIQUE``), sorted."""
+    return [n for n in technique_names() if REGISTRY[n].PROBE_TECHNIQUE]
 
 
 def get_technique(name: str) -> type[Technique]:

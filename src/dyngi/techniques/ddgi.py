@@ -16,7 +16,9 @@ extended camera frustum not updated.
 ``probes-reference`` -- ADGI's reference (Sec. 5): fp32 caches of 32x32
 texels recomputed from scratch every frame with a true average of
 ``rays_per_texel`` (64) rays per texel (cosine lobe for irradiance,
-cosine-power lobe for the distance moments). Expensive by design.
+cosine-power lobe for the distance moments). Expensive by design. Its probes
+are relocated and classified as ``ddgi``'s (32 fixed rays per probe and frame;
+issue 22: without it, a grid whose layers start inside slabs kept them there).
 
 Parameters (``ddgi``; the others change the defaults)
 ----------
@@ -34,7 +36,10 @@ hit_lookup : str = 'stochastic' multi-bounce read at probe-ray hits: one stochas
                                 (same expectation as the filter) or 'filtered' (8 probes x 4 texels)
 direct : str = 'sun'            which light NEE handles, the rest the probes (see :mod:`dyngi.probes.trace`)
 update_offscreen : bool = True  False: only probes in the extended camera frustum are updated
-relocate, classify : bool = True
+relocate, classify : bool = True  relocation never moves a probe through a surface (dyngi.probes.states)
+two_sided : str = 'enclosed'    the two-sided rule for probe rays hitting the back of a two-sided surface
+                                (dyngi.probes.trace): 'enclosed' | 'front' | 'back'; every probe technique
+                                (adgi, isddgi, DDGI+) takes it
 jitter : bool = True            jitter primary rays inside the pixel (else pixel centres); True matches
                                 the reference's box pixel filter, so edge aliasing is not counted as GI error
 glossy : bool = False           primary hit adds Eq. 6's glossy probe lookup of DDGI Resampling (Majercik
@@ -56,11 +61,12 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
-from ..probes import (DiffuseHitShader, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
+from ..probes import (DiffuseHitShader, FixedSFDirections, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
                       ProbeUpdater, ProbeVolume, TrueAverage, UniformSFDirections, probes_in_frustum)
 from ..probes.debug import render_probe_view  # noqa: F401  (re-exported: the probe view lives in probes)
 from ..probes.primary import shade_primary  # noqa: F401  (re-exported: primary shading lives in probes)
-from ..probes.trace import DEFAULT_DIRECT, DIRECT_MODES, HIT_LOOKUPS, check_direct_mode, trace_probe_rays
+from ..probes.trace import (DEFAULT_DIRECT, DEFAULT_TWO_SIDED, DIRECT_MODES, HIT_LOOKUPS, TWO_SIDED_RULES,
+                            check_direct_mode, trace_probe_distances, trace_probe_rays)
 from ..probes.update import UPDATE_STAGES
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
@@ -85,6 +91,7 @@ class _ProbeTechniqueBase(Technique):
     """Shared set-up: grid, volume, query and primary shading."""
 
     HAS_INDIRECT = True   # FrameResult.indirect: albedo/pi * probe irradiance at the primary hit
+    PROBE_TECHNIQUE = True  # traces a DDGI probe volume (the probe-leak tests run on every such technique)
     # Known limitation: under direct='sun'|'sky'|'emissive' the light the probes carry directly (the sky on
     # a probe ray's miss) is part of the probe irradiance, hence of FrameResult.indirect: the volume has
     # no bounced-only channel. ``compare --indirect`` warns; direct='nee' gives a true indirect image.
@@ -100,7 +107,7 @@ class _ProbeTechniqueBase(Technique):
         # then rejects probes that see the point
         self.volume = ProbeVolume(self.grid, irradiance_texels, distance_texels,
                                   max_distance=max(p["max_distance"] * self.grid.max_spacing,
-                                                   self.grid.cell_diagonal))
+                                                   self.grid.cell_diagonal), two_sided=p["two_sided"])
         self.query = ProbeQuery(self.volume, p["normal_bias"], p["view_bias"], visibility=p["visibility"])
 
     def _primary(self, frame: Frame, t: StageTimer):
@@ -130,6 +137,11 @@ COMMON_PARAMS = {
     "jitter": Param(True, "jitter primary rays uniformly inside the pixel, as the box-filtered reference "
                     "integrates (False: pixel centres, which counts aliasing at edges as error)"),
     "direct_samples": Param(1, "NEE samples per pixel for direct light at the primary hit", min=1, max=64),
+    "two_sided": Param(DEFAULT_TWO_SIDED, "how a probe ray that hits the back of a two-sided surface counts for "
+                       "the distance moments, relocation and classification: 'enclosed' a back face iff the "
+                       "probe is enclosed by something thinner than a cell along that line (a slab, a thick "
+                       "wall), else a front face; 'front' always a front face; 'back' always a back face "
+                       "(dyngi.probes.trace, 'The two-sided rule')", choices=TWO_SIDED_RULES),
     "glossy": Param(False, "add the glossy probe lookup (DDGI Resampling Eq. 6: one glossy-lobe BSDF sample, "
                     "the probe irradiance along it / pi) at the primary hit; False: diffuse indirect only, "
                     "as DDGI (dyngi.probes.primary)"),
@@ -344,6 +356,9 @@ class ProbesReferenceTechnique(_ProbeTechniqueBase):
         "rays_per_texel": Param(64, "rays per texel per frame for each of irradiance and distance", min=1),
         "distance_power": Param(50.0, "cosine power of the distance lobe", min=1.0),
         "bounces_from_previous": Param(True, "multi-bounce: hits read the previous frame's probes"),
+        "relocate": Param(True, "move probes out of geometry (ddgi's relocation, from 32 fixed classification "
+                          "rays per probe and frame; never through a surface)"),
+        "classify": Param(True, "deactivate probes inside geometry or far from any surface (as ddgi)"),
     }
 
     def __init__(self, scene, params=None):
@@ -354,11 +369,21 @@ class ProbesReferenceTechnique(_ProbeTechniqueBase):
         self.dist_dirs = LobeDirections(p["texels"], p["rays_per_texel"], p["distance_power"], stream=22)
         self.shader = DiffuseHitShader(p["direct"], lookup="filtered")   # the reference filters exactly
         self.blender = TrueAverage()
+        # where the probes are is ddgi's decision (issue 22): a reference whose probes stay inside the slabs
+        # a grid starts in is no reference for a volume that moves them out
+        self.states = ProbeStates(p["relocate"], p["classify"])
+        self.classify_dirs = FixedSFDirections(32, stream=3)
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
         ids = np.arange(self.volume.n_probes, dtype=np.uint32)
+        if p["relocate"] or p["classify"]:
+            with t.stage("states"):
+                plan = self.classify_dirs.plan(frame.index, frame.seed, ids)
+                self.states.update(self.volume, ids, plan.shared_directions,
+                                   trace_probe_distances(self.scene, self.volume, plan))
+            t.add_rays("states", len(ids) * self.classify_dirs.n)
         q = self.query if p["bounces_from_previous"] else None
         r_irr = trace_probe_rays(self.scene, self.volume, self.irr_dirs.plan(frame.index, frame.seed, ids),
                                  self.shader, q, frame.seed, frame.index, stream=31, timer=t)

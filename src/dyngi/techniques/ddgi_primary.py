@@ -135,6 +135,7 @@ class DDGIPrimaryTechnique(Technique):
     """Primary DDGI (DDGI Resampling Sec. 3.1, Eq. 2): ReSTIR direct + probe diffuse indirect + T_fg L."""
 
     name = "ddgi-primary"
+    PROBE_TECHNIQUE = True    # its DDGI+ volume traces probes (dyngi.probes.ddgi_plus)
     description = ("Primary DDGI (Majercik et al. 2022, Eq. 2): ReSTIR DI at the primary vertex, DDGI probe "
                    "diffuse indirect, path-traced glossy recursion T_fg L")
     HAS_INDIRECT = True

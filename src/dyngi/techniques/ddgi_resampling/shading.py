@@ -115,6 +115,7 @@ class SecondaryShading(Technique):
     """What ``ddgi-secondary`` and ``ddgi-resampling`` share (module docstring); not registered."""
 
     HAS_INDIRECT = True
+    PROBE_TECHNIQUE = True    # its DDGI+ volume traces probes (dyngi.probes.ddgi_plus)
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
