@@ -35,6 +35,7 @@ naming the extra.
 """
 from __future__ import annotations
 
+import abc
 import contextlib
 import contextvars
 import os
@@ -191,7 +192,7 @@ class Progress:
 
 # -- executors ------------------------------------------------------------------------------------
 
-class Executor:
+class Executor(abc.ABC):
     """Runs a job's tasks; see the module docstring. Subclasses implement :meth:`map`."""
 
     kind = "executor"
@@ -204,9 +205,10 @@ class Executor:
         self.failures: list[TaskFailure] = []
         self.retried: dict[str, int] = {}     # task name -> attempts, for every task tried more than once
 
+    @abc.abstractmethod
     def map(self, tasks: list[Task], on_done: Callable[[int, Any], None] | None = None,
             progress: Progress | None = None) -> list:
-        raise NotImplementedError
+        """Run ``tasks``; results in task order (each back-end implements it)."""
 
     def describe(self) -> dict:
         return {"kind": self.kind, "workers": self.workers, "retries": self.retries}
