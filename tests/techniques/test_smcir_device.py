@@ -1,7 +1,11 @@
-"""The device paths of the SMC-IR baselines (issue 29): ``mir`` and ``tcas`` build their VPL sets on the
-device and ``ir`` draws a new photon set per frame; a steady frame of each compiles no new kernel (the
-frame index and seeds enter as opaque values), and ``mir``/``tcas`` hand the shader Dr.Jit arrays."""
+"""The device paths of SMC-IR and its baselines (issue 29): ``smcir`` (``impl='device'``, the default),
+``mir`` and ``tcas`` build their VPL sets on the device and ``ir`` draws a new photon set per frame; a
+steady frame of each compiles no new kernel (the frame index, seeds and camera enter as opaque values),
+``smcir``/``mir``/``tcas`` hand the shader Dr.Jit arrays, and a steady ``smcir`` frame's VPL update
+(Algorithm 1, lines 3-19) reads nothing back to the host."""
 from __future__ import annotations
+
+import contextlib
 
 import pytest
 
@@ -10,7 +14,8 @@ from dyngi.techniques import Frame, create_technique
 from tests.helpers import assert_steady_state_compiles_nothing
 
 
-@pytest.mark.parametrize("spec, params", [("mir", {"vpls": 32, "resampling_rate": 16}),
+@pytest.mark.parametrize("spec, params", [("smcir", {"vpls": 32, "warmup": 2, "radiosity_spp": 2}),
+                                          ("mir", {"vpls": 32, "resampling_rate": 16}),
                                           ("tcas", {"vpls": 32, "iterations": 4, "view_samples": 16}),
                                           ("ir", {"vpls": 32})])
 def test_steady_frames_compile_nothing(backend, spec, params):
@@ -36,3 +41,58 @@ def test_device_vpl_sets_stay_on_the_device(backend):
         tech = create_technique(spec, sc, params)
         pos, nrm, flux, _ = tech.update_vpls(Frame(0, 0.0, sc.camera(0.0), (16, 12), seed=0), StageTimer())
         assert isinstance(pos, mi.Point3f) and isinstance(flux, mi.Color3f), (spec, type(pos))
+
+
+class HostRead(AssertionError):
+    pass
+
+
+@contextlib.contextmanager
+def no_host_reads():
+    """Any Dr.Jit -> host transfer (NumPy conversion, DLPack, ``.numpy()``, an element read, a truth
+    value) raises :class:`HostRead` inside the block."""
+    import drjit as dr
+
+    from dyngi.backend import mi
+
+    def refuse(*a, **k):
+        raise HostRead("a Dr.Jit array was read back to the host")
+
+    patched = [(dr.ArrayBase, name) for name in ("__array__", "__dlpack__", "numpy", "__bool__", "tolist")]
+    patched += [(cls, "__getitem__") for cls in (mi.Float, mi.UInt32, mi.Int32, mi.Bool, mi.UInt64, mi.Float64)]
+    saved = [(cls, name, cls.__dict__[name]) for cls, name in patched if name in cls.__dict__]
+    for cls, name, _ in saved:
+        setattr(cls, name, refuse)
+    try:
+        yield
+    finally:
+        for cls, name, fn in saved:
+            setattr(cls, name, fn)
+
+
+def test_steady_smcir_iteration_reads_nothing_back(backend):
+    """maze (a walking camera), 32 VPLs: after frame 0, each frame's VPL update (candidates, k-NN
+    densities, resampling, visibility, Eq. 9, replacement, re-estimate, flux) runs without one host read;
+    the guard itself catches a read (the host impl's selection steps read back)."""
+    from dyngi.backend import mi
+    from dyngi.techniques.base import StageTimer
+
+    sc = load_scene("maze")
+    params = {"vpls": 32, "warmup": 2, "radiosity_spp": 2}
+    tech = create_technique("smcir", sc, params)
+    host = create_technique("smcir", sc, {**params, "impl": "host"})
+    for i in range(3):
+        t = sc.frame_time(i)
+        sc.at(t)
+        f = Frame(i, t, sc.camera(t), (16, 12), seed=1)
+        if i == 0:
+            tech.update_vpls(f, StageTimer())
+            host.update_vpls(f, StageTimer())
+            continue
+        with no_host_reads():
+            pos, nrm, flux, info = tech.update_vpls(f, StageTimer())
+        assert isinstance(pos, mi.Point3f) and isinstance(flux, mi.Color3f)
+        assert int(info["vpls_used"][0]) == 32
+        with pytest.raises(HostRead):
+            with no_host_reads():
+                host.update_vpls(f, StageTimer())

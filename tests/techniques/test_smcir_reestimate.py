@@ -48,16 +48,37 @@ def _fake_radiosity(pos, nrm, seeds):
     return np.repeat((2.0 * u)[:, None], 3, axis=1).astype(np.float32), 0
 
 
+def _fake_radiosity_device(pos, nrm, seeds, active):
+    """:func:`_fake_radiosity` on the device (``impl='device'``), 0 where inactive."""
+    from dyngi.backend import dr, mi
+    from dyngi.vpl.smc_device import stream_seeds_device
+
+    u = mi.Float(mi.Float64(stream_seeds_device(seeds, 7) >> 9) / float(1 << 53))
+    return dr.select(active, mi.Color3f(2.0 * u), 0.0), 0
+
+
+def test_stream_seeds_device_match_the_host_ones(backend):
+    from dyngi.backend import mi
+    from dyngi.vpl.smc_device import stream_seeds_device
+
+    s = np.random.default_rng(3).integers(0, 1 << 62, 257, dtype=np.uint64)
+    for k in (0, 1, 7):
+        assert np.array_equal(np.asarray(stream_seeds_device(mi.UInt64(s), k), np.uint64), stream_seeds(s, k))
+
+
+@pytest.mark.parametrize("impl", ["device", "host"])
 @pytest.mark.parametrize("mode", ["independent", "same-seed"])
-def test_selection_on_noisy_estimates_does_not_bias_the_rendered_radiosity(backend, mode):
+def test_selection_on_noisy_estimates_does_not_bias_the_rendered_radiosity(backend, mode, impl):
     """Synthetic winner's curse: every VPL's true radiosity is 1, its estimate 2u (fixed per seed).
     Replacement keeps the highest and drops the lowest estimates, so the survivors' selection estimates
     average well above 1; the independent stream-1 re-estimate of line 18 averages 1 (z-test), while
     re-using the selection's seed (``reestimate=same-seed``) keeps the bias."""
     sc = load_scene("cornell-static")
     n = 256
-    tech = create_technique("smcir", sc, {"vpls": n, "warmup": 30, "reestimate": mode, "candidate_rate": 8})
+    tech = create_technique("smcir", sc, {"vpls": n, "warmup": 30, "reestimate": mode, "candidate_rate": 8,
+                                          "impl": impl})
     tech._radiosity = _fake_radiosity
+    tech._radiosity_device = _fake_radiosity_device
     sc.at(0.0)
     tech.update_vpls(Frame(0, 0.0, sc.camera(0.0), (32, 24), seed=1), __import__(
         "dyngi.techniques.base", fromlist=["StageTimer"]).StageTimer())

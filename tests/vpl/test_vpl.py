@@ -156,7 +156,7 @@ def test_mailbox_invalidates_a_vpl_in_a_room_behind_a_wall(backend):
 
     sc = _two_rooms()
     sc.at(0.0)
-    tech = create_technique("smcir", sc, {"vpls": 16, "warmup": 0})
+    tech = create_technique("smcir", sc, {"vpls": 16, "warmup": 0, "impl": "host"})
     st = tech.store
     #                 VPL position           VPL normal     mailbox              mailbox normal
     rows = [((1.0, 2.0 - 1e-3, 0.5), (0, -1, 0), (1.5, 0.0, 0.0), (0, 1, 0)),       # room B ceiling

@@ -75,32 +75,21 @@ def estimate_radiosity(mscene, pos: np.ndarray, nrm: np.ndarray, seeds: np.ndarr
     """Radiosity L(y) (RGB, outgoing radiance without emission) of each point; returns (L[n, 3], rays).
 
     ``max_depth`` counts path vertices from ``y`` (1: nothing, 2: direct light at ``y``, 4: up to three
-    bounces of light reaching ``y``). Samples are averaged on the host (deterministic order).
+    bounces of light reaching ``y``). The host form of
+    :func:`dyngi.vpl.smc_device.estimate_radiosity_device` (the same lanes and samples, averaged there:
+    bit-identical to the device estimate of the same seed).
     """
-    from ..transport.path_walk import trace_paths_split
+    from .points import aligned, padded, to_point, to_vector
+    from .smc_device import estimate_radiosity_device
 
     n = len(pos)
     if n == 0 or max_depth < 2:
         return np.zeros((n, 3), np.float32), 0
-    from .points import padded
     m = max(n, -(-16 // spp))        # at least 16 lanes (a width-1 array would compile its own kernel)
     pos, nrm, seeds = padded(np.asarray(pos, np.float32), m), padded(np.asarray(nrm, np.float32), m), \
         padded(np.asarray(seeds, np.uint64), m)
-    p = np.repeat(pos, spp, axis=0)
-    nn = np.repeat(nrm, spp, axis=0)
-    from .points import to_point, to_vector
-    P, N = to_point(p), to_vector(nn)
-    eps = dr.opaque(mi.Float, RAY_OFFSET) * (1.0 + dr.max(dr.abs(P)))
-    ray = mi.Ray3f(P + N * eps, -N)
-    sampler = per_lane_sampler(seeds, spp)
-    L, _, n_rays, _ = trace_paths_split(mscene, sampler, ray, mi.Bool(True), int(max_depth),
-                                        int(max_depth) + 1, lights, True, split=False)
-    # the emission seen at y itself (vertex 1) is not the VPL's: subtract it exactly
-    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False)
-    Le = mi.Color3f(si.emitter(mscene).eval(si))
-    L = L - Le
-    dr.eval(L, n_rays)
-    Ln = np.stack([np.asarray(L[i], np.float64) for i in range(3)], axis=1)
-    Ln = np.where(np.isfinite(Ln), np.maximum(Ln, 0.0), 0.0)
-    out = Ln.reshape(m, spp, 3)[:n].mean(axis=1).astype(np.float32)
-    return out, int(dr.sum(n_rays)[0]) + m * spp
+    L, rays = estimate_radiosity_device(mscene, to_point(pos), to_vector(nrm), mi.UInt64(aligned(seeds, np.uint64)),
+                                        spp, max_depth, True, lights)
+    dr.eval(L, rays)
+    out = np.stack([np.asarray(L[i], np.float32) for i in range(3)], axis=1)[:n]
+    return out, int(np.asarray(rays).ravel()[0])

@@ -1,0 +1,211 @@
+"""SMC instant radiosity's per-iteration steps on the device (Hedman et al. 2017, Algorithm 1, Sec. 3.2).
+
+The device twins of :mod:`dyngi.vpl.smc`, :func:`dyngi.vpl.points.segment_clear` /
+:func:`~dyngi.vpl.points.camera_sees` and :func:`dyngi.vpl.radiosity.estimate_radiosity`: Dr.Jit arrays
+in, Dr.Jit arrays out, fixed widths (the VPL budget I, its candidates, I * V validation rays), counts
+kept as width-1 device arrays. :class:`DeviceVPLStore` holds the VPL set between iterations, so that an
+iteration of ``smcir`` reads nothing back to the host (issue 29); :meth:`DeviceVPLStore.to_host` is the
+inspection copy (tests), never called in a frame.
+
+Selections without a host round trip (our choices; the paper draws in parallel with atomics, Sec. 3.2.1):
+
+* weighted sampling without replacement: Efraimidis-Spirakis keys ``log(u) / w`` and a device radix
+  sort (``dr.argsort``, stable), the n largest -- exactly the distribution of
+  :func:`dyngi.vpl.smc.resample_without_replacement`;
+* "the lowest intensities first" (lines 10-13) and "the highest candidate intensities" (lines 14-16):
+  ranks from a stable ascending / descending ``dr.argsort`` scattered back to their slots;
+* Eq. 9's 95% quantile: the used intensities sorted (unused ones last), NumPy's linear interpolation
+  between the two order statistics around ``q (n - 1)``;
+* uniform choices among masked elements (a random invalid VPL, a random visible point x): the inverse
+  CDF of the mask (:func:`dyngi.vpl.smc.resample_with_replacement_device`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..backend import dr, mi
+from .points import RAY_EPS
+from .radiosity import RAY_OFFSET, PCGSampler
+from .store import LUMINANCE, VPLStore
+
+_GOLDEN = 0x9E3779B97F4A7C15
+
+
+def luminance(c):
+    """Rec. 709 luminance of a Color3f (:data:`dyngi.vpl.store.LUMINANCE`)."""
+    return c[0] * float(LUMINANCE[0]) + c[1] * float(LUMINANCE[1]) + c[2] * float(LUMINANCE[2])
+
+
+def stream_seeds_device(seeds, stream: int):
+    """:func:`dyngi.vpl.radiosity.stream_seeds` on a Dr.Jit UInt64 (bit-identical: splitmix64 finaliser of
+    ``seed + stream * golden``, 62 bits)."""
+    s = mi.UInt64(seeds)
+    if int(stream) == 0:
+        return s
+    x = s + mi.UInt64((int(stream) * _GOLDEN) & ((1 << 64) - 1))
+    x = (x ^ (x >> 30)) * mi.UInt64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> 27)) * mi.UInt64(0x94D049BB133111EB)
+    x = x ^ (x >> 31)
+    return x >> 2
+
+
+def estimate_radiosity_device(mscene, pos, nrm, seeds, spp: int, max_depth: int, active=True, lights=None):
+    """Radiosity L(y) of each point (Color3f, 0 where inactive) and the rays traced (width-1 UInt32).
+
+    The device form of :func:`dyngi.vpl.radiosity.estimate_radiosity` (which calls it): lane
+    ``i * spp + s`` runs PCG32 seeded ``(seeds[i], s)`` from just above y_i along ``-n_i`` through the
+    shared path walk (:func:`dyngi.transport.path_walk.trace_paths_split`, NEE + MIS, ``max_depth``
+    vertices from y), y's own emission subtracted; each sample clamped to finite, non-negative values
+    and the ``spp`` samples averaged by a block sum (deterministic order)."""
+    from ..transport.path_walk import trace_paths_split
+
+    n = dr.width(pos)
+    spp = int(spp)
+    idx = dr.arange(mi.UInt32, n * spp)
+    v = idx // spp
+    act = dr.gather(mi.Bool, mi.Bool(active) if not isinstance(active, bool) else dr.full(mi.Bool, active, n), v)
+    P = dr.gather(mi.Point3f, mi.Point3f(pos), v)
+    N = dr.gather(mi.Vector3f, mi.Vector3f(nrm), v)
+    eps = dr.opaque(mi.Float, RAY_OFFSET) * (1.0 + dr.max(dr.abs(P)))
+    ray = mi.Ray3f(P + N * eps, -N)
+    rng = mi.PCG32()       # the sized constructor adds the lane index to initseq: seed explicitly
+    rng.seed(dr.gather(mi.UInt64, mi.UInt64(seeds), v), mi.UInt64(idx % spp))
+    L, _, n_rays, _ = trace_paths_split(mscene, PCGSampler(rng), ray, act, int(max_depth), int(max_depth) + 1,
+                                        lights, True, split=False)
+    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=act)
+    L = L - mi.Color3f(si.emitter(mscene).eval(si, act))
+    chans = []
+    for i in range(3):
+        c = dr.select(act & dr.isfinite(L[i]), dr.maximum(L[i], 0.0), 0.0)
+        chans.append(dr.block_sum(c, spp) / float(spp))
+    rays = dr.sum(dr.select(act, n_rays, 0)) + dr.count(act)
+    return mi.Color3f(*chans), mi.UInt32(rays)
+
+
+def _segment_clear(mscene, A, na, B, nb, ok):
+    d = B - A
+    dist = dr.norm(d)
+    wdir = d / dr.maximum(dist, 1e-12)
+    ok = ok & (dist > 0.0)
+    if na is not None:
+        ok &= dr.dot(mi.Vector3f(na), wdir) > 0.0
+    if nb is not None:
+        ok &= dr.dot(mi.Vector3f(nb), wdir) < 0.0
+    eps = dr.opaque(mi.Float, RAY_EPS) * (1.0 + dr.maximum(dr.max(dr.abs(A)), dr.max(dr.abs(B))))
+    ray = mi.Ray3f(A + wdir * eps, wdir)
+    ray.maxt = dr.maximum(dist - 2.0 * eps, 0.0)
+    return ok & ~mscene.ray_test(ray, ok)
+
+
+def segment_clear_device(mscene, a, na, b, nb, active):
+    """:func:`dyngi.vpl.points.segment_clear` on the device: per lane, is a -> b unoccluded in ``mscene``,
+    with dot(na, b - a) > 0 and dot(nb, a - b) > 0 (a normal of None is not checked)? A Bool."""
+    return _segment_clear(mscene, mi.Point3f(a), na, mi.Point3f(b), nb, mi.Bool(active))
+
+
+def camera_sees_device(mscene, camera, res, pts, nrm, active):
+    """:func:`dyngi.vpl.points.camera_sees` on the device: in the view frustum (the camera model of
+    :meth:`~dyngi.scene.camera.Camera.sample_rays`, its parameters opaque: a moving camera compiles
+    nothing), unoccluded from the camera and facing it. A Bool."""
+    left, up, d = camera.frame()
+    w, h = res
+    tanx = float(np.tan(np.radians(camera.fov) * 0.5))
+    tany = tanx / (w / h)
+
+    def op3(cls, v):
+        return dr.opaque(cls, [float(c) for c in v])
+
+    O = op3(mi.Point3f, np.asarray(camera.origin, np.float64))
+    Lx, Uy, D = op3(mi.Vector3f, left / tanx), op3(mi.Vector3f, up / tany), op3(mi.Vector3f, d)
+    p = mi.Point3f(pts)
+    v = p - O
+    z = dr.dot(v, D)
+    zs = dr.select(z > 0.0, z, 1.0)
+    px = 0.5 * (1.0 - dr.dot(v, Lx) / zs)
+    py = 0.5 * (1.0 - dr.dot(v, Uy) / zs)
+    inside = mi.Bool(active) & (z > 0.0) & (px >= 0.0) & (px < 1.0) & (py >= 0.0) & (py < 1.0)
+    return _segment_clear(mscene, O + 0.0 * p, None, p, nrm, inside)
+
+
+def sample_without_replacement_device(weights, u, n: int):
+    """Indices (UInt32, width ``n``) of ``n`` elements drawn with probability proportional to ``weights``
+    without replacement (Efraimidis-Spirakis keys ``log(u) / w``, the n largest by a stable device sort;
+    infinite weights first, zero weights last -- as :func:`dyngi.vpl.smc.resample_without_replacement`)
+    and whether each drawn element has a positive weight (a Bool)."""
+    w = mi.Float(weights)
+    keys = dr.select(w > 0.0, dr.log(dr.maximum(mi.Float(u), 1e-30)) / w, -dr.inf)
+    keys = dr.select(dr.isinf(w) & (w > 0.0), 0.0, keys)
+    order = dr.argsort(keys, descending=True)
+    sel = dr.gather(mi.UInt32, order, dr.arange(mi.UInt32, int(n)))
+    return sel, dr.gather(mi.Float, w, sel) > 0.0
+
+
+def ranks(keys, descending: bool = False):
+    """Rank of each element in a stable sort of ``keys`` (UInt32, 0 = first)."""
+    order = dr.argsort(mi.Float(keys), descending=descending)
+    r = dr.zeros(mi.UInt32, dr.width(order))
+    dr.scatter(r, dr.arange(mi.UInt32, dr.width(order)), order)
+    return r
+
+
+def quantile_device(values, mask, q: float):
+    """``numpy.quantile(values[mask], q)`` (linear interpolation) as a width-1 Float; 0 if the mask is
+    empty."""
+    vals = mi.Float(values)
+    m = mi.Bool(mask)
+    s = dr.gather(mi.Float, vals, dr.argsort(dr.select(m, vals, dr.inf)))
+    cnt = mi.Float(dr.count(m))
+    pos = dr.maximum(float(q) * (cnt - 1.0), 0.0)
+    lo = mi.UInt32(dr.floor(pos))
+    hi = mi.UInt32(dr.minimum(mi.Float(lo) + 1.0, dr.maximum(cnt - 1.0, 0.0)))
+    a, b = dr.gather(mi.Float, s, lo), dr.gather(mi.Float, s, hi)
+    return dr.select(cnt > 0.0, a + (b - a) * (pos - mi.Float(lo)), 0.0)
+
+
+FIELDS3 = ("pos", "nrm", "albedo", "radiosity", "sel_radiosity", "mailbox", "mailbox_n")
+
+
+class DeviceVPLStore:
+    """The VPL store of :class:`dyngi.vpl.store.VPLStore` as Dr.Jit arrays of ``capacity`` lanes (the same
+    fields; ``seed`` a UInt64, ``used`` a Bool)."""
+
+    def __init__(self, capacity: int):
+        c = self.capacity = int(capacity)
+        for k in FIELDS3:
+            cls = mi.Point3f if k in ("pos", "mailbox") else (mi.Vector3f if k in ("nrm", "mailbox_n")
+                                                                 else mi.Color3f)
+            setattr(self, k, dr.zeros(cls, c))
+        self.density = dr.full(mi.Float, 1.0, c)
+        self.seed = dr.zeros(mi.UInt64, c)
+        self.used = dr.full(mi.Bool, False, c)
+
+    def arrays(self):
+        return [getattr(self, k) for k in FIELDS3 + ("density", "seed", "used")]
+
+    def eval(self):
+        dr.eval(*self.arrays())
+
+    def to_host(self) -> VPLStore:
+        """A host copy (reads back: for tests and inspection only)."""
+        def h3(v):
+            return np.stack([np.asarray(v[i], np.float32) for i in range(3)], axis=1)
+
+        st = VPLStore(self.capacity)
+        for k in FIELDS3:
+            setattr(st, k, h3(getattr(self, k)))
+        st.density = np.asarray(self.density, np.float64)
+        st.seed = np.asarray(self.seed, np.uint64)
+        st.used = np.asarray(self.used, bool)
+        return st
+
+    @staticmethod
+    def from_host(st: VPLStore) -> "DeviceVPLStore":
+        d = DeviceVPLStore(st.capacity)
+        for k in FIELDS3:
+            a = np.ascontiguousarray(getattr(st, k), np.float32)
+            setattr(d, k, type(getattr(d, k))(*(mi.Float(np.ascontiguousarray(a[:, i])) for i in range(3))))
+        d.density = mi.Float(np.asarray(st.density, np.float32))
+        d.seed = mi.UInt64(np.asarray(st.seed, np.uint64))
+        d.used = mi.Bool(np.asarray(st.used, bool))
+        return d
+
