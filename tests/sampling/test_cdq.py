@@ -187,13 +187,13 @@ def test_migration_moves_resolution_toward_scripted_peak(memory):
     assert all(cdq.is_valid_tree_np(t) for t in g.field_bits())
 
 
-def test_fields_follow_octree_correspondence():
+@pytest.mark.parametrize("adapt", cdq.ADAPT_CHOICES)
+def test_fields_follow_octree_correspondence(adapt):
     oct_ = _FakeOctree(2)
-    g = cdq.CDQDirections(oct_, bits=32)
+    g = cdq.CDQDirections(oct_, bits=32, adapt=adapt)
     rng = np.random.default_rng(1)
     t = cdq.random_tree_np(32, rng)
-    g._field_np[1] = cdq.pack_np(t)
-    g._upload()
+    g.set_field(1, cdq.pack_np(t))
     oct_.leaf_count = 3
     oct_.prev_leaf = mi.UInt32([1, 1, 0])             # e.g. leaf 1 split, leaf 0 kept
     g.begin_frame()
@@ -201,6 +201,25 @@ def test_fields_follow_octree_correspondence():
     assert (fb[0] == t).all() and (fb[1] == t).all() and (fb[2] == cdq.initial_bits_np(32)).all()
     with pytest.raises(DyngiError, match="valid values"):
         cdq.CDQDirections(oct_, bits=100)
+    with pytest.raises(DyngiError, match="valid choices: device, host"):
+        cdq.CDQDirections(oct_, adapt="gpu")
+
+
+def test_device_migration_matches_numpy_reference():
+    """migrate_dr (the default device path) makes the same migrations, bit for bit, as migrate_np on
+    random trees of every bit count (integer statistics: the float32 and float64 sums are exact)."""
+    rng = np.random.default_rng(5)
+    L = 64
+    for bits in BITS:
+        B = np.stack([cdq.random_tree_np(bits, rng, int(rng.integers(5, 17))) for _ in range(L)])
+        S = np.floor(rng.exponential(size=(L, bits + 1)) ** 3 * 100)
+        S[::3] = 1.0                                   # flat statistics: these rows must not migrate
+        want, go = cdq.migrate_np(B, S, 0.1, 12)
+        assert 0 < go.sum() < L
+        out, got_go = cdq.migrate_dr(cdq.words_from_numpy(cdq.pack_np(B)), mi.Float(S.astype(np.float32).ravel()),
+                                     mi.UInt32(np.arange(L) * (bits + 1)), bits, 0.1, 12, True)
+        assert (got_go.numpy() == go).all()
+        assert (np.stack([o.numpy() for o in out], 1) == cdq.pack_np(want)).all()
 
 
 def test_with_adaptive_octree_split_children_inherit_fields():
@@ -340,14 +359,20 @@ def test_reproduce_cdq_recovery_criterion():
     assert recovery_frames(m[:6]) is None
 
 
-def test_neept_cdq_steady_state_compiles_nothing(backend):
+def test_neept_cdq_steady_state_compiles_nothing(backend, monkeypatch):
     """Frame index, octree leaf count and CDQ fields change every frame: after a warm-up no frame of
-    nee-pt:directions=cdq compiles a new kernel (buffers padded, leaf count opaque)."""
+    nee-pt:directions=cdq compiles a new kernel (buffers padded, leaf count opaque), and the CDQ's
+    default (device) update never transfers to the host (every transfer of the module goes through
+    ``cdq._to_host``, counted here; the migration counters are read after the frames)."""
     from dyngi.scene.library import make_builtin
     from dyngi.techniques.base import Frame, create_technique
 
     sc = make_builtin("cornell-moving-light")
     tech = create_technique("nee-pt:directions=cdq", sc)
+    reads = []
+    real = cdq._to_host
+    monkeypatch.setattr(cdq, "_to_host", lambda x: reads.append(dr.width(x)) or real(x))
+    monkeypatch.setattr(cdq.CDQDirections, "report_migrations", False)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     seen, new = set(), []
     try:
@@ -362,7 +387,8 @@ def test_neept_cdq_steady_state_compiles_nothing(backend):
             seen |= h
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
-    assert tech.cdq.migrations_total > 0
+    assert reads == [] and tech.cdq.adapt == "device"
+    assert tech.cdq.migrations_total > 0 and len(reads) == 1
     assert sum(new[6:]) == 0, new
 
 

@@ -88,9 +88,15 @@ parent's tree through ``octree.prev_leaf`` (Sec. 6.2 "populate").
 degrees), which keeps every bound exact in float32; the sun of ``sky-pit-sun-disc`` (0.5 degrees)
 needs about 8 levels.
 
-CPU fast path (documented): the migration decision and the bit shifts for all octree leaves run
-as vectorised NumPy on the host once per frame (one download of the statistics buffer, one upload
-of the fields); sampling, pdf and statistics accumulation run on the device.
+Where the state lives (``adapt``): ``"device"`` (default) keeps the fields and statistics on the
+device: ``begin_frame`` carries the fields over by a gather through ``octree.prev_leaf`` and
+``end_frame`` runs the migration as one Dr.Jit kernel (:func:`migrate_dr`, one lane per octree
+leaf), with no host round trip; the per-frame migration count stays a device scalar and is read only
+by :meth:`CDQDirections.stats` (``report_migrations``, inspection). ``"host"``: the CPU fast path,
+the migration decision and the bit shifts as vectorised NumPy (:func:`migrate_np`; one download of
+the statistics buffer, one upload of the fields per frame). The temporal ``memory`` extension runs on
+the host path only (its centroid-carrying statistics are NumPy). Sampling, pdf and statistics
+accumulation run on the device in both.
 """
 from __future__ import annotations
 
@@ -107,7 +113,13 @@ WORDS = 4                 # device storage per octree leaf: 4 x UInt32 (128 bits
 MAX_DEPTH = 16            # deepest quadtree leaf (our choice, see module docstring)
 DEFAULT_STABILITY = 0.1   # Sec. 5.1
 INVALID = 0xFFFFFFFF
+ADAPT_CHOICES = ("device", "host")   # where CDQDirections updates its state (module docstring)
 _ONE_MINUS = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
+
+
+def _to_host(x) -> np.ndarray:
+    """The module's one device -> host transfer (tests count its calls to check the device path)."""
+    return np.asarray(x.numpy())
 
 
 def leaf_count(bits: int) -> int:
@@ -468,6 +480,105 @@ def pdf_field(words, bits: int, d):
     return solid_angle_factor(d) / (s * s * leaf_count(bits))
 
 
+# -- device migration (Sec. 5.1, Fig. 4) on 4-word fields ------------------------------------------
+
+def _lowmask(j: int, p):
+    """Word ``j`` of the 128-bit mask of bits ``[0, p)`` (``p`` a UInt32 array or an int)."""
+    pi = mi.Int32(p)
+    lo = 32 * j
+    part = (mi.UInt32(1) << mi.UInt32(dr.clip(pi - lo, 0, 31))) - 1
+    return dr.select(pi >= lo + 32, mi.UInt32(0xFFFFFFFF), dr.select(pi <= lo, mi.UInt32(0), part))
+
+
+def _delete4(w, p):
+    """Delete the 4 bits ``[p, p + 4)`` of the 128-bit field ``w`` (bits above move down by 4, zeros enter)."""
+    m = [_lowmask(j, p) for j in range(WORDS)]
+    r = [(w[j] >> 4) | ((w[j + 1] << 28) if j + 1 < WORDS else mi.UInt32(0)) for j in range(WORDS)]
+    return [(w[j] & m[j]) | (r[j] & ~m[j]) for j in range(WORDS)]
+
+
+def _insert4(w, p):
+    """Insert 4 zero bits at ``p`` (bits ``>= p`` move up by 4, the top 4 bits of the 128 are dropped)."""
+    m0 = [_lowmask(j, p) for j in range(WORDS)]
+    m4 = [_lowmask(j, mi.UInt32(p) + 4) for j in range(WORDS)]
+    sh = [(w[j] << 4) | ((w[j - 1] >> 28) if j > 0 else mi.UInt32(0)) for j in range(WORDS)]
+    return [(w[j] & m0[j]) | (sh[j] & ~m4[j]) for j in range(WORDS)]
+
+
+def _put_bit(w, i, value: bool):
+    """Field ``w`` with bit ``i`` (UInt32 array) set to ``value``."""
+    i = mi.UInt32(i)
+    out = []
+    for j in range(WORDS):
+        here = (i >> 5) == j
+        m = mi.UInt32(1) << (i & 31)
+        out.append(dr.select(here, (w[j] | m) if value else (w[j] & ~m), w[j]))
+    return out
+
+
+@dr.syntax
+def migrate_dr(words, stats, base, bits: int, stability, max_depth: int, active):
+    """Device version of :func:`migrate_np` (statistics channel C only; ``return_stats`` is host-only).
+
+    One lane per octree leaf: ``words`` its 4-word field (words beyond ``bits`` zero), ``stats`` the
+    flat per-(leaf, node) buffer of summed squared contributions, ``base`` the lane's offset into it
+    (``leaf * (bits + 1)``). Two loops over the field (Sec. 5.1): the collapsible inner node with the
+    smallest summed children ``C_inner`` (root excluded; first minimum), then the splittable leaf with
+    the largest ``C_leaf`` (depth below ``max_depth``, not a child of that node; first maximum); node
+    depths come from the breadth-first level ends ``end(d + 1) = 4 (1 + rank1(end(d)))``. If
+    ``stability * C_leaf > C_inner`` the bit field is rewritten as in Fig. 4 (clear, delete 4, set,
+    insert 4). Returns (new words, migrated mask). Same decisions as :func:`migrate_np` up to float32
+    rounding of the sums (the host sums in float64).
+    """
+    n = dr.width(base)
+    active = mi.Bool(active) & dr.full(mi.Bool, True, n)
+    w0, w1, w2, w3 = (mi.UInt32(w) for w in words)
+    field = [w0, w1, w2, w3]
+    q = bits // 4
+    c_min = dr.full(mi.Float, dr.inf, n)
+    j_min = dr.zeros(mi.UInt32, n)
+    j = dr.full(mi.UInt32, 1, n)
+    while active & (j < q):
+        pos = 4 * j                                   # bits of the children 4j+1..4j+4 (one nibble)
+        wsel = dr.select((pos >> 5) == 1, w1, w0)
+        wsel = dr.select((pos >> 5) == 2, w2, wsel)
+        wsel = dr.select((pos >> 5) == 3, w3, wsel)
+        nib = (wsel >> (pos & 31)) & 0xF
+        k0 = base + pos + 1
+        c = (dr.gather(mi.Float, stats, k0, active) + dr.gather(mi.Float, stats, k0 + 1, active)) + \
+            (dr.gather(mi.Float, stats, k0 + 2, active) + dr.gather(mi.Float, stats, k0 + 3, active))
+        better = (nib == 0) & (c < c_min)
+        c_min = dr.select(better, c, c_min)
+        j_min = dr.select(better, j, j_min)
+        j += 1
+    c_max = dr.full(mi.Float, -dr.inf, n)
+    k_max = dr.zeros(mi.UInt32, n)
+    k = dr.full(mi.UInt32, 1, n)
+    depth = dr.full(mi.UInt32, 1, n)
+    level_end = dr.full(mi.UInt32, 4, n)
+    while active & (k <= bits):
+        nxt = k > level_end
+        level_end = dr.select(nxt, 4 * (1 + rank1([w0, w1, w2, w3], level_end)), level_end)
+        depth = dr.select(nxt, depth + 1, depth)
+        leaf = bit([w0, w1, w2, w3], k - 1) == 0
+        blk = (k >= 4 * j_min + 1) & (k <= 4 * j_min + 4)
+        s = dr.gather(mi.Float, stats, base + k, active)
+        better = leaf & (depth < max_depth) & ~blk & (s > c_max)
+        c_max = dr.select(better, s, c_max)
+        k_max = dr.select(better, k, k_max)
+        k += 1
+    go = active & (c_min < dr.inf) & (c_max > -dr.inf) & (stability * c_max > c_min)
+    # Fig. 4 on the bit field
+    xbit = select1(field, dr.maximum(j_min, 1) - 1)     # bit of the collapsed inner node
+    b = _put_bit(field, xbit, False)
+    b = _delete4(b, 4 * j_min)
+    kl = dr.select(k_max > 4 * j_min + 4, k_max - 4, k_max)
+    b = _put_bit(b, kl - 1, True)
+    b = _insert4(b, 4 * (1 + rank1(b, kl - 1)))
+    out = [dr.select(go, b[i] & _lowmask(i, bits), field[i]) for i in range(WORDS)]
+    return out, go
+
+
 def words_from_numpy(field: np.ndarray):
     """(N, 4) uint32 -> list of 4 UInt32 arrays (one field per lane)."""
     field = np.asarray(field, np.uint32).reshape(-1, WORDS)
@@ -487,6 +598,8 @@ class CDQDirections:
     bits : int = 128          32, 64, 96 or 128 (Sec. 7.3)
     stability : float = 0.1   migrate iff ``stability * C_leaf > C_inner`` (Sec. 5.1)
     max_depth : int = 16      deepest quadtree leaf (our choice)
+    adapt : str = "device"    where the state is updated: "device" (no host read-back) or "host" (the NumPy CPU
+                              fast path); ``memory > 0`` uses "host" (module docstring)
     memory : float = 0.0      temporal memory of the statistics (our extension; 0 = the paper's "samples
                               of the last frame" only): the migration uses ``S = memory * S_prev + S_frame``,
                               ``S_prev`` carried through migrations (a collapsed node gets its children's
@@ -495,9 +608,13 @@ class CDQDirections:
                               per frame (our low resolutions), at the price of slower readaptation.
     """
 
+    report_migrations = True   # stats() reads the device migration counters back (inspection only)
+
     def __init__(self, octree, bits: int = 128, stability: float = DEFAULT_STABILITY,
-                 max_depth: int = MAX_DEPTH, memory: float = 0.0, **_ignored):
+                 max_depth: int = MAX_DEPTH, memory: float = 0.0, adapt: str = "device", **_ignored):
         self.bits = check_bits(bits)
+        if adapt not in ADAPT_CHOICES:
+            raise DyngiError(f"CDQ adapt '{adapt}' is unknown; valid choices: {', '.join(ADAPT_CHOICES)}")
         if not (0.0 < float(stability) <= 1.0):
             raise DyngiError(f"CDQ stability {stability} is out of range (0, 1]")
         if not (2 <= int(max_depth) <= MAX_DEPTH):
@@ -506,18 +623,23 @@ class CDQDirections:
         if not (0.0 <= float(memory) < 1.0):
             raise DyngiError(f"CDQ memory {memory} is out of range [0, 1)")
         self.memory = float(memory)
+        self.device = adapt == "device" and self.memory == 0.0
+        self.adapt = "device" if self.device else "host"
         self.max_depth = int(max_depth)
         self.octree = octree
         self.n_leaves = leaf_count(self.bits)
         self._init_words = pack_np(initial_bits_np(self.bits))
+        self._init_dev = mi.UInt32(self._init_words.astype(np.uint32))    # 4 words, gathered (not literals)
         n = int(octree.leaf_count)
         self._field_np = np.tile(self._init_words, (n, 1))
         self._seen_prev = getattr(octree, "prev_leaf", None)
         self._acc = np.zeros((n, self.bits + 1, 3))
         self._upload()
         self._reset_stats()
-        self.migrations_last = 0
-        self.migrations_total = 0
+        self._mig_last_h = 0
+        self._mig_total_h = 0
+        self._mig_last_d = dr.zeros(mi.UInt32, 1)
+        self._mig_total_d = dr.zeros(mi.UInt32, 1)
         self.adapt_ms = 0.0
         self.remaps = 0
 
@@ -550,12 +672,58 @@ class CDQDirections:
             out.append(dr.select(ok, w, int(self._init_words[j])))   # invalid leaf: initial tree
         return out
 
+    # -- migration counters (device scalars on the device path) -----------------------------
+    @property
+    def migrations_last(self) -> int:
+        return int(_to_host(self._mig_last_d)[0]) if self.device else self._mig_last_h
+
+    @property
+    def migrations_total(self) -> int:
+        return int(_to_host(self._mig_total_d)[0]) if self.device else self._mig_total_h
+
+    def set_field(self, leaf: int, words) -> None:
+        """Overwrite octree leaf ``leaf``'s field with 4 uint32 ``words`` (tests, tools)."""
+        if self.device:
+            dr.scatter(self.field, mi.UInt32(np.asarray(words, np.uint32)),
+                       mi.UInt32(WORDS * int(leaf) + np.arange(WORDS, dtype=np.uint32)))
+            dr.eval(self.field)
+        else:
+            self._field_np = self._field_np.copy()
+            self._field_np[int(leaf)] = words
+            self._upload()
+
+    def _remap_device(self, pl, n: int) -> None:
+        """Populate on the device: field row i of the new tree = old row ``pl[i]`` (initial tree where
+        ``pl[i]`` is no old row); one gather kernel over the padded buffer, no host transfer."""
+        cap = 1 << max(10, int(np.ceil(np.log2(max(n, 1)))))
+        idx = dr.arange(mi.UInt32, cap * WORDS)
+        row, wj = idx // WORDS, idx % WORDS
+        n_d = dr.opaque(mi.UInt32, n)
+        valid = row < n_d
+        src = dr.gather(mi.UInt32, mi.UInt32(pl), row, valid)
+        ok = valid & (src < self._rows_dev)
+        val = dr.select(ok, dr.gather(mi.UInt32, self.field, src * WORDS + wj, ok),
+                        dr.gather(mi.UInt32, self._init_dev, wj, valid))
+        self.field = dr.select(valid, val, 0)
+        self._rows, self._cap, self._rows_dev = n, cap, n_d
+        dr.eval(self.field)
+
     # -- frame protocol ---------------------------------------------------------------------
     def begin_frame(self, ctx=None) -> None:
         """Carry the fields over to the adapted octree (Sec. 6.2 populate): new leaf i takes
         the field of previous leaf ``octree.prev_leaf[i]``."""
         pl = getattr(self.octree, "prev_leaf", None)
         n = int(self.octree.leaf_count)
+        if self.device:
+            if pl is not None and pl is not self._seen_prev:
+                self._remap_device(pl, n)
+                self._seen_prev = pl
+                self.remaps += 1
+                self._reset_stats()
+            elif n != self._rows:
+                self._remap_device(dr.full(mi.UInt32, INVALID, max(n, 2)), n)
+                self._reset_stats()
+            return
         if pl is not None and pl is not self._seen_prev:
             src = np.asarray(pl.numpy() if hasattr(pl, "numpy") else pl, np.int64).ravel()
             ok = (src >= 0) & (src < self._field_np.shape[0])
@@ -598,8 +766,25 @@ class CDQDirections:
             dr.scatter_reduce(dr.ReduceOp.Add, self.node_stats_y, c2 * y, slot, ok)
 
     def end_frame(self) -> None:
-        """One leaf migration per octree leaf from this frame's statistics (CPU fast path)."""
+        """One leaf migration per octree leaf from this frame's statistics (device kernel, or the CPU
+        fast path with ``adapt="host"``)."""
         t0 = time.perf_counter()
+        if self.device:
+            leaf = dr.arange(mi.UInt32, self._cap)
+            ok = leaf < self._rows_dev
+            words = [dr.gather(mi.UInt32, self.field, leaf * WORDS + j, ok) for j in range(WORDS)]
+            new, go = migrate_dr(words, self.node_stats, leaf * (self.bits + 1), self.bits,
+                                 dr.opaque(mi.Float, self.stability), self.max_depth, ok)
+            field = dr.empty(mi.UInt32, self._cap * WORDS)
+            for j in range(WORDS):
+                dr.scatter(field, new[j], leaf * WORDS + j)
+            self.field = field
+            self._mig_last_d = dr.block_reduce(dr.ReduceOp.Add, dr.select(go, mi.UInt32(1), mi.UInt32(0)), self._cap)
+            self._mig_total_d = self._mig_total_d + self._mig_last_d
+            dr.eval(self.field, self._mig_last_d, self._mig_total_d)
+            self._reset_stats()
+            self.adapt_ms = 1e3 * (time.perf_counter() - t0)     # launch time (not synchronised)
+            return
         S = self.node_stats.numpy().reshape(self._cap, self.bits + 1)[:self._rows]
         if self.memory > 0.0:
             shp = (self._cap, self.bits + 1)
@@ -622,18 +807,23 @@ class CDQDirections:
                 self._field_np[rows[mv]] = pack_np(new_bits[mv])
         elif self.memory > 0.0:
             self._acc = S.copy()
-        self.migrations_last = int(moved.sum())
-        self.migrations_total += self.migrations_last
+        self._mig_last_h = int(moved.sum())
+        self._mig_total_h += self._mig_last_h
         if self.migrations_last:
             self._upload()
         self._reset_stats()
         self.adapt_ms = 1e3 * (time.perf_counter() - t0)
 
     def field_bits(self) -> np.ndarray:
-        """(leaf_count, bits) bool copy of the fields (for tests and visualisation)."""
+        """(leaf_count, bits) bool copy of the fields (for tests and visualisation; reads back on the
+        device path)."""
+        if self.device:
+            w = _to_host(self.field).reshape(-1, WORDS)[:self._rows]
+            return unpack_np(w, self.bits)
         return unpack_np(self._field_np, self.bits)
 
     def stats(self) -> dict:
-        return {"cdq_bits": self.bits, "cdq_migrations": self.migrations_last,
-                "cdq_migrations_total": self.migrations_total, "cdq_adapt_ms": self.adapt_ms,
-                "cdq_fields": self._rows}
+        rep = self.report_migrations or not self.device
+        return {"cdq_bits": self.bits, "cdq_migrations": self.migrations_last if rep else None,
+                "cdq_migrations_total": self.migrations_total if rep else None, "cdq_adapt_ms": self.adapt_ms,
+                "cdq_fields": self._rows, "cdq_adapt": self.adapt}
