@@ -89,7 +89,7 @@ from .query import ProbeQuery, bilinear_gather
 from .rays import UniformSFDirections
 from .states import ProbeStates
 from .trace import DiffuseHitShader, HIT_LOOKUPS, check_direct_mode, shading_side
-from .update import ProbeUpdater, probes_in_frustum
+from .pipeline import ProbePipeline, probes_in_frustum
 from .volume import ProbeVolume
 
 MODES = ("plus", "ddgi")
@@ -284,8 +284,9 @@ class DDGIPlusVolume:
         self.blender = HysteresisBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
                                        p["change_threshold"], p["brightness_threshold"], "fp32", p["estimator"])
         self.states = ProbeStates(p["relocate"], p["classify"])
-        self.updater = ProbeUpdater(self.volume, self.directions, self.shader, self.blender, self.states,
-                                    self.query, reclassify_interval=p["reclassify_interval"])
+        self.pipeline = ProbePipeline(self.volume, self.directions, self.shader, self.blender, self.states,
+                                      self.query, reclassify_interval=p["reclassify_interval"])
+        self.updater = self.pipeline       # (older name; ddgi-resampling's control variate reads its last rays)
         self._warmed = False
         self._last_signature = None
         self._stats = {}
@@ -313,8 +314,9 @@ class DDGIPlusVolume:
         moved = sig != self._last_signature and self._last_signature is not None
         self._last_signature = sig
         if not self._warmed:
-            self._warm_up(frame, mask, t)
-        info = self.updater.update(self.scene, frame.index, frame.seed, mask, t, force_reclassify=moved)
+            self._warmed = True
+            self.pipeline.warm_up(self.scene, p["warmup"], frame.seed, mask, t)
+        info = self.pipeline.update(self.scene, frame.index, frame.seed, mask, t, force_reclassify=moved)
         stats = t.as_dict()
         stats.update({k: v for k, v in info.items() if k != "rays"})
         stats["active_probes"] = int(np.count_nonzero(self.volume.state.states))
@@ -325,13 +327,6 @@ class DDGIPlusVolume:
                 timer.add_rays(k, v)
         self._stats = stats
         return stats
-
-    def _warm_up(self, frame, mask, t: StageTimer) -> None:
-        """``warmup`` updates before the first image, blended without hysteresis (as ``ddgi`` does):
-        after k updates the cache holds k bounces. The same routine as ``ddgi``'s (imported when called:
-        :mod:`dyngi.probes` does not depend on :mod:`dyngi.techniques` at import time)."""
-        from ..techniques.ddgi import _warm_up_volume
-        _warm_up_volume(self, frame, mask, t)
 
     def stats(self) -> dict:
         """The last update's stats."""

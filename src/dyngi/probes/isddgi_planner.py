@@ -578,6 +578,21 @@ class ISDDGIPlanner:
             n_pair = np.zeros(0, np.int64)
         return ISDDGIPlanInfo(S, total, slot, dset, h, n_pair, self.omega, is_uni, check, key)
 
+    # -- the pipeline's warm-up hooks (ours) ------------------------------------------------
+    def begin_warmup(self) -> None:
+        """Warm-up plans: one ray in every set of every probe, no importance rays."""
+        self.force_uniform = N_SETS
+
+    def end_warmup(self) -> None:
+        """Back to the allocation; the change measure forgets the warm-up: the bounces it added are no
+        scene change, and its samples no reference (the probes they read have changed)."""
+        self.force_uniform = None
+        st = self.state
+        st.f[:] = 0.0
+        st.F[:] = 0.0
+        st.has_sample[:] = False
+        st.open_ref[:] = False
+
     # -- feedback ---------------------------------------------------------------------
     def forget(self, probes) -> None:
         """Drop the stored samples (references) of ``probes`` (e.g. relocated ones: their next rays start

@@ -61,13 +61,13 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
-from ..probes import (DiffuseHitShader, FixedSFDirections, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
-                      ProbeUpdater, ProbeVolume, TrueAverage, UniformSFDirections, probes_in_frustum)
+from ..probes import (DiffuseHitShader, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
+                      ProbeVolume, TrueAverage, UniformSFDirections)
+from ..probes.pipeline import UPDATE_STAGES, WARMUP_FRAME_BASE, ProbePipeline, probes_in_frustum  # noqa: F401
 from ..probes.debug import render_probe_view  # noqa: F401  (re-exported: the probe view lives in probes)
 from ..probes.primary import shade_primary  # noqa: F401  (re-exported: primary shading lives in probes)
 from ..probes.trace import (DEFAULT_DIRECT, DEFAULT_TWO_SIDED, DIRECT_MODES, HIT_LOOKUPS, TWO_SIDED_RULES,
-                            check_direct_mode, trace_probe_distances, trace_probe_rays)
-from ..probes.update import UPDATE_STAGES
+                            check_direct_mode)
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
 
@@ -197,8 +197,9 @@ class DDGITechnique(_ProbeTechniqueBase):
                                        p["change_threshold"], p["brightness_threshold"], p["encoding"],
                                        p["estimator"])
         self.states = ProbeStates(p["relocate"], p["classify"])
-        self.updater = ProbeUpdater(self.volume, self.directions, self.shader, self.blender, self.states,
-                                    self.query, reclassify_interval=p["reclassify_interval"])
+        self.pipeline = ProbePipeline(self.volume, self.directions, self.shader, self.blender, self.states,
+                                      self.query, reclassify_interval=p["reclassify_interval"])
+        self.updater = self.pipeline       # (older name)
         self._last_signature = None
         self._warmed = False
         self._dirs_by_count = {self.directions.n: self.directions}   # budgets change the rays per probe
@@ -214,10 +215,11 @@ class DDGITechnique(_ProbeTechniqueBase):
         moved = sig != self._last_signature and self._last_signature is not None
         self._last_signature = sig
         if not self._warmed:
-            _warm_up_volume(self, frame, mask, t)
+            self._warmed = True
+            self._learn_shadow_rate(self.pipeline.warm_up(self.scene, p["warmup"], frame.seed, mask, t))
         rpp = self._budget_rays_per_probe(frame, mask)
-        self.updater.directions = self._directions_for(rpp)
-        info = self.updater.update(self.scene, frame.index, frame.seed, mask, t, force_reclassify=moved)
+        self.pipeline.planner = self._directions_for(rpp)
+        info = self.pipeline.update(self.scene, frame.index, frame.seed, mask, t, force_reclassify=moved)
         img, ind = self._primary(frame, t)
         stats = t.as_dict()
         stats.update({k: v for k, v in info.items() if k != "rays"})
@@ -251,7 +253,7 @@ class DDGITechnique(_ProbeTechniqueBase):
         """
         p = self.params
         n = p["rays_per_probe"]
-        up = self.updater
+        up = self.pipeline
         probes = max(len(up.probes_to_trace(mask)), 1)
         if frame.ray_budget is not None:
             other = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])      # camera + NEE rays
@@ -297,38 +299,6 @@ def budget_ladder_floor(n: float) -> int:
     octave = 1 << (int(n).bit_length() - 1)          # power of two <= n
     step = max(octave // 4, 1)
     return int(octave + step * int((n - octave) // step))
-WARMUP_FRAME_BASE = 1 << 24   # frame indices of warm-up updates: distinct RNG streams from real frames
-
-
-def _warm_up_volume(tech, frame: Frame, mask, t: StageTimer) -> None:
-    """``warmup`` probe updates before the first image, without hysteresis or brightness damping.
-
-    Each update reads the previous one's probes, so after k updates the cache
-    holds k bounces of indirect light (what an engine does when it loads a level).
-    """
-    tech._warmed = True
-    n = tech.params["warmup"]
-    if n <= 0:
-        return
-    b = tech.blender
-    saved = (b.hysteresis, b.brightness_threshold)
-    b.hysteresis, b.brightness_threshold = 0.0, float("inf")
-    try:
-        # a timer of its own: the rays the warm-up casts are counted, its shadow rays per probe ray plan
-        # the first equal-ray budget, and its kernels are the steady frames' ones (which have a timer)
-        wt = StageTimer()
-        with t.stage("warmup"):
-            for k in range(n):
-                tech.updater.update(tech.scene, WARMUP_FRAME_BASE + k, frame.seed, mask, wt,
-                                    force_reclassify=(k == 0))
-        rays = wt.as_dict()["rays"]
-        t.add_rays("warmup", sum(rays.values()))
-        if hasattr(tech, "_learn_shadow_rate"):   # techniques with ray budgets (DDGIPlusVolume has none)
-            tech._learn_shadow_rate(rays)
-    finally:
-        b.hysteresis, b.brightness_threshold = saved
-
-
 def _with_defaults(params: dict, defaults: dict) -> dict:
     return {k: (Param(defaults[k], v.doc, v.choices, v.min, v.max) if k in defaults else v)
             for k, v in params.items()}
@@ -370,26 +340,16 @@ class ProbesReferenceTechnique(_ProbeTechniqueBase):
         self.shader = DiffuseHitShader(p["direct"], lookup="filtered")   # the reference filters exactly
         self.blender = TrueAverage()
         # where the probes are is ddgi's decision (issue 22): a reference whose probes stay inside the slabs
-        # a grid starts in is no reference for a volume that moves them out
+        # a grid starts in is no reference for a volume that moves them out; every probe re-tests its state
+        # from 32 fixed rays every frame, before its update, and every probe is traced
         self.states = ProbeStates(p["relocate"], p["classify"])
-        self.classify_dirs = FixedSFDirections(32, stream=3)
+        self.pipeline = ProbePipeline(self.volume, self.irr_dirs, self.shader, self.blender, self.states,
+                                      self.query if p["bounces_from_previous"] else None,
+                                      distance_planner=self.dist_dirs, state_rays="fixed", trace_inactive=True,
+                                      streams=(31, 32))
 
     def step(self, frame: Frame) -> FrameResult:
-        p = self.params
         t = StageTimer()
-        ids = np.arange(self.volume.n_probes, dtype=np.uint32)
-        if p["relocate"] or p["classify"]:
-            with t.stage("states"):
-                plan = self.classify_dirs.plan(frame.index, frame.seed, ids)
-                self.states.update(self.volume, ids, plan.shared_directions,
-                                   trace_probe_distances(self.scene, self.volume, plan))
-            t.add_rays("states", len(ids) * self.classify_dirs.n)
-        q = self.query if p["bounces_from_previous"] else None
-        r_irr = trace_probe_rays(self.scene, self.volume, self.irr_dirs.plan(frame.index, frame.seed, ids),
-                                 self.shader, q, frame.seed, frame.index, stream=31, timer=t)
-        r_dist = trace_probe_rays(self.scene, self.volume, self.dist_dirs.plan(frame.index, frame.seed, ids),
-                                  self.shader, None, frame.seed, frame.index, stream=32, timer=t)
-        with t.stage("blend"):
-            self.blender.update(self.volume, r_irr, r_dist, p["rays_per_texel"], p["rays_per_texel"])
+        self.pipeline.update(self.scene, frame.index, frame.seed, timer=t)
         img, ind = self._primary(frame, t)
         return FrameResult(image=img, indirect=ind, stats=t.as_dict())

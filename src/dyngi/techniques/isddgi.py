@@ -60,15 +60,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..probes import HysteresisBlend, ProbeStates
-from ..probes.accumulator import merge_into_volume
 from ..probes.grid import PROBE_ACTIVE, PROBE_INACTIVE
 from ..probes.isddgi_estimator import BACKFACE_THRESHOLD, integrate_sets_dr, probe_states_alg2
-from ..probes.isddgi_planner import N_SETS, SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
+from ..probes.isddgi_planner import SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
 from ..probes.isddgi_shading import KeyedHitShader
-from ..probes.trace import HIT_LOOKUPS, trace_probe_rays
-from ..probes.update import _states_by_count
+from ..probes.pipeline import ProbePipeline
+from ..probes.trace import HIT_LOOKUPS
 from .base import Frame, FrameResult, Param, StageTimer, register
-from .ddgi import COMMON_PARAMS, WARMUP_FRAME_BASE, _ProbeTechniqueBase
+from .ddgi import COMMON_PARAMS, _ProbeTechniqueBase
 
 UPDATE_STAGES = ("plan", "trace probes", "shade probes", "blend", "states")
 TEXELS = SETS_PER_SIDE + 2      # 16x16 sets + the 1-texel border the bilinear query reads
@@ -121,6 +120,10 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         self.blender = HysteresisBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
                                        p["change_threshold"], float("inf"), "fp32", "scatter")
         self.relocator = ProbeStates(relocate=True, classify=False) if p["relocate"] else None
+        # plan, trace and merge through the pipeline; integration (Algorithm 3) and states (Algorithm 2)
+        # are this technique's update step
+        self.pipeline = ProbePipeline(self.volume, self.planner, self.shader, self.blender, self.relocator,
+                                      self.query)
         self._warmed = False
         self.last_plan = None
         self._shadow_per_probe_ray = 1.0      # NEE shadow rays per probe ray (measured), for equal-ray budgets
@@ -151,19 +154,18 @@ class ISDDGITechnique(_ProbeTechniqueBase):
             return info
         self.shader.keys = plan.shade_key          # paired visits: keyed NEE and hit-lookup randomness
         try:
-            res = trace_probe_rays(self.scene, vol, plan, self.shader, self.query, seed, frame_index, timer=t)
+            res = self.pipeline.trace(self.scene, plan, seed, frame_index, timer=t)
         finally:
             self.shader.keys = None
         with t.stage("blend"):
             est_i, est_d = integrate_sets_dr(plan, res.radiance, res.distance, vol.max_distance,
                                              p["distance_power"])
-            merge_into_volume(vol, est_i, est_d, self.blender.accumulator, self.blender.encoding,
-                              plan.probe_ids, plan.counts)
+            self.pipeline.merge(est_i, est_d, plan.probe_ids, plan.counts)
         with t.stage("states"):
             L, d = res.host()
             if self.relocator is not None and wake:      # relocation on re-test frames only (ours: cost)
                 before = st.offsets.copy()
-                fin = _states_by_count(self.relocator, vol, plan, res)
+                fin = self.pipeline.begin_states(plan, res)
                 if fin is not None:
                     fin()
                 # a moved probe's stored samples are no reference for its next rays (ours)
@@ -210,29 +212,13 @@ class ISDDGITechnique(_ProbeTechniqueBase):
                 self._ms_fixed = max(stats["total_ms"] - update, 0.0)
 
     def _warm_up(self, frame: Frame, t: StageTimer) -> None:
+        """The pipeline's warm-up with this technique's update step (one ray per set: the planner's
+        warm-up hooks; the change measure forgets the warm-up afterwards)."""
         self._warmed = True
-        n = self.params["warmup"]
-        if n <= 0:
-            return
-        acc = self.blender.accumulator
-        saved = acc.hysteresis
-        pl = self.planner
-        acc.hysteresis, pl.force_uniform = 0.0, N_SETS
-        try:
-            wt = StageTimer()
-            with t.stage("warmup"):
-                for k in range(n):
-                    self.update(WARMUP_FRAME_BASE + k, frame.seed, wt, adapt=False, warm=True)
-            wr = wt.as_dict()["rays"]
-            t.add_rays("warmup", sum(wr.values()))
-            if wr.get("trace probes"):
-                self._shadow_per_probe_ray = wr.get("shade probes", 0) / wr["trace probes"]
-        finally:
-            acc.hysteresis, pl.force_uniform = saved, None
-            pl.state.f[:] = 0.0          # the bounces added by the warm-up are no scene change
-            pl.state.F[:] = 0.0
-            pl.state.has_sample[:] = False   # and its samples no reference: the probes they read have changed
-            pl.state.open_ref[:] = False
+        wr = self.pipeline.warm_up(self.scene, self.params["warmup"], frame.seed, timer=t,
+                                   step=lambda k, f, wt: self.update(f, frame.seed, wt, adapt=False, warm=True))
+        if wr.get("trace probes"):
+            self._shadow_per_probe_ray = wr.get("shade probes", 0) / wr["trace probes"]
 
     def step(self, frame: Frame) -> FrameResult:
         t = StageTimer()

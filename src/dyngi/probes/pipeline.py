@@ -1,0 +1,299 @@
+"""One probe-volume pipeline for the DDGI family: plan, trace/shade, estimate, accumulate, encode.
+
+``ProbePipeline(volume, planner, shader, blend, states, query)`` runs one frame's update from the
+five parts of :mod:`.protocols` (Majercik et al., JCGT 2019, Sec. 3; relocation and classification
+of Majercik et al., JCGT 2021, Sec. 5):
+
+1. the **planner** chooses rays for the active probes (optionally masked, e.g. Q-DDGI's
+   camera-frustum culling), seeing the previous update's per-ray results (:attr:`last_results`);
+2. the pipeline traces them in one batch and the **shader** shades the hits, reading the previous
+   frame's probes through ``query`` for multi-bounce (:meth:`trace`: the one caller of
+   :func:`~dyngi.probes.trace.trace_probe_rays`);
+3. the **blend** (an estimator + a temporal accumulator + an encoding, :mod:`.blend`) merges
+   them into the texels (:meth:`merge`: the one caller of
+   :func:`~dyngi.probes.accumulator.merge_into_volume` outside :mod:`.blend`);
+4. the **state update** relocates / classifies probes (:class:`~dyngi.probes.states.ProbeStates`):
+   ``state_rays='update'`` (``ddgi``) from the same rays (the probes of a plan without a shared set
+   grouped by ray count), and every ``reclassify_interval`` frames the inactive probes trace
+   ``classify_rays`` fixed directions so that they can wake up when the scene changes;
+   ``state_rays='fixed'`` (``probes-reference``) from the fixed classification rays of every probe
+   each frame, before the update.
+
+A separate ``distance_planner`` (``probes-reference``: cosine-power lobes for the moments) is traced
+after the irradiance plan without the multi-bounce query; the blend then receives both results.
+
+**Warm-up** (:meth:`warm_up`, shared by every probe technique): ``n`` updates before the first
+image with the accumulator's hysteresis at 0 and brightness damping off (our choice: what an engine
+does when it loads a level), each reading the previous one's probes, so that after ``k`` updates the
+cache holds ``k`` bounces. A planner's optional ``begin_warmup`` / ``end_warmup`` hooks run around
+it; a technique with its own per-update step (IS-DDGI's set integration) passes it as ``step``.
+
+Techniques that run several traces per frame (ADGI's pilot, static and dynamic stages) call the
+stages :meth:`trace`, :meth:`trace_distances`, :meth:`merge` and :meth:`classify` themselves; they
+never call the tracing or merging functions directly.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+
+import numpy as np
+
+from .accumulator import merge_into_volume
+from .protocols import check_part
+from .rays import FixedSFDirections
+from .states import ProbeStates
+from .trace import trace_probe_distances, trace_probe_rays, vector_to_numpy
+from .volume import ProbeVolume
+from ..timing import StageTimer, maybe_stage
+
+UPDATE_STAGES = ("trace probes", "shade probes", "blend", "states")   # the timer stages of one update
+WARMUP_FRAME_BASE = 1 << 24   # frame indices of warm-up updates: distinct RNG streams from real frames
+STATE_RAYS = ("update", "fixed")
+_NO_STATE = {"moved": 0, "deactivated": 0, "activated": 0}
+_DEFAULT = object()
+
+
+class ProbePipeline:
+    """The probe update of the DDGI family; see the module docstring.
+
+    Parameters
+    ----------
+    volume : ProbeVolume
+    planner : RayPlanner          (``directions`` is its older name, kept as an alias)
+    shader : HitShader
+    blender : Blend               estimator + accumulator + encoding
+    states : ProbeStates | None   relocation / classification (None: probes stay where they are)
+    query : ProbeQuery | None     the previous probes read at hits (None: one bounce)
+    reclassify_interval : int = 8 frames between re-tests of inactive probes (0: never)
+    classify_rays : int = 32      fixed spherical-Fibonacci rays of a re-test
+    distance_planner : RayPlanner | None   a separate plan for the distance moments
+    state_rays : str = 'update'   'update' (from the update's rays) | 'fixed' (classification rays, every frame)
+    trace_inactive : bool = False trace every probe (the reference), not only the active ones
+    streams : (int, int) = (11, 12)  random streams of the irradiance and distance traces
+    """
+
+    def __init__(self, volume: ProbeVolume, planner, shader, blender, states: ProbeStates | None = None,
+                 query=None, reclassify_interval: int = 8, classify_rays: int = 32, distance_planner=None,
+                 state_rays: str = "update", trace_inactive: bool = False, streams: tuple = (11, 12)):
+        check_part("planner", planner)
+        check_part("shader", shader)
+        if state_rays not in STATE_RAYS:
+            from ..errors import unknown_choice
+            raise unknown_choice("state_rays", state_rays, STATE_RAYS)
+        self.volume = volume
+        self.planner = planner
+        self.shader = shader
+        self.blender = blender
+        self.states = states
+        self.query = query
+        self.reclassify_interval = int(reclassify_interval)
+        self.classify_dirs = FixedSFDirections(classify_rays, stream=3)
+        self.distance_planner = distance_planner
+        self.state_rays = state_rays
+        self.trace_inactive = bool(trace_inactive)
+        self.streams = tuple(streams)
+        self.last_results = None
+
+    # ``directions``: the planner's older name (techniques swap it for budgets)
+    @property
+    def directions(self):
+        return self.planner
+
+    @directions.setter
+    def directions(self, planner) -> None:
+        self.planner = planner
+
+    # -- which probes ---------------------------------------------------------------------------
+    def probes_to_trace(self, probe_mask: np.ndarray | None = None) -> np.ndarray:
+        """Ids (uint32) of the probes the next update traces: active ones (all with ``trace_inactive``),
+        within ``probe_mask``."""
+        live = np.ones(self.volume.n_probes, bool) if self.trace_inactive else self.volume.state.states != 0
+        if probe_mask is not None:
+            live &= probe_mask
+        return np.flatnonzero(live).astype(np.uint32)
+
+    def probes_to_reclassify(self, frame: int, probe_mask: np.ndarray | None = None,
+                             force: bool = False) -> np.ndarray:
+        """Ids (uint32) of the inactive probes that re-test their state this frame (none on most frames)."""
+        if self.state_rays != "update" or self.states is None or not self.states.classify or \
+                not (force or (self.reclassify_interval > 0 and frame % self.reclassify_interval == 0)):
+            return np.zeros(0, np.uint32)
+        dead = np.flatnonzero(self.volume.state.states == 0).astype(np.uint32)
+        return dead if probe_mask is None else dead[probe_mask[dead]]
+
+    # -- the stages -----------------------------------------------------------------------------
+    def trace(self, scene, plan, seed: int, frame: int, stream: int | None = None, timer=None,
+              query=_DEFAULT, shader=None):
+        """Trace ``plan`` from the volume's probes and shade the hits (stages ``trace probes`` and
+        ``shade probes``); ``query`` (default: the pipeline's) feeds multi-bounce, ``shader`` (default:
+        the pipeline's) another shading of the same volume (ADGI's pilot rays)."""
+        return trace_probe_rays(scene, self.volume, plan, shader or self.shader,
+                                self.query if query is _DEFAULT else query, seed, frame,
+                                stream=self.streams[0] if stream is None else stream, timer=timer)
+
+    def trace_distances(self, scene, plan):
+        """Signed hit distances of ``plan``'s rays (no shading): classification rays, ADGI's ``-w`` rays."""
+        return trace_probe_distances(scene, self.volume, plan)
+
+    def merge(self, est_irr, est_dist, probe_ids: np.ndarray, rays: np.ndarray | None = None,
+              accumulator=None, encoding=None) -> None:
+        """Merge per-texel estimates of ``probe_ids`` into the volume through the blend's accumulator and
+        encoding (or the given ones: ADGI merges with Algorithm 3's count caps per stage)."""
+        b = self.blender
+        merge_into_volume(self.volume, est_irr, est_dist, accumulator or b.accumulator, encoding or b.encoding,
+                          probe_ids, rays)
+
+    def classify(self, scene, probe_ids: np.ndarray, frame: int, seed: int, timer=None) -> dict:
+        """Relocation / classification of ``probe_ids`` from ``classify_rays`` fixed rays (stage ``states``)."""
+        if self.states is None or len(probe_ids) == 0 or not (self.states.relocate or self.states.classify):
+            return dict(_NO_STATE)
+        with maybe_stage(timer, "states"):
+            plan = self.classify_dirs.plan(frame, seed, probe_ids)
+            c = self.states.update(self.volume, probe_ids, plan.shared_directions,
+                                   self.trace_distances(scene, plan))
+        if timer is not None:
+            timer.add_rays("states", len(probe_ids) * self.classify_dirs.n)
+        return c
+
+    def begin_states(self, plan, res, states: ProbeStates | None = None):
+        """Launch relocation/classification from a trace's own rays; returns ``finish() -> counts`` or None.
+
+        A plan with a shared direction set hands its device distances over (per-ray work stays in
+        Dr.Jit); a ragged plan is grouped by ray count (:class:`ProbeStates` takes one count per call;
+        one call per distinct count, not per probe; probes without rays keep their state)."""
+        states = self.states if states is None else states
+        if states is None:
+            return None
+        dirs = plan.shared_directions
+        if dirs is not None:
+            return states.begin(self.volume, plan.probe_ids, dirs, res.distance)
+        counts = plan.counts
+        groups = [c for c in np.unique(counts) if c > 0]
+        if not groups:
+            return None
+        dirs = vector_to_numpy(plan.direction).T          # (R, 3)
+        dist = res.host()[1]
+        pending = []
+        for c in groups:
+            slots = np.flatnonzero(counts == c)
+            rows = plan.offsets[slots][:, None] + np.arange(c)[None, :]
+            pending.append(states.begin(self.volume, plan.probe_ids[slots], dirs[rows], dist[rows]))
+
+        def finish():
+            total = dict(_NO_STATE)
+            for f in pending:
+                for k, v in f().items():
+                    total[k] += v
+            return total
+        return finish
+
+    # -- one update -----------------------------------------------------------------------------
+    def update(self, scene, frame: int, seed: int, probe_mask: np.ndarray | None = None, timer=None,
+               force_reclassify: bool = False, **hints) -> dict:
+        """Run one update; returns counts (probes traced, rays, state changes). ``hints`` go to the planner."""
+        vol = self.volume
+        info = {"probes_traced": 0, **_NO_STATE}
+        if self.state_rays == "fixed":
+            _add(info, self.classify(scene, self.probes_to_trace(probe_mask), frame, seed, timer))
+        ids = self.probes_to_trace(probe_mask)
+        info["probes_traced"] = int(len(ids))
+        plan = self.planner.plan(frame, seed, ids, previous=self.last_results, **hints) if len(ids) else None
+        if plan is not None and plan.n_rays:      # (a planner may give every probe 0 rays)
+            res = self.trace(scene, plan, seed, frame, timer=timer)
+            self.last_results = res
+            extra = ()
+            if self.distance_planner is not None:
+                dplan = self.distance_planner.plan(frame, seed, ids)
+                extra = (self.trace(scene, dplan, seed, frame, stream=self.streams[1], timer=timer, query=None),)
+            est = getattr(self.blender, "estimator_for", None)
+            if est is not None and est(plan).name == "matrix":
+                with maybe_stage(timer, "blend"):
+                    res.host()      # the blend's host copies, pulled before anything else is queued
+            info["rays"] = plan.n_rays
+            finish_states = None
+            if self.state_rays == "update" and self.states is not None:
+                # the state summaries' kernels run on Dr.Jit's pool beside the blend's host products
+                with maybe_stage(timer, "states", sync=False):
+                    finish_states = self.begin_states(plan, res)
+            with maybe_stage(timer, "blend"):
+                self.blender.update(vol, res, *extra)
+            if finish_states is not None:
+                with maybe_stage(timer, "states"):
+                    _add(info, finish_states())
+        # -- re-test inactive probes with fixed rays --
+        dead = self.probes_to_reclassify(frame, probe_mask, force_reclassify)
+        if len(dead):
+            _add(info, self.classify(scene, dead, frame, seed, timer))
+        info.setdefault("rays", 0)
+        return info
+
+    # -- the shared warm-up ---------------------------------------------------------------------
+    @contextmanager
+    def without_history(self):
+        """Inside: the accumulator blends without hysteresis or brightness damping (the warm-up)."""
+        acc = getattr(self.blender, "accumulator", None)
+        keys = [k for k in ("hysteresis", "brightness_threshold") if hasattr(acc, k)]
+        saved = {k: getattr(acc, k) for k in keys}
+        off = {"hysteresis": 0.0, "brightness_threshold": float("inf")}
+        for k in keys:
+            setattr(acc, k, off[k])
+        try:
+            yield
+        finally:
+            for k, v in saved.items():
+                setattr(acc, k, v)
+
+    def warm_up(self, scene, n: int, seed: int, probe_mask: np.ndarray | None = None, timer=None,
+                step=None) -> dict:
+        """``n`` updates before the first image (module docstring); returns the warm-up's rays per stage.
+
+        ``step(k, frame, timer)`` replaces the pipeline's own update for techniques whose update adds
+        work of its own (IS-DDGI); the frames are ``WARMUP_FRAME_BASE + k`` (RNG streams apart from real
+        frames). The warm-up's stages run under a timer of their own (its kernels are the steady frames'
+        ones) and count as one stage ``warmup`` of ``timer``."""
+        if n <= 0:
+            return {}
+        pl = self.planner
+        if hasattr(pl, "begin_warmup"):
+            pl.begin_warmup()
+        wt = StageTimer()
+        try:
+            with self.without_history(), maybe_stage(timer, "warmup"):
+                for k in range(n):
+                    f = WARMUP_FRAME_BASE + k
+                    if step is None:
+                        self.update(scene, f, seed, probe_mask, wt, force_reclassify=(k == 0))
+                    else:
+                        step(k, f, wt)
+        finally:
+            if hasattr(pl, "end_warmup"):
+                pl.end_warmup()
+        rays = wt.as_dict()["rays"]
+        if timer is not None:
+            timer.add_rays("warmup", sum(rays.values()))
+        return rays
+
+
+def _add(info: dict, counts: dict) -> None:
+    for k in counts:
+        info[k] += counts[k]
+
+
+def probes_in_frustum(volume: ProbeVolume, camera, res, margin: float = 1.4) -> np.ndarray:
+    """(P,) bool: probes inside the camera frustum extended to ``|clip xy| <= margin`` (ADGI Fig. 6b).
+
+    Probes behind the camera but within one cell diagonal of it also count, so
+    that probes around the viewer (which light what it sees) keep updating.
+    """
+    left, up, d = camera.frame()
+    o = np.asarray(camera.origin, np.float64)
+    w, h = res
+    tanx = np.tan(np.radians(camera.fov) * 0.5)
+    tany = tanx * h / w
+    rel = volume.positions() - o
+    z = rel @ d
+    x = (rel @ left) / np.maximum(z, 1e-9) / tanx
+    y = (rel @ up) / np.maximum(z, 1e-9) / tany
+    inside = (z > 0) & (np.abs(x) <= margin) & (np.abs(y) <= margin)
+    near = np.linalg.norm(rel, axis=1) <= volume.grid.cell_diagonal
+    return inside | near
