@@ -5,7 +5,7 @@ import pytest
 
 from dyngi.backend import dr, mi
 from dyngi.errors import DyngiError
-from dyngi.probes import (DiffuseHitShader, HysteresisBlend, MatrixEstimator, MovingAverageBlend, ProbeBlend,
+from dyngi.probes import (DiffuseHitShader, HysteresisBlend, MatrixEstimator, CappedMeanBlend, ProbeBlend,
                           ProbeGrid, ProbeQuery, ProbeUpdater, ProbeVolume, RayPlan, ScatterEstimator,
                           TrueAverage, UniformSFDirections)
 from dyngi.probes.accumulator import MeanAccumulator
@@ -273,12 +273,12 @@ def _one_texel_plan(vol, values, probe=0):
     return results_for(plan, np.repeat(np.asarray(values, np.float64)[:, None], 3, 1), np.full(k, 0.5))
 
 
-def test_moving_average_with_counts_converges_to_the_mean_and_saturates():
+def test_capped_mean_with_counts_converges_to_the_mean_and_saturates():
     rng = np.random.default_rng(11)
     x = rng.uniform(0.0, 4.0, 200)
     # uncapped (fp32 keeps 16-bit counts): the running mean of all samples, one per frame
     vol = small_volume()
-    b = MovingAverageBlend("fp32", scatter_mode="bin")
+    b = CappedMeanBlend("fp32", scatter_mode="bin")
     for i in range(100):
         b.update(vol, _one_texel_plan(vol, x[i:i + 1]))
     assert vol.state.irradiance_count[0, 2, 3] == 100
@@ -288,9 +288,10 @@ def test_moving_average_with_counts_converges_to_the_mean_and_saturates():
     for i in range(0, 100, 10):
         b.update(vol2, _one_texel_plan(vol2, x[i:i + 10]))
     assert vol2.state.irradiance[0, 2, 3, 0] == pytest.approx(x[:100].mean(), rel=1e-5)
-    # capped at 8 (ADGI Algorithm 3: n = min(n + 1, cap); old += (x - old) / n), one sample per frame
+    # capped at 8 (n = min(n + 1, cap); old += (x - old) / n: not Algorithm 3, whose weight is 1/(n + 1)),
+    # one sample per frame
     vol3 = small_volume()
-    b8 = MovingAverageBlend("fp32", max_count=8, scatter_mode="bin")
+    b8 = CappedMeanBlend("fp32", max_count=8, scatter_mode="bin")
     want = 0.0
     for i in range(60):
         b8.update(vol3, _one_texel_plan(vol3, x[i:i + 1]))
@@ -299,7 +300,7 @@ def test_moving_average_with_counts_converges_to_the_mean_and_saturates():
     assert vol3.state.irradiance[0, 2, 3, 0] == pytest.approx(want, rel=1e-5)
     # the ADGI encoding's 6 count bits cap the count at 63; the stored value is within a step of the mean
     vol4 = small_volume()
-    ba = MovingAverageBlend("adgi", scatter_mode="bin")
+    ba = CappedMeanBlend("adgi", scatter_mode="bin")
     for i in range(0, 200, 2):
         ba.update(vol4, _one_texel_plan(vol4, np.full(2, 1.3)))
     assert vol4.state.irradiance_count[0, 2, 3] == 63 and vol4.state.distance_count.max() == 63
@@ -424,7 +425,7 @@ def test_true_average_matches_per_texel_means():
 def test_scatter_blend_compiles_no_new_kernels_in_steady_state():
     vol = small_volume()
     ids = np.arange(vol.n_probes, dtype=np.uint32)
-    b = MovingAverageBlend("adgi")
+    b = CappedMeanBlend("adgi")
     rng = np.random.default_rng(0)
 
     def frame(f, counts):

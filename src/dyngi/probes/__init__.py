@@ -9,7 +9,7 @@ Replaceable pieces (Majercik et al., JCGT 2019 and 2021):
   light between NEE and the probes (the ``direct`` modes, :class:`~.trace.LightRouting`)
 * :mod:`.estimator` -- this frame's rays -> per-texel means and counts (BLAS matrix path, Dr.Jit scatter path)
 * :mod:`.accumulator` -- temporal merge with the stored texels (hysteresis, moving average, mean)
-* :mod:`.blend`     -- estimator + accumulator: :class:`HysteresisBlend`, :class:`MovingAverageBlend`,
+* :mod:`.blend`     -- estimator + accumulator: :class:`HysteresisBlend`, :class:`CappedMeanBlend`,
   :class:`TrueAverage`, :class:`ProbeBlend`
 * :mod:`.encoding`  -- storage encodings (fp32, Q-DDGI, ADGI), one Dr.Jit store/load pair each
 * :mod:`.states`    -- relocation and classification
@@ -18,8 +18,8 @@ Replaceable pieces (Majercik et al., JCGT 2019 and 2021):
 * :mod:`.primary`   -- the consumer: primary-vertex shading, NEE direct + probe indirect (:func:`shade_primary`)
 * :mod:`.debug`     -- a view of the probes as shaded spheres (:func:`render_probe_view`)
 """
-from .accumulator import HysteresisAccumulator, MeanAccumulator, MovingAverageAccumulator
-from .blend import HysteresisBlend, MovingAverageBlend, ProbeBlend, TrueAverage, blend_matrix
+from .accumulator import HysteresisAccumulator, MeanAccumulator, CappedMeanAccumulator
+from .blend import HysteresisBlend, CappedMeanBlend, ProbeBlend, TrueAverage, blend_matrix
 from .estimator import MatrixEstimator, ScatterEstimator, TexelEstimate
 from .encoding import ENCODINGS, get_encoding
 from .grid import PROBE_ACTIVE, PROBE_INACTIVE, ProbeGrid
@@ -34,8 +34,8 @@ from .volume import ProbeVolume, ProbeVolumeState
 
 __all__ = ["ProbeGrid", "ProbeVolume", "ProbeVolumeState", "ProbeQuery", "UniformSFDirections",
            "FixedSFDirections", "LobeDirections", "RayPlan", "DiffuseHitShader", "trace_probe_rays",
-           "HysteresisBlend", "TrueAverage", "blend_matrix", "ProbeBlend", "MovingAverageBlend",
-           "HysteresisAccumulator", "MovingAverageAccumulator", "MeanAccumulator", "MatrixEstimator",
+           "HysteresisBlend", "TrueAverage", "blend_matrix", "ProbeBlend", "CappedMeanBlend",
+           "HysteresisAccumulator", "CappedMeanAccumulator", "MeanAccumulator", "MatrixEstimator",
            "ScatterEstimator", "TexelEstimate", "ProbeStates", "ProbeUpdater",
            "probes_in_frustum", "ENCODINGS", "get_encoding", "DIRECT_MODES", "HIT_LOOKUPS", "PROBE_ACTIVE",
            "PROBE_INACTIVE", "shade_primary", "render_probe_view"]

@@ -13,14 +13,14 @@ keep their value and count.
   with the change threshold and brightness damping of Majercik et al. (JCGT 2021,
   Sec. 6) and RTXGI (see :mod:`dyngi.probes.blend`). The count only tracks
   ``min(n + m, cap)``.
-* :class:`MovingAverageAccumulator` -- ADGI (Datta et al. 2022, Algorithm 3):
-  per sample ``n = min(n + 1, cap); new = old + (x_i - old) / n``, with the cap
-  the encoding's count bits (63 for ADGI's 6-bit counts). The ``m`` samples of a
-  frame are merged at once as ``m`` equal samples of value ``x`` (the frame's
-  samples are unordered; ours): ``new = old + (1 - keep) (x - old)`` with
-  ``keep = n / (n + s) * (1 - 1/cap)^(m - s)``, ``s = min(m, cap - n)`` -- exactly
-  the sequential updates when the samples are equal, the running mean before
-  the cap and an exponential average of weight ``1/cap`` per sample after it.
+* :class:`CappedMeanAccumulator` -- a count-capped running mean (our choice; not ADGI's Algorithm 3,
+  which is :class:`dyngi.techniques.adgi.moving_average.Algorithm3Accumulator`): per sample
+  ``n = min(n + 1, cap); new = old + (x_i - old) / n``, i.e. the mean of the first ``cap`` samples, then
+  an exponential average of weight ``1/cap`` per sample (one sample off Algorithm 3's ``1/(n + 1)``),
+  with the cap the encoding's count bits (63 for the 6-bit counts of ``adgi``). The ``m`` samples of a
+  frame are merged at once as ``m`` equal samples of value ``x`` (the frame's samples are unordered;
+  ours): ``new = old + (1 - keep) (x - old)`` with ``keep = n / (n + s) * (1 - 1/cap)^(m - s)``,
+  ``s = min(m, cap - n)`` -- exactly the sequential updates when the samples are equal.
 * :class:`MeanAccumulator` -- the plain mean of this frame's samples, no history
   (ADGI's fp32 reference, Sec. 5; :class:`~dyngi.probes.blend.TrueAverage`).
 """
@@ -36,7 +36,7 @@ from .volume import upload
 
 CHANGE_HYSTERESIS_DROP = 0.75
 BRIGHTNESS_DAMPING = 0.25
-ACCUMULATORS = ("hysteresis", "moving-average", "mean")
+ACCUMULATORS = ("hysteresis", "capped-mean", "mean")
 
 
 class HysteresisAccumulator:
@@ -73,13 +73,13 @@ class HysteresisAccumulator:
         return dr.fma(1.0 - hd, new - old, old), _count_sum(n_old, m, fresh, cap)
 
 
-class MovingAverageAccumulator:
-    """ADGI's count-based moving average (Algorithm 3); see the module docstring.
+class CappedMeanAccumulator:
+    """Count-capped running mean; see the module docstring (not ADGI's Algorithm 3).
 
     max_count : int | None   cap of the count (default: the encoding's, 63 for 'adgi')
     """
 
-    name = "moving-average"
+    name = "capped-mean"
 
     def __init__(self, max_count: int | None = None):
         self.max_count = None if max_count is None else max(int(max_count), 1)

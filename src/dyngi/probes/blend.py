@@ -3,8 +3,8 @@
 A blend is an **estimator** (:mod:`.estimator`: this frame's rays -> per-texel
 means and counts) followed by a **temporal accumulator** (:mod:`.accumulator`:
 merge with the stored texels through the encoding). :class:`ProbeBlend`
-composes any pair; :class:`HysteresisBlend` (DDGI), :class:`MovingAverageBlend`
-(ADGI Algorithm 3) and :class:`TrueAverage` (the reference) are the named ones.
+composes any pair; :class:`HysteresisBlend` (DDGI), :class:`CappedMeanBlend`
+(a count-capped running mean, our choice) and :class:`TrueAverage` (the reference) are the named ones.
 
 DDGI (Majercik et al., JCGT 2019, Sec. 3.2) updates texel ``t`` of a probe
 from that probe's ``N`` rays ``(w_r, L_r, d_r)`` of this frame:
@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from .accumulator import (BRIGHTNESS_DAMPING, CHANGE_HYSTERESIS_DROP, HysteresisAccumulator, MeanAccumulator,
-                          MovingAverageAccumulator, interior_source_index, merge_into_volume)
+                          CappedMeanAccumulator, interior_source_index, merge_into_volume)
 from .encoding import get_encoding
 from .estimator import (ESTIMATORS, MIN_BLEND_WEIGHT, MatrixEstimator, ScatterEstimator, blend_matrix,
                         choose_estimator)
@@ -48,7 +48,7 @@ from ..errors import unknown_choice
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
 
-__all__ = ["ProbeBlend", "HysteresisBlend", "MovingAverageBlend", "TrueAverage", "blend_matrix", "MatrixEstimator",
+__all__ = ["ProbeBlend", "HysteresisBlend", "CappedMeanBlend", "TrueAverage", "blend_matrix", "MatrixEstimator",
            "interior_source_index", "ESTIMATORS", "CHANGE_HYSTERESIS_DROP", "BRIGHTNESS_DAMPING",
            "MIN_BLEND_WEIGHT"]
 
@@ -131,17 +131,18 @@ class HysteresisBlend(ProbeBlend):
     del _acc_property
 
 
-class MovingAverageBlend(ProbeBlend):
-    """ADGI's count-based moving average (Algorithm 3) of the samples each texel receives.
+class CappedMeanBlend(ProbeBlend):
+    """Count-capped running mean of the samples each texel receives (:class:`CappedMeanAccumulator`; not
+    ADGI's Algorithm 3, which :mod:`dyngi.techniques.adgi.moving_average` implements).
 
     Parameters: ``encoding`` (its count bits cap the count; 'adgi': 63), ``max_count`` (a lower cap),
     ``estimator``, ``distance_power``, ``scatter_mode`` ('bin': each sample updates the texel it
-    falls in, as ADGI does; 'kernel': DDGI's cosine weights).
+    falls in, as ADGI bins; 'kernel': DDGI's cosine weights).
     """
 
     def __init__(self, encoding: str = "adgi", max_count: int | None = None, estimator: str = "auto",
                  distance_power: float = 50.0, scatter_mode: str = "auto"):
-        super().__init__(MovingAverageAccumulator(max_count), encoding, estimator, distance_power, scatter_mode)
+        super().__init__(CappedMeanAccumulator(max_count), encoding, estimator, distance_power, scatter_mode)
 
 
 class TrueAverage:

@@ -32,7 +32,7 @@ batch 0.504, sequential ``1 - (63/64)^64 = 0.635``.
 accumulator interface of :mod:`dyngi.probes.accumulator` (``new`` is the
 frame's mean of ``m`` samples, so ``sum v = m * new``), usable with
 :func:`dyngi.probes.accumulator.merge_into_volume`.
-Note: :class:`dyngi.probes.accumulator.MovingAverageAccumulator` is not
+Note: :class:`dyngi.probes.accumulator.CappedMeanAccumulator` is not
 Algorithm 3: it gives sample ``k`` the weight ``1 / min(k, cap)`` (the mean of
 the first ``cap`` samples, then weight ``1/cap``), one sample off Algorithm 3.
 """

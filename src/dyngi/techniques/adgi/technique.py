@@ -83,7 +83,7 @@ silent; ours): during the warm-up updates, then every
 classification rays (:meth:`ADGITechnique._states_pass`).
 
 Encoding ``adgi``: Table 3's ``floor(R9)floor(G9)floor(B8)-N`` /
-``[R13][G13]-N``, visibility rounded to nearest (:mod:`.encoding`).
+``[R13][G13]-N``, visibility rounded to nearest (:class:`dyngi.probes.encoding.ADGIEncoding`).
 
 Parameters
 ----------
@@ -111,17 +111,18 @@ import numpy as np
 
 from ...backend import dr, mi
 from ...errors import DyngiError
-from ...probes import DiffuseHitShader, HysteresisBlend, ProbeStates, ProbeUpdater, RayPlan, ScatterEstimator
+from ...probes import DiffuseHitShader, HysteresisBlend, ProbeStates, RayPlan, ScatterEstimator
 from ...probes import UniformSFDirections
-from ...probes.accumulator import MeanAccumulator, merge_into_volume, pull_from
-from ...probes.trace import HIT_LOOKUPS, ProbeRayResults, trace_probe_distances, trace_probe_rays
+from ...probes.accumulator import MeanAccumulator, pull_from
+from ...probes.encoding import get_encoding
+from ...probes.pipeline import ProbePipeline
+from ...probes.trace import HIT_LOOKUPS, ProbeRayResults
 from ...probes.volume import upload
 from ...sampling.diffuse import diffuse_albedo
 from ...sampling.metropolis import ADGI_DIRECTION_STEP, ChainState, MetropolisChains
 from ...sampling.octahedral import direction_to_texel_coords, texel_directions
 from ..base import Frame, FrameResult, Param, StageTimer, register
-from ..ddgi import COMMON_PARAMS, _ProbeTechniqueBase, _warm_up_volume
-from .encoding import adgi_encoding
+from ..ddgi import COMMON_PARAMS, _ProbeTechniqueBase
 from .heuristics import (OCTANTS, ADGIHeuristics, frusta, octant_of, octant_signs, pack_heuristics,
                          static_guide, unpack_heuristics)
 from .moving_average import N_MAX_DYNAMIC, N_MAX_STATIC, Algorithm3Accumulator
@@ -227,7 +228,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         g = self.grid
         self.counts = tuple(int(c) for c in g.counts)
         self.shader = PilotShader(p["direct"], lookup=p["hit_lookup"])
-        self.encoding = adgi_encoding(p["encoding"])     # Table 3: visibility rounds to nearest
+        self.encoding = get_encoding(p["encoding"])     # Table 3: visibility rounds to nearest
         self.acc_static = Algorithm3Accumulator(p["n_max_static"])
         self.acc_dynamic = Algorithm3Accumulator(p["n_max_dynamic"])
         self._mean = MeanAccumulator()
@@ -248,10 +249,12 @@ class ADGITechnique(_ProbeTechniqueBase):
         self.dynamic_state = self.dynamic.initial_state(p["dynamic_chains"], 1) if p["dynamic_chains"] else None
         # -- ddgi's warm-up pieces (hysteresis blend, shared SF set, relocation/classification) --
         self.blender = HysteresisBlend(0.0, p["distance_power"], 1.0, 0.25, 1e30, p["encoding"], "auto")
-        self.updater = ProbeUpdater(self.volume, UniformSFDirections(p["warmup_rays"]),
-                                    DiffuseHitShader(p["direct"], lookup=p["hit_lookup"]), self.blender,
-                                    ProbeStates(p["relocate"], p["classify"]), self.query, reclassify_interval=0)
         self.blender.encoding = self.encoding             # the warm-up stores through the same encoding
+        # the pipeline: its own update is the warm-up's (ddgi's); the stages P, S, D call its trace and merge
+        self.pipeline = ProbePipeline(self.volume, UniformSFDirections(p["warmup_rays"]),
+                                      DiffuseHitShader(p["direct"], lookup=p["hit_lookup"]), self.blender,
+                                      ProbeStates(p["relocate"], p["classify"]), self.query, reclassify_interval=0)
+        self.updater = self.pipeline       # (older name)
         self._warmed = False
         self._shadow_rate = 1.0                # NEE shadow rays per probe ray (measured)
         self._static_rays = None               # this frame's ray allowance of S and D (None: no budget)
@@ -266,9 +269,6 @@ class ADGITechnique(_ProbeTechniqueBase):
         self._texel_dirs = mi.Float(texel_directions(self.volume.irradiance_texels)[1:-1, 1:-1]
                                     .reshape(-1).astype(np.float32))
         self._strata = self._octant_strata(int(round(np.sqrt(p["dynamic_rays"]))))
-
-    def _learn_shadow_rate(self, rays: dict) -> None:     # (used by ddgi's warm-up; no budgets here)
-        pass
 
     @staticmethod
     def _octant_strata(k: int):
@@ -285,10 +285,11 @@ class ADGITechnique(_ProbeTechniqueBase):
         p = self.params
         t = StageTimer()
         if not self._warmed:
-            _warm_up_volume(self, frame, None, t)
-            if self.updater.last_results is not None:     # the warm-up's last rays seed the radiance texels
+            self._warmed = True
+            self.pipeline.warm_up(self.scene, p["warmup"], frame.seed, None, t)
+            if self.pipeline.last_results is not None:     # the warm-up's last rays seed the radiance texels
                 with t.stage("warmup"):
-                    self.radiance.merge(self.updater.last_results, p["n_max_static"])
+                    self.radiance.merge(self.pipeline.last_results, p["n_max_static"])
         vol = self.volume
         # -- ddgi's relocation/classification after the warm-up (the paper is silent; ours) --
         if self._warmed and frame.index > 0 and p["reclassify_interval"] and \
@@ -309,8 +310,8 @@ class ADGITechnique(_ProbeTechniqueBase):
                 # both frames of a pair draw the same NEE samples (sampler seeded by the pair): f_r's time
                 # difference then sees scene changes, not NEE noise (ours)
                 tt = StageTimer()
-                res = trace_probe_rays(self.scene, vol, plan, self.shader, self.query, frame.seed,
-                                       frame.index // 2, stream=41, timer=tt)
+                res = self.pipeline.trace(self.scene, plan, frame.seed, frame.index // 2, stream=41, timer=tt,
+                                          shader=self.shader)
                 lum = mi.luminance(self.shader.last_direct)
                 t.add_rays("P", self._count(tt))
                 self.hstate = self.heur.update(self.hstate, frame.index, ids, res.distance, lum, fc)
@@ -396,15 +397,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         ``classify_dirs``, 32 spherical-Fibonacci rays) and :class:`~dyngi.probes.states.ProbeStates`
         moves / (de)activates it as ``ddgi`` does. The rays are counted (stage ``states``) and come out
         of an equal-ray budget before the chains are sized."""
-        up = self.updater
-        ids = np.flatnonzero(mask).astype(np.uint32)
-        if not len(ids):
-            return
-        with t.stage("states"):
-            plan = up.classify_dirs.plan(frame.index, frame.seed, ids)
-            dist = trace_probe_distances(self.scene, self.volume, plan)
-            up.states.update(self.volume, ids, plan.shared_directions, dist)
-        t.add_rays("states", len(ids) * up.classify_dirs.n)
+        self.pipeline.classify(self.scene, np.flatnonzero(mask).astype(np.uint32), frame.index, frame.seed, t)
 
     def _chains_to_run(self) -> int:
         n = self.static_state.n
@@ -596,12 +589,11 @@ class ADGITechnique(_ProbeTechniqueBase):
     def _trace_and_merge(self, frame: Frame, plan: RayPlan, acc, n_max: int, stream: int) -> int:
         """Trace ``plan`` (radiance along ``w``, distance along ``-w``) and merge; returns the rays cast
         (probe rays, their NEE shadow rays and the ``-w`` rays)."""
-        vol = self.volume
         tt = StageTimer()
-        res = trace_probe_rays(self.scene, vol, plan, self.shader, self.query, frame.seed, frame.index,
-                               stream=stream, timer=tt)
+        res = self.pipeline.trace(self.scene, plan, frame.seed, frame.index, stream=stream, timer=tt,
+                                  shader=self.shader)
         back = negated(plan)
-        dist = trace_probe_distances(self.scene, vol, back)
+        dist = self.pipeline.trace_distances(self.scene, back)
         self._merge(res, ProbeRayResults(res.radiance, dist, back), acc, n_max)
         return self._count(tt) + plan.n_rays
 
@@ -621,7 +613,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         plan = irr_res.plan
         self.radiance.merge(irr_res, n_max)
         est_d = self.est_dist.distance(vol, dist_res if dist_res is not None else irr_res)
-        merge_into_volume(vol, None, est_d, acc, self.encoding, plan.probe_ids, plan.counts)
+        self.pipeline.merge(None, est_d, plan.probe_ids, plan.counts, accumulator=acc, encoding=self.encoding)
         self._updated[plan.probe_ids[plan.counts > 0]] = True
 
     def _convolve_updated(self) -> int:
@@ -630,7 +622,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         self._updated[:] = False
         if len(ids):
             est = self.radiance.irradiance_estimate(ids)
-            merge_into_volume(self.volume, est, None, self._mean, self.encoding, ids)
+            self.pipeline.merge(est, None, ids, accumulator=self._mean, encoding=self.encoding)
         return len(ids)
 
     def _cap_outer(self, mask: np.ndarray, cap: int) -> None:
