@@ -456,30 +456,3 @@ def test_ddgi_technique_same_probes_with_either_estimator():
     assert ia.max() > 0.0
     assert np.allclose(ia, ib, rtol=1e-3, atol=1e-5) and np.allclose(da, db, rtol=1e-3, atol=1e-5)
     assert np.array_equal(ib, ic) and np.array_equal(db, dc)
-
-
-def test_updater_runs_a_ragged_planner_with_states():
-    """An IS-DDGI-like planner (0, 16, 32 or 64 random rays per probe, weights 1/pdf): the update traces,
-    blends (scatter path) and relocates/classifies the probes grouped by ray count."""
-    from dyngi.probes import ProbeStates
-    sc = load_scene("cornell-static")
-    vol = ProbeVolume(ProbeGrid.from_scene(sc, (4, 4, 4)))
-
-    class Ragged:
-        n = 0
-
-        def plan(self, frame, seed, probe_ids, previous=None):
-            rng = np.random.default_rng(frame)
-            counts = np.array([0, 16, 32, 64])[np.asarray(probe_ids) % 4]      # fixed per probe
-            d = unit(rng.normal(size=(counts.sum(), 3))).astype(np.float32)
-            return RayPlan.ragged(probe_ids, counts, mi.Vector3f(*[upload(d[:, i]) for i in range(3)]),
-                                  pdf=mi.Float(np.full(counts.sum(), 1 / (4 * np.pi), np.float32)))
-
-    up = ProbeUpdater(vol, Ragged(), DiffuseHitShader(), HysteresisBlend(), ProbeStates(), ProbeQuery(vol))
-    for f in range(3):
-        info = up.update(sc, f, 0)
-    assert info["rays"] == up.last_results.plan.n_rays > 0
-    assert vol.state.is_finite() and vol.state.irradiance.max() > 0.0
-    ids = up.last_results.plan.probe_ids
-    assert np.all(vol.state.updates[ids[up.last_results.plan.counts == 0]] == 0)
-    assert up.blender.last_estimator == "scatter"

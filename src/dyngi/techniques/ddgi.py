@@ -59,7 +59,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..backend import dr, mi
 from ..errors import DyngiError
 from ..probes import (DiffuseHitShader, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
                       ProbeVolume, TrueAverage, UniformSFDirections)
