@@ -24,8 +24,6 @@ ALLOWED = {
     # glossy-lobe-only sampling for the DDGI family's glossy probe lookups (Eq. 6), not a path walk
     "probes/glossy.py": "sample_glossy: one glossy-lobe sample (DDGI+ Eq. 6, ddgi-primary's recursion)",
     "probes/primary.py": "one rough-glossy sample for the primary glossy probe lookup",
-    # S(x_n): the footprint-terminated glossy recursion and the full-BSDF sample at the primary vertex
-    "techniques/ddgi_resampling/shading.py": "DDGI Resampling Sec. 3.4: glossy recursion into the probes",
 }
 
 

@@ -8,7 +8,7 @@ import pkgutil
 
 from .base import REGISTRY, DirectionSampler, DirSample, Vertex, make, names, register
 
-_INFRA = {"base", "walk"}
+_INFRA = {"base", "walk", "lobes"}
 _found = False
 
 

@@ -15,8 +15,9 @@ column of its Fig. 3 / 8 and Table 1):
   probe rays do NEE for **every** emitter (``direct='nee'``): the probes then
   hold bounced light only (``sum_{i>=2} T_fd^i L_e``), since ReSTIR already
   delivers the environment's and every light's direct part;
-* ``T_fg L``: the **glossy recursion**, path traced: at the primary vertex one
-  sample of the glossy lobes (:func:`dyngi.probes.glossy.sample_glossy`); at
+* ``T_fg L``: the **glossy recursion**, path traced by the transport layer's
+  walk (:func:`glossy_recursion`): at the primary vertex one sample of the
+  glossy and delta lobes (:class:`~dyngi.directions.lobes.LobeDirections`); at
   each following vertex ``y``: NEE (one light sample, full BSDF) +
   ``albedo / pi * E_probe(y)`` + the next glossy sample, up to ``glossy_depth``
   glossy bounces. Emission hit by a glossy sample is not counted where the
@@ -60,11 +61,13 @@ from __future__ import annotations
 
 from ..backend import dr, mi
 from ..probes.ddgi_plus import DDGIPlusVolume, plus_params
-from ..probes.glossy import sample_glossy
+from ..directions.lobes import LobeDirections
+from ..probes.glossy import GLOSSY_LOBES
 from ..probes.trace import shading_side
 from ..sampling.diffuse import diffuse_albedo
-from ..sampling.lights import EmitterSampling, sample_traced
+from ..sampling.lights import EmitterSampling
 from ..sampling.rng import make_sampler
+from ..transport.path_walk import walk
 from ..transport.restir_di import PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
@@ -79,55 +82,39 @@ def _params() -> dict:
     return out
 
 
-@dr.syntax
 def glossy_recursion(scene, volume, lights, si, ray, front, sampler, depth_max: int):
     """``T_fg L`` at the primary vertex ``si`` (module docstring). Returns (L, rays traced per lane).
 
-    ``volume``: the :class:`~dyngi.probes.ddgi_plus.DDGIPlusVolume` whose query gives the diffuse indirect
-    light at each vertex; ``lights``: the NEE strategy at vertices >= 2; ``front``: lanes whose primary
-    vertex faces the camera; ``depth_max``: glossy bounces (a Python int: fixed per technique instance).
-    All of ``L`` is indirect light (it reflected at vertex >= 2 before the primary vertex): the emission
-    seen behind a delta lobe at vertex 2 is ReSTIR's and not counted here."""
-    L = mi.Color3f(0.0)
-    rays = mi.UInt32(0)
-    si = mi.SurfaceInteraction3f(si)
-    si.wi = si.to_local(-ray.d)
-    d, beta, active, delta = sample_glossy(si.bsdf(), si, sampler.next_1d(), sampler.next_2d(), front, True)
-    depth = mi.UInt32(1)
+    One call of the transport layer's path walk (:func:`dyngi.transport.path_walk.walk`) from ``si``
+    (vertex 0) with per-vertex choices: directions from the glossy and delta lobes only
+    (:class:`~dyngi.directions.lobes.LobeDirections`, :data:`~dyngi.probes.glossy.GLOSSY_LOBES`); NEE
+    (``lights``, full BSDF) at vertices 1 .. ``depth_max``; the emission reached through a delta lobe at
+    vertices 2 .. ``depth_max`` (vertex 1's is ReSTIR's path part; behind a smooth lobe it was NEE's at the
+    vertex before: no MIS); the shade hook adds ``albedo / pi * E_probe`` at vertices >= 1 and ends the
+    path at vertex ``depth_max`` or on a surface not facing the ray; no Russian roulette.
+    ``volume``: the :class:`~dyngi.probes.ddgi_plus.DDGIPlusVolume` whose query gives the diffuse
+    indirect light; ``front``: lanes whose primary vertex faces the camera; ``depth_max``: glossy bounces
+    (a Python int: fixed per technique instance). All of ``L`` is indirect light (it reflected at vertex
+    >= 2 before the primary vertex)."""
     depth_u = mi.UInt32(depth_max)
-    active &= depth_u > 0
-    ctx = mi.BSDFContext()
-    prev_si = mi.SurfaceInteraction3f(si)
-    while dr.hint(active, label="dyngi_ddgi_primary_glossy"):
-        r = prev_si.spawn_ray(d)
-        nsi = scene.ray_intersect(r, ray_flags=mi.RayFlags.All, coherent=False, active=active)
-        rays += mi.UInt32(active)
-        hit = active & nsi.is_valid()
-        # -- emission (and the environment on a miss) behind a delta lobe, from vertex 3 on (vertex 2's is
-        # ReSTIR's path part); behind a smooth lobe it was NEE's at the vertex before --
-        em_on = active & delta & (depth >= 2)
-        L += dr.select(em_on, beta * mi.Color3f(nsi.emitter(scene, em_on).eval(nsi, em_on)), 0.0)
-        bsdf = nsi.bsdf(r)
-        fr, nn = shading_side(nsi, r, bsdf, hit)
-        # -- NEE at the new vertex (all emitters, full BSDF) --
-        ds, w, sh = sample_traced(lights, scene, nsi, sampler.next_2d(), fr)
-        rays += mi.UInt32(sh)
-        f = bsdf.eval(ctx, nsi, nsi.to_local(ds.d), fr & sh)
-        L += dr.select(fr & sh, beta * mi.Color3f(f) * w, 0.0)
-        # -- probe diffuse indirect at the new vertex --
-        alb = diffuse_albedo(bsdf, nsi, fr)
-        dif = fr & dr.any(alb > 0.0)
-        E = volume.query.irradiance(nsi.p, nn, -r.d, active=dif)
-        L += dr.select(dif, beta * alb * dr.inv_pi * E, 0.0)
-        # -- next glossy bounce --
-        nsi.wi = nsi.to_local(-r.d)
-        d2, w2, ok, delta = sample_glossy(bsdf, nsi, sampler.next_1d(), sampler.next_2d(), fr, True)
-        beta *= w2
-        depth += 1
-        prev_si = mi.SurfaceInteraction3f(nsi)
-        d = mi.Vector3f(d2)
-        active = hit & ok & (depth <= depth_u) & dr.any(beta > 0.0)
-    return L, rays
+
+    def emission(depth, prev_delta):
+        return prev_delta & (depth >= 2) & (depth <= depth_u)
+
+    def nee(depth):
+        return depth >= 1
+
+    def shade(v):
+        fr, nn = shading_side(v.si, v.ray, v.bsdf, v.active)
+        alb = diffuse_albedo(v.bsdf, v.si, fr)
+        dif = fr & dr.any(alb > 0.0) & (v.depth >= 1)
+        E = volume.query.irradiance(v.si.p, nn, -v.ray.d, active=dif)
+        L = dr.select(dif, alb * dr.inv_pi * E, 0.0)
+        return L, (v.depth >= depth_u) | ~fr, v.state
+
+    r = walk(scene, sampler, ray, mi.Bool(front), depth_max + 2, -1, lights, si=si, emission=emission, nee=nee,
+             shade=shade, directions=LobeDirections(GLOSSY_LOBES), mis=False)
+    return mi.Color3f(r.L), r.n_rays
 
 
 @register

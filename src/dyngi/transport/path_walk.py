@@ -22,6 +22,17 @@ Per-vertex choices (Python callables evaluated inside the loop, on Dr.Jit masks)
 * ``terminate(si, ray, depth, active) -> (stop, radiance)``: where ``stop``, the path ends at this
   vertex (after its emission) and ``beta * radiance`` replaces the rest of it (a probe lookup, a
   footprint test); no NEE and no further bounce there. Default: none.
+* ``shade(v: VertexCtx) -> (radiance, stop, state)``: radiance this vertex adds besides its emission and
+  NEE (``beta * radiance``; e.g. a probe's diffuse term), where ``stop`` no bounce follows (NEE at the
+  vertex still happens; e.g. DDGI Resampling's footprint termination, Eq. 8), and the hook's per-lane
+  ``state`` (a Dr.Jit PyTree given as ``state=``, carried through the loop; e.g. Eq. 7's running
+  footprint sum). Default: none.
+
+Other choices: ``mis=False`` weighs NEE and emission 1 (no MIS; for an estimator whose emission hook
+leaves out what NEE covers); ``rr_depth < 0``: no Russian roulette (and no random number drawn for it);
+``nee=False``: no NEE at all (no light sample drawn); ``directions``: a direction strategy instead of the
+BSDF's own sampling (:class:`dyngi.directions.walk.WalkDirections`; a restricted one such as
+:class:`dyngi.directions.glossy.GlossyLobes`).
 
 A path that can no longer contribute (its next vertex counts no emission and is the last) stops early.
 
@@ -51,6 +62,25 @@ class PathResult:
     L_near: object
     n_rays: object
     first_valid: object
+    bounces: object = None
+    state: object = None
+
+
+@dataclass
+class VertexCtx:
+    """What a ``shade`` hook sees at a vertex: the surface interaction, the ray that reached it, its BSDF,
+    the vertex index ``depth``, the active lanes (valid hits), the pdf and delta flag of the direction that
+    led here (at vertex 0 of a walk from surfaces: 1 and True), the walk's sampler and the hook's state."""
+
+    si: object
+    ray: object
+    bsdf: object
+    depth: object
+    active: object
+    prev_pdf: object
+    prev_delta: object
+    sampler: object
+    state: object
 
 
 def _mask(hook, base, *args):
@@ -109,17 +139,37 @@ def _bounce(directions, vtx, bsdf, ctx, si, sampler, active, L, beta, depth):
     return d.wo, dr.select(ok, d.weight, 0.0), dr.select(ok, d.pdf, 0.0), mi.Bool(d.delta), mi.Float(1.0)
 
 
+def _shade(hook, si, ray, bsdf, depth, active, prev_pdf, prev_delta, sampler, state, beta, L, L_ind, L_near,
+           total, split, near):
+    """Apply the shade hook at this vertex: add ``beta * radiance``; return the sums, the lanes that stop
+    after this vertex, and the hook's new state."""
+    on = active & si.is_valid()
+    L_s, stop, state = hook(VertexCtx(si, ray, bsdf, depth, on, prev_pdf, prev_delta, sampler, state))
+    L_s = dr.select(on, L_s, 0.0)
+    if total:
+        L = dr.fma(beta, L_s, L)
+    if split:
+        L_ind = dr.select(depth >= 1, dr.fma(beta, L_s, L_ind), L_ind)
+    if near:
+        L_near = dr.select(depth == 0, dr.fma(beta, L_s, L_near), L_near)
+    return L, L_ind, L_near, on & mi.Bool(stop), state
+
+
 @dr.syntax
 def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None, power_heuristic: bool = True,
          si=None, emission=None, nee=None, terminate=None, total: bool = True, split: bool = False,
-         near: bool = False, directions=None) -> PathResult:
+         near: bool = False, directions=None, shade=None, state=None, mis: bool = True) -> PathResult:
     """Trace one path per lane (module docstring); ``si``: start at these surface interactions
     (``ray``: the rays that reached them), else intersect ``ray`` first. ``total``/``split``/``near``:
     which of ``L``/``L_ind``/``L_near`` to sum. ``directions``: a direction strategy
-    (:class:`dyngi.directions.walk.WalkDirections`) instead of the BSDF's own sampling."""
+    (:class:`dyngi.directions.walk.WalkDirections`) instead of the BSDF's own sampling. ``shade`` and
+    ``state``: the per-vertex shade hook and its initial state; ``mis``: MIS between NEE and emission."""
     lights = lights if lights is not None else EmitterSampling()
+    do_nee = nee is not False
+    if state is None:
+        state = mi.Float(0.0)
     max_depth = mi.UInt32(0xFFFFFFFF) if max_depth < 0 else mi.UInt32(max_depth)
-    rr_depth_u = mi.UInt32(rr_depth)
+    rr_depth_u = mi.UInt32(max(rr_depth, 0))
     ctx = mi.BSDFContext()
     active = mi.Bool(active)
     ray = mi.Ray3f(ray)
@@ -143,15 +193,18 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
     prev_si = dr.zeros(mi.SurfaceInteraction3f)
     prev_pdf = mi.Float(1.0)
     prev_delta = mi.Bool(True)
+    bounces = mi.UInt32(0)
 
     while dr.hint(active, label="dyngi_path_walk"):
         # -- emission hit by the BSDF-sampled ray, MIS against NEE --
         ds = mi.DirectionSample3f(scene, si, prev_si)
-        em_pdf = mi.Float(0.0)
-        if ~prev_delta:
-            em_pdf = _light_pdf(lights, scene, prev_si, si, ds, active & ~prev_delta)
-        w_bsdf = mis_weight(prev_pdf, em_pdf, power_heuristic)
         em_on = _mask(emission, active, depth, prev_delta)
+        w_bsdf = mi.Float(1.0)
+        if mis and do_nee:
+            em_pdf = mi.Float(0.0)
+            if ~prev_delta:
+                em_pdf = _light_pdf(lights, scene, prev_si, si, ds, active & ~prev_delta)
+            w_bsdf = mis_weight(prev_pdf, em_pdf, power_heuristic)
         Le = ds.emitter.eval(si, em_on & (prev_pdf > 0))
         if total:
             L[em_on] = dr.fma(beta, Le * w_bsdf, L)
@@ -168,23 +221,34 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
             L, L_ind, L_near, active_next = _terminate(terminate, si, ray, depth, active, active_next, beta,
                                                        L, L_ind, L_near, total, split, near)
 
-        # -- next-event estimation --
-        active_em = _mask(nee, active_next, depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        ds_em, em_weight, active_em = _light_sample(lights, scene, si, sampler, active_em, depth)
-        n_rays += mi.UInt32(active_em)
-        wo = si.to_local(ds_em.d)
-        bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
+        # -- shade hook: radiance of this vertex besides emission and NEE; where it stops, no bounce --
+        active_bounce = mi.Bool(active_next)
+        if shade is not None:
+            L, L_ind, L_near, stop_s, state = _shade(shade, si, ray, bsdf, depth, active, prev_pdf, prev_delta,
+                                                     sampler, state, beta, L, L_ind, L_near, total, split, near)
+            active_bounce = active_next & ~stop_s
+
         vtx = _dir_vertex(directions, si, bsdf, active_next)
-        bsdf_pdf = _dir_pdf(directions, vtx, ds_em.d, active_em, bsdf_pdf)
-        w_em = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, bsdf_pdf, power_heuristic))
-        if total:
-            L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_em, L)
-        if split:    # not NEE at vertex 0 (direct light)
-            L_ind[active_em & (depth >= 1)] = dr.fma(beta, bsdf_val * em_weight * w_em, L_ind)
-        if near:
-            L_near[active_em & (depth == 0)] = dr.fma(beta, bsdf_val * em_weight * w_em, L_near)
+        # -- next-event estimation --
+        if do_nee:
+            active_em = _mask(nee, active_next, depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+            ds_em, em_weight, active_em = _light_sample(lights, scene, si, sampler, active_em, depth)
+            n_rays += mi.UInt32(active_em)
+            wo = si.to_local(ds_em.d)
+            bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
+            w_em = mi.Float(1.0)
+            if mis:
+                bsdf_pdf = _dir_pdf(directions, vtx, ds_em.d, active_em, bsdf_pdf)
+                w_em = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, bsdf_pdf, power_heuristic))
+            if total:
+                L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_em, L)
+            if split:    # not NEE at vertex 0 (direct light)
+                L_ind[active_em & (depth >= 1)] = dr.fma(beta, bsdf_val * em_weight * w_em, L_ind)
+            if near:
+                L_near[active_em & (depth == 0)] = dr.fma(beta, bsdf_val * em_weight * w_em, L_near)
 
         # -- BSDF sampling --
+        active_next = active_bounce
         wo_w, bsdf_weight, s_pdf, delta_lobe, s_eta = _bounce(directions, vtx, bsdf, ctx, si, sampler, active_next,
                                                                L, beta, depth)
         ray = si.spawn_ray(wo_w)
@@ -198,19 +262,23 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
 
         # -- Russian roulette --
         beta_max = dr.max(beta)
-        rr_active = depth >= rr_depth_u
-        rr_prob = dr.minimum(beta_max * dr.square(s_eta), 0.95)
-        rr_continue = sampler.next_1d() < rr_prob
-        beta[rr_active] *= dr.rcp(rr_prob)
-        active = active_next & useful & (~rr_active | rr_continue) & (beta_max != 0.0) & (s_pdf > 0.0)
+        survive = mi.Bool(True)
+        if rr_depth >= 0:
+            rr_active = depth >= rr_depth_u
+            rr_prob = dr.minimum(beta_max * dr.square(s_eta), 0.95)
+            rr_continue = sampler.next_1d() < rr_prob
+            beta[rr_active] *= dr.rcp(rr_prob)
+            survive = ~rr_active | rr_continue
+        active = active_next & useful & survive & (beta_max != 0.0) & (s_pdf > 0.0)
 
         si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
         n_rays += mi.UInt32(active)
+        bounces += mi.UInt32(active)
 
     if directions is not None:
         directions.end_walk(L)
     return PathResult(L if total else None, L_ind if split else None, L_near if near else None, n_rays,
-                      first_valid)
+                      first_valid, bounces, state)
 
 
 def trace_paths_split(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None,

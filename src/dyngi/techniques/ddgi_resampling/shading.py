@@ -19,6 +19,13 @@ At a vertex ``x_n`` (n >= 2) reached from ``x_{n-1}``:
   H4's glossy furnace test settled); else the path continues along that same sample (glossy
   recursion), and the next vertex adds its emission ``L_e`` (and the environment on a miss);
 * NEE for the light the probes cannot carry (delta lights, the sun): one sample, full BSDF;
+* the recursion is one call of the transport layer's path walk (:func:`dyngi.transport.path_walk.walk`)
+  from ``x_n``: its directions from the glossy reflection lobes only
+  (:class:`~dyngi.directions.lobes.LobeDirections`), emission counted from the first recursion vertex on,
+  no MIS (NEE and the recursion see disjoint light), no Russian roulette, and a shade hook that reads the
+  probes, keeps Eq. 7's running sum as its state and stops the path where Eq. 8 (or ``max_glossy``) says;
+  where it stops, Eq. 6's lookup draws its own glossy sample (our choice: the continuation's sample is
+  drawn by the walk only where the path goes on; one sample is used per vertex either way);
 * **view-path self-shadow bias** (Sec. 3.5): the probes are read at ``q = x_n - d * w_in``, moved back
   along the incoming path segment, with ``d = min(view_path_bias * s_min, 0.5 |x_n - x_{n-1}|)``,
   ``s_min`` the smallest probe spacing ("proportional to the probe size"; default factor 0.2 =
@@ -37,15 +44,20 @@ its reprojection, one full-BSDF sample at the primary vertex, progressive accumu
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 
 from ...backend import dr, mi
 from ...probes.ddgi_plus import DDGIPlusVolume, plus_params
-from ...probes.glossy import GLOSSY_NORMALISATION, glossy_context, has_glossy_lobe
+from ...directions.base import Vertex
+from ...directions.bsdf import BSDFDirections
+from ...directions.lobes import LobeDirections
+from ...probes.glossy import GLOSSY_LOBES, GLOSSY_NORMALISATION, sample_glossy
+from ...probes.trace import shading_side
 from ...sampling.diffuse import diffuse_albedo
-from ...sampling.lights import sample_traced
 from ...transport.accumulate import ProgressiveMean
-from ...transport.path_walk import trace_paths
+from ...transport.path_walk import trace_paths, walk
 from ...transport.restir_di import PARAM_SPECS, ReSTIRDI
 from ..base import FrameResult, Param, Technique, to_image
 
@@ -150,70 +162,54 @@ class SecondaryShading(Technique):
         mscene = self.scene.mi_scene
         active = mi.Bool(active)
         beta = mi.Color3f(beta)
-        L = dr.zeros(mi.Color3f, dr.width(active))
-        rays = dr.zeros(mi.UInt32, dr.width(active))
         rec = dr.zeros(mi.UInt32, dr.width(active))
         if p["exact_radiance"]:
             hit = active & si.is_valid()
             Lp, n_rays, _ = trace_paths(mscene, sampler, ray, hit, p["exact_depth"], 5)
             Le = mi.Color3f(si.emitter(mscene).eval(si, hit))
             return dr.select(hit, beta * (Lp - Le), 0.0), mi.UInt32(n_rays), rec
-        ctx = mi.BSDFContext()
-        gctx = glossy_context()
         thresh = p["footprint_c"] * a0
         bias_len = p["view_path_bias"] * self.s_min
-        sum_sqrt = mi.Float(0.0)
-        pdf_prev = mi.Float(pdf_prev)
-        delta_prev = mi.Bool(delta_prev)
-        for it in range(self.max_glossy + 1):
-            if it > 0:    # emission at a glossy-recursion vertex (and the environment on a miss)
-                L += dr.select(active, beta * mi.Color3f(si.emitter(mscene).eval(si, active)), 0.0)
-            hit = active & si.is_valid()
-            bsdf = si.bsdf()
+        pdf0 = mi.Float(pdf_prev)
+        delta0 = mi.Bool(delta_prev)
+        query = self.query
+        max_glossy = mi.UInt32(self.max_glossy)
+
+        def shade(v):
+            """The probes at ``x_n`` (diffuse part; Eq. 6's glossy lookup where the recursion stops)."""
+            si, ray, bsdf = v.si, v.ray, v.bsdf
             wo = -ray.d
-            geo_front = dr.dot(si.n, wo) > 0.0
-            two = mi.has_flag(bsdf.flags(), mi.BSDFFlags.BackSide) & (bsdf != None)   # noqa: E711
-            front = hit & (geo_front | two)
-            n = dr.select(geo_front, si.sh_frame.n, -si.sh_frame.n)
+            front, n = shading_side(si, ray, bsdf, v.active)
+            first = v.depth == 0
             # -- footprint (Eq. 7) and the termination test (Eq. 8) --
-            seg = dr.select(hit, si.t, 0.0)
-            sum_sqrt += footprint_term(seg, pdf_prev, dr.abs(dr.dot(si.n, ray.d)), delta_prev)
-            stop = (dr.square(sum_sqrt) > thresh) | (it == self.max_glossy)
+            seg = dr.select(v.active, si.t, 0.0)
+            sum_sqrt = v.state + footprint_term(seg, dr.select(first, pdf0, v.prev_pdf),
+                                                dr.abs(dr.dot(si.n, ray.d)), dr.select(first, delta0, v.prev_delta))
+            stop = (dr.square(sum_sqrt) > thresh) | (v.depth >= max_glossy)
             # -- the probes, read at the view-path-biased point (Sec. 3.5) --
             q = si.p - ray.d * dr.minimum(bias_len, 0.5 * seg)
             albedo = diffuse_albedo(bsdf, si, front)
             diff = front & dr.any(albedo > 0.0)
-            E = self.query.irradiance(q, n, wo, active=diff)
-            L += dr.select(diff, beta * albedo * dr.inv_pi * E, 0.0)
-            # -- one glossy sample: Eq. 6's estimate where the footprint is large, else the recursion --
-            g_ok = front & has_glossy_lobe(bsdf)
-            bs, w_g = bsdf.sample(gctx, si, sampler.next_1d(), sampler.next_2d(), g_ok)
-            w_g = mi.Color3f(w_g)
-            g_ok &= (bs.pdf > 0.0) & (mi.Frame3f.cos_theta(bs.wo) * mi.Frame3f.cos_theta(si.wi) > 0.0) \
-                & dr.all(dr.isfinite(w_g))
-            d_g = si.to_world(bs.wo)
-            g_end = g_ok & stop
-            Eg = self.query.irradiance(q, n, wo, direction=d_g, active=g_end)
-            L += dr.select(g_end, beta * w_g * Eg * (1.0 / GLOSSY_NORMALISATION), 0.0)
-            # -- NEE for what no probe ray can hit (delta lights, the sun): full BSDF --
-            if self.nee.count:
-                ds, w, ok = sample_traced(self.nee, mscene, si, sampler.next_2d(), front)
-                f = bsdf.eval(ctx, si, si.to_local(ds.d), front & ok)
-                L += dr.select(front & ok, beta * mi.Color3f(f) * w, 0.0)
-                rays += mi.UInt32(front & ok)
-            if it == self.max_glossy:
-                break
-            # -- glossy recursion --
-            go = g_ok & ~stop
-            ray = si.spawn_ray(d_g)
-            beta = dr.select(go, beta * w_g, 0.0)
-            pdf_prev = bs.pdf
-            delta_prev = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-            si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=go)
-            rays += mi.UInt32(go)
-            rec += mi.UInt32(go)
-            active = go
-        return L, rays, rec
+            E = query.irradiance(q, n, wo, active=diff)
+            L_v = dr.select(diff, albedo * dr.inv_pi * E, 0.0)
+            # -- Eq. 6's estimate where the footprint is large (one glossy sample) --
+            d_g, w_g, g_end = sample_glossy(bsdf, si, v.sampler.next_1d(), v.sampler.next_2d(), front & stop)
+            g_end &= mi.Frame3f.cos_theta(si.to_local(d_g)) * mi.Frame3f.cos_theta(si.wi) > 0.0   # reflection only
+            Eg = query.irradiance(q, n, wo, direction=d_g, active=g_end)
+            L_v += dr.select(g_end, w_g * Eg * (1.0 / GLOSSY_NORMALISATION), 0.0)
+            return L_v, stop | ~front, sum_sqrt
+
+        # the probes' device arrays and fallback table, evaluated before the walk's symbolic loop reads them
+        query.fallback_table()
+        dev = query.volume.device
+        dr.eval(*[a for a in vars(dev).values() if a is not None])
+        # -- the glossy recursion: the transport layer's walk from x_n (module docstring) --
+        r = walk(mscene, sampler, ray, active, self.max_glossy + 2, -1, self.nee, si=si,
+                 emission=lambda depth, prev_delta: depth >= 1, nee=None if self.nee.count else False,
+                 shade=shade, state=mi.Float(0.0), mis=False,
+                 directions=LobeDirections(GLOSSY_LOBES, reflection_only=True))
+        L = dr.select(active, beta * mi.Color3f(r.L), 0.0)
+        return L, mi.UInt32(r.n_rays), mi.UInt32(r.bounces)
 
     # -- probes -------------------------------------------------------------------------
     def _update_probes(self, frame, t):
@@ -231,12 +227,14 @@ class SecondaryShading(Technique):
         """One full-BSDF sample at the primary vertex and its hit (the secondary vertex)."""
         mscene = self.scene.mi_scene
         si = gb.si
-        bs, w = bsdf.sample(mi.BSDFContext(), si, sampler.next_1d(), sampler.next_2d(), gb.valid)
-        ok = gb.valid & (bs.pdf > 0.0) & dr.all(dr.isfinite(mi.Color3f(w)))
-        ray = si.spawn_ray(si.to_world(bs.wo))
+        v = Vertex(si, si.sh_frame.n, bsdf, None, None, gb.valid)
+        d = BSDFDirections().sample(v, None, sampler.next_1d(), sampler.next_2d(), gb.valid)
+        w = mi.Color3f(d.weight)
+        ok = gb.valid & (d.pdf > 0.0) & dr.all(dr.isfinite(w))
+        ray = si.spawn_ray(d.wo)
         si2 = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=ok)
-        delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        return bs, mi.Color3f(dr.select(ok, w, 0.0)), ok, ray, si2, delta
+        bs = SimpleNamespace(pdf=d.pdf, wo=si.to_local(d.wo))     # the sample's pdf and local direction
+        return bs, mi.Color3f(dr.select(ok, w, 0.0)), ok, ray, si2, mi.Bool(d.delta)
 
     def _finish(self, frame, t, L, L_ind):
         p = self.params
