@@ -34,7 +34,7 @@ def _inside(lo_in, hi_in, lo_out, hi_out, tol=1e-9):
 
 def test_initial_tree_is_split_once(oct_mod):
     from dyngi.backend import mi
-    o = oct_mod.AdaptiveOctree([0, 0, 0], [4, 2, 8])
+    o = oct_mod.AdaptiveOctree([0, 0, 0], [4, 2, 8], adapt="host")
     assert o.leaf_count == 8 and o.stats()["leaves"] == 8
     assert np.all(o.host_leaves()["depth"] == 1)
     assert np.array_equal(o.prev_leaf.numpy(), np.arange(8))
@@ -48,7 +48,7 @@ def test_initial_tree_is_split_once(oct_mod):
 
 def test_split_and_collapse_at_thresholds(oct_mod):
     from dyngi.backend import mi
-    o = oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], split_threshold=100, collapse_threshold=40)
+    o = oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], split_threshold=100, collapse_threshold=40, adapt="host")
     rng = np.random.default_rng(3)
     a = rng.random((100, 3)) * 0.4                 # all in octant 0 (x, y, z < 0.5)
     # exactly at the split threshold: no split (the paper splits when the count goes ABOVE it)
@@ -98,7 +98,7 @@ def test_split_and_collapse_at_thresholds(oct_mod):
 
 def test_max_depth_bounds_splitting(oct_mod):
     from dyngi.backend import mi
-    o = oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], split_threshold=10, collapse_threshold=5, max_depth=3)
+    o = oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], split_threshold=10, collapse_threshold=5, max_depth=3, adapt="host")
     for _ in range(6):
         _place_host(o, mi, np.full((50, 3), 0.2))
         o.adapt()
@@ -106,7 +106,7 @@ def test_max_depth_bounds_splitting(oct_mod):
 
 
 def _refined(oct_mod, mi, frames=6, seed=0):
-    o = oct_mod.AdaptiveOctree([-1, 0, -2], [3, 2, 2], split_threshold=200, collapse_threshold=80)
+    o = oct_mod.AdaptiveOctree([-1, 0, -2], [3, 2, 2], split_threshold=200, collapse_threshold=80, adapt="host")
     rng = np.random.default_rng(seed)
     for f in range(frames):
         # a surface-like cloud (a tilted plane) plus a dense blob: uneven refinement, levels 1..6
@@ -184,7 +184,7 @@ def test_neighbours(oct_mod):
 def test_prev_leaf_over_frames_and_reserve(oct_mod):
     """Over many adaptive frames every new leaf nests with its prev_leaf; reserve() hands out unique slots."""
     from dyngi.backend import dr, mi
-    o = oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], split_threshold=150, collapse_threshold=60)
+    o = oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], split_threshold=150, collapse_threshold=60, adapt="host")
     rng = np.random.default_rng(11)
     seen_split = seen_coll = False
     for f in range(14):
@@ -217,11 +217,55 @@ def test_prev_leaf_over_frames_and_reserve(oct_mod):
     assert seen_split and seen_coll
 
 
-def test_steady_state_compiles_nothing(oct_mod):
-    """place/lookup_pair/adapt with a tree whose size changes every frame compile no new kernels."""
+def test_device_topology_matches_host_fast_path(oct_mod):
+    """adapt="device" (pool slots as leaf indices) and adapt="host" (dense NumPy) make, frame by frame, the
+    same leaf cells, the same lookups, correspondences (prev_leaf) and face neighbours, up to the numbering;
+    the frames split and collapse, so freed blocks are reused."""
+    from dyngi.backend import mi
+    I = oct_mod.INVALID
+    H = oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], 150, 60, max_depth=6, adapt="host")
+    D = oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], 150, 60, max_depth=6, node_blocks=64)
+    rng = np.random.default_rng(1)
+
+    def slot_of(hh, hd):        # host leaf index -> device slot, by cell
+        slots = np.nonzero(hd["leaf"])[0]
+        key = {(int(hd["depth"][s]), *map(int, hd["ijk"][s])): s for s in slots}
+        assert len(key) == len(hh["depth"])
+        return np.array([key[(int(d), *map(int, c))] for d, c in zip(hh["depth"], hh["ijk"])])
+
+    splits = collapses = 0
+    for f in range(10):
+        P = np.array([0.2 + 0.06 * f, 0.5, 0.5]) + 0.05 * rng.standard_normal((4000 if f % 4 != 3 else 40, 3))
+        for o in (H, D):
+            o.place(_pts(mi, P))
+            o.adapt()
+        m = slot_of(H.host_leaves(), D.host_leaves())
+        mp = slot_of(H.host_leaves(True), D.host_leaves(True))
+        Q = rng.random((2000, 3))
+        assert np.array_equal(m[H.lookup(_pts(mi, Q)).numpy()], D.lookup(_pts(mi, Q)).numpy())
+        assert np.array_equal(D.host_lookup(Q), D.lookup(_pts(mi, Q)).numpy())
+        pd = D.prev_leaf.numpy()
+        assert np.array_equal(mp[H.prev_leaf.numpy()], pd[m]) and np.all(np.delete(pd, m) == I)
+        nh, nd = H.neighbours.numpy().reshape(-1, 6), D.neighbours.numpy().reshape(-1, 6)
+        assert np.array_equal(np.where(nh == I, I, m[np.minimum(nh, len(m) - 1)]), nd[m])
+        sh, sd = H.stats(), D.stats()
+        assert (sh["leaves"], sh["splits"], sh["collapses"]) == (sd["leaves"], sd["splits"], sd["collapses"])
+        splits, collapses = splits + sd["splits"], collapses + sd["collapses"]
+    assert splits > 20 and collapses > 10
+    lo = np.stack([D.leaf_lo.x.numpy(), D.leaf_lo.y.numpy(), D.leaf_lo.z.numpy()], 1)[m]
+    assert np.allclose(lo, H.host_leaves()["lo"], atol=1e-6)
+
+
+def test_steady_state_compiles_nothing(oct_mod, monkeypatch):
+    """place/lookup_pair/adapt with a tree whose size changes every frame compile no new kernels, and the
+    default (device) adapt() makes no host transfer (the module's transfers, counted, happen in stats())."""
     from dyngi.backend import dr, mi
     from dyngi.sampling.rng import make_sampler
     o = oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], split_threshold=300, collapse_threshold=100)
+    assert o.adapt_mode == "device"
+    reads = []
+    real = oct_mod._to_host
+    monkeypatch.setattr(oct_mod, "_to_host", lambda x: reads.append(1) or real(x))
     sizes = set()
 
     def step(f):
@@ -233,8 +277,10 @@ def test_steady_state_compiles_nothing(oct_mod):
         la, lb = o.lookup_pair(p, p)
         o.place_leaf(lb)
         dr.eval(la, o.counts)
+        n = len(reads)
         o.adapt()
-        sizes.add(o.leaf_count)
+        assert len(reads) == n
+        sizes.add(o.stats()["leaves"])
 
     assert_steady_state_compiles_nothing(step, frames=8, warmup=2, nonempty=True)
     assert len(sizes) >= 3        # the tree really changed size while nothing recompiled

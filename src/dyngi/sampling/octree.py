@@ -20,13 +20,34 @@ Frame protocol
   (per-leaf sample-buffer offsets/capacities from the observed counts). The tree
   the frame used becomes the *previous* tree (``lookup_prev``); counts reset.
 
-CPU fast path (documented): the topology update runs in NumPy on the host; the
-per-leaf counts are read back once per frame inside ``adapt()`` (one host round
-trip of ``leaf_count`` integers) and the new node/leaf arrays are uploaded once.
-The trees hold thousands of nodes, so this costs well under a millisecond of
-NumPy; all per-sample work (traversal, counting) is Dr.Jit on the device.
+Where the topology lives (``adapt``):
 
-Memory layout (our choice, a simplification of Fig. 6): one node buffer
+* ``"device"`` (default): the tree is a fixed pool of ``1 + 8 * node_blocks``
+  node slots on the device and every step of ``adapt()`` is a Dr.Jit kernel over
+  the pool (no host read-back, no upload; the host never learns the leaf count).
+  A leaf's index is its node slot (our choice: no compaction pass), so
+  ``leaf_count`` is the pool size and per-leaf arrays have unused entries (inner
+  nodes, free slots: ``prev_leaf`` INVALID, no neighbours, zero capacity). The
+  children of a split take a free 8-slot block from a device stack
+  (``dr.scatter_inc`` on a pop counter), a collapse pushes its children's block
+  back after this frame's splits (no block is reused in the frame it is freed,
+  so ``prev_leaf`` of the previous tree stays valid); when the pool is empty a
+  leaf does not split (our choice; 511 blocks hold up to 3578 leaves, the
+  paper's 1080p with 4096 samples per leaf needs ~1000-2000). Neighbours: a
+  depth-limited traversal of the new tree to the cell of the same size across
+  each face. Allocation: capacities as below, offsets by an exclusive
+  ``dr.prefix_sum``, clipped to a fixed pool of ``sample_total`` slots.
+  ``stats()`` reads a few counters back (``report_stats``, inspection only).
+* ``"host"``: the CPU fast path: the topology update runs in NumPy on the host;
+  the per-leaf counts are read back once per frame inside ``adapt()`` (one host
+  round trip of ``leaf_count`` integers) and the new node/leaf arrays are
+  uploaded once. Leaves are numbered densely (below).
+
+Both make the same trees, correspondences and neighbours (up to the leaf
+numbering; tests/sampling/test_octree.py compares them frame by frame). All
+per-sample work (traversal, counting) is Dr.Jit on the device in both.
+
+Memory layout of the host path (our choice, a simplification of Fig. 6): one node buffer
 ``nodes`` (UInt32) in breadth-first order; an inner node stores the index of its
 first child (the 8 children are contiguous, in octant order x | y<<1 | z<<2),
 a leaf stores ``LEAF_BIT | leaf_index``. Leaves are numbered densely 0..L-1 (in
@@ -76,7 +97,14 @@ PAPER_SPLIT, PAPER_COLLAPSE = 4096, 2048          # Sec. 7, at 1080p
 PAPER_VERTICES = 2 * 1920 * 1080                   # samples placed per frame at 1080p (primary + secondary hit)
 MIN_SPLIT, MIN_COLLAPSE = 512, 256                 # issue 17 item 2: floor per leaf
 _ONE_MINUS = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
+ADAPT_CHOICES = ("device", "host")
+NODE_BLOCKS = 511                                  # device pool: 1 + 8 * 511 node slots (our choice)
 _FACES = np.array([[-1, 0, 0], [1, 0, 0], [0, -1, 0], [0, 1, 0], [0, 0, -1], [0, 0, 1]], np.int64)
+
+
+def _to_host(x) -> np.ndarray:
+    """The module's device -> host transfer on the device path (tests count its calls)."""
+    return np.asarray(x.numpy())
 
 
 def scaled_thresholds(vertices_per_frame: int) -> tuple[int, int]:
@@ -187,10 +215,21 @@ class AdaptiveOctree:
     max_depth : int = 12                 deepest level a leaf may reach (our choice)
     capacity_slack : float = 1.5         allocate: per-leaf sample capacity = slack x expected count (our choice)
     min_capacity : int = 64              allocate: at least this many sample slots per leaf (our choice)
+    adapt : str = "device"               "device" (state on the device, no read-back) or "host" (NumPy fast path)
+    node_blocks : int = 511              device pool size in 8-node blocks (our choice)
     """
 
+    report_stats = True     # device path: stats() reads the leaf/split/collapse counters back (inspection)
+
     def __init__(self, bounds_min, bounds_max, split_threshold=MIN_SPLIT, collapse_threshold=MIN_COLLAPSE,
-                 max_depth: int = 12, capacity_slack: float = 1.5, min_capacity: int = 64, **_ignored):
+                 max_depth: int = 12, capacity_slack: float = 1.5, min_capacity: int = 64, adapt: str = "device",
+                 node_blocks: int = NODE_BLOCKS, **_ignored):
+        if adapt not in ADAPT_CHOICES:
+            raise DyngiError(f"octree: adapt '{adapt}' is unknown; valid choices: {', '.join(ADAPT_CHOICES)}")
+        if int(node_blocks) < 2:
+            raise DyngiError(f"octree: node_blocks must be >= 2, got {node_blocks}")
+        self.device = adapt == "device"
+        self.adapt_mode = adapt
         lo = np.asarray(bounds_min, np.float64).reshape(3)
         hi = np.asarray(bounds_max, np.float64).reshape(3)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
@@ -219,6 +258,9 @@ class AdaptiveOctree:
         self.adapt_ms = 0.0
         self.count_ms = 0.0
         self.placed_last = 0
+        if self.device:
+            self._init_device(int(node_blocks))
+            return
         # -- initial tree: split once (8 leaves), empty caches --
         oct_ = np.arange(8)
         ijk = np.stack([oct_ & 1, (oct_ >> 1) & 1, (oct_ >> 2) & 1], 1)
@@ -287,6 +329,192 @@ class AdaptiveOctree:
         self.counts = dr.zeros(mi.UInt32, L)
         dr.eval(self._nodes, self.prev_leaf, self.neighbours, self.leaf_lo, self.leaf_size, self.leaf_depth,
                 self.node_parent, self.sample_offset, self.sample_capacity, self.sample_size, self.counts)
+
+    # ------------------------------------------------------------------ device topology (adapt="device")
+    def _init_device(self, nb: int) -> None:
+        """The initial tree (root + 8 leaves) in a pool of ``1 + 8 nb`` slots; blocks 1.. on the free stack."""
+        N = 1 + 8 * nb
+        self._N, self._nb = N, nb
+        self.leaf_count = self.prev_leaf_count = N
+        idx = np.arange(N, dtype=np.int64)
+        code = (LEAF_BIT | idx).astype(np.uint32)
+        code[0] = 1                                   # the root's children: block 0 = slots 1..8
+        alive = idx <= 8
+        depth = np.where((idx >= 1) & (idx <= 8), 1, 0).astype(np.uint32)
+        k = np.clip(idx - 1, 0, 7)
+        ijk = np.where(((idx >= 1) & (idx <= 8))[:, None], np.stack([k & 1, (k >> 1) & 1, (k >> 2) & 1], 1), 0)
+        parent = np.where((idx >= 1) & (idx <= 8), 0, INVALID).astype(np.uint32)
+        self._nodes = mi.UInt32(code)
+        self._alive = mi.Bool(alive)
+        self._depth = mi.UInt32(depth)
+        self._ijk = [mi.UInt32(ijk[:, a].astype(np.uint32)) for a in range(3)]
+        self.node_parent = mi.UInt32(parent)
+        # free stack: blocks nb-1 .. 1 (the top, popped first, is block 1)
+        self._free = mi.UInt32(np.concatenate([np.arange(nb - 1, 0, -1), [0]]).astype(np.uint32))
+        self._top = mi.UInt32(np.array([nb - 1, 0], np.uint32))        # 2 entries: never a kernel literal
+        self._split_d = dr.opaque(mi.UInt32, self.split_threshold)
+        self._coll_d = dr.opaque(mi.UInt32, self.collapse_threshold)
+        # fixed pool of sample slots (our choice): room for 1024 leaves at the split threshold
+        self.sample_total = min(int(np.ceil(self.capacity_slack * self.split_threshold)) * 1024, 1 << 28)
+        prev = np.where(alive & ((code & LEAF_BIT) != 0), idx, INVALID).astype(np.uint32)
+        self.prev_leaf = mi.UInt32(prev)
+        self._prev_nodes = self._nodes
+        self._prev_state = (self._nodes, self._alive, self._depth, self._ijk)
+        self._counters = [mi.UInt32(np.array([v, 0], np.uint32)) for v in (8, 0, 0, 1, 0)]
+        self._derive(dr.zeros(mi.Float, N))
+
+    def _derive(self, expected) -> None:
+        """Augment (neighbours, leaf boxes) + allocate for the device tree; counts reset."""
+        N = self._N
+        i = dr.arange(mi.UInt32, N)
+        leaf = self._alive & ((self._nodes & LEAF_BIT) != 0)
+        # -- leaf boxes (world) --
+        ext = self.bounds_max.astype(np.float64) - self.bounds_min.astype(np.float64)
+        scale = dr.select(leaf, dr.rcp(mi.Float(mi.UInt32(1) << self._depth)), 0.0)
+        size = [scale * float(ext[a]) for a in range(3)]
+        self.leaf_size = mi.Vector3f(*size)
+        self.leaf_lo = mi.Point3f(*[float(self.bounds_min[a]) + mi.Float(self._ijk[a]) * size[a] for a in range(3)])
+        self.leaf_depth = dr.select(leaf, self._depth, 0)
+        # -- neighbours: the leaf containing the same-size cell across each face, if not finer --
+        lane = dr.arange(mi.UInt32, 6 * N)
+        slot, face = lane // 6, lane % 6
+        ok = dr.gather(mi.Bool, leaf, slot)
+        d = dr.gather(mi.UInt32, self._depth, slot, ok)
+        axis, sign = face // 2, face % 2
+        c = []
+        for a in range(3):
+            v = mi.Int32(dr.gather(mi.UInt32, self._ijk[a], slot, ok))
+            v = dr.select(axis == a, dr.select(sign == 1, v + 1, v - 1), v)
+            ok &= (v >= 0) & (v < mi.Int32(mi.UInt32(1) << d))
+            c.append(mi.UInt32(dr.select(ok, v, 0)))
+        self.neighbours = self._descend(c, d, ok)
+        # -- allocate (Fig. 7 e) --
+        cap = mi.UInt32(dr.maximum(dr.ceil(self.capacity_slack * expected), float(self.min_capacity)))
+        cap = dr.select(leaf, cap, 0)
+        off = dr.prefix_sum(cap)
+        pool = dr.opaque(mi.UInt32, self.sample_total)
+        off = dr.minimum(off, pool)
+        self.sample_offset = off
+        self.sample_capacity = dr.minimum(cap, pool - off)
+        self.sample_size = dr.zeros(mi.UInt32, N)
+        self.counts = dr.zeros(mi.UInt32, N)
+        dr.eval(self.leaf_size, self.leaf_lo, self.leaf_depth, self.neighbours, self.sample_offset,
+                self.sample_capacity, self.sample_size, self.counts)
+        del i
+
+    def _descend(self, c, d, active):
+        """Device: slot of the leaf containing integer cell ``c`` of depth ``d`` if it is at depth <= d, else INVALID."""
+        nodes = self._nodes
+        node = dr.zeros(mi.UInt32, dr.width(d))
+        code = dr.gather(mi.UInt32, nodes, node, active)
+        lvl = dr.zeros(mi.UInt32, dr.width(d))
+
+        def cond(code, lvl, active):
+            return active & ((code & LEAF_BIT) == 0) & (lvl < d)
+
+        def body(code, lvl, active):
+            go = active & ((code & LEAF_BIT) == 0) & (lvl < d)
+            lvl2 = lvl + 1
+            sh = d - lvl2
+            octant = ((c[0] >> sh) & 1) | (((c[1] >> sh) & 1) << 1) | (((c[2] >> sh) & 1) << 2)
+            code2 = dr.gather(mi.UInt32, nodes, code + octant, go)
+            return dr.select(go, code2, code), dr.select(go, lvl2, lvl), active
+
+        code, lvl, active = dr.while_loop((code, lvl, active), cond, body, labels=("code", "lvl", "active"),
+                                          label="octree_neighbour")
+        return dr.select(active & ((code & LEAF_BIT) != 0), code & ~mi.UInt32(LEAF_BIT), INVALID)
+
+    def _adapt_device(self) -> None:
+        """Mark, rebuild, augment, allocate (Fig. 7) as Dr.Jit kernels over the node pool; no host transfer."""
+        t0 = time.perf_counter()
+        N = self._N
+        i = dr.arange(mi.UInt32, N)
+        code, alive, depth, ijk = self._nodes, self._alive, self._depth, self._ijk
+        counts = self.counts
+        is_leaf = alive & ((code & LEAF_BIT) != 0)
+        inner = alive & ((code & LEAF_BIT) == 0)
+        # -- mark --
+        split = is_leaf & (counts > self._split_d) & (depth < self.max_depth)
+        first = dr.select(inner, code, 0)
+        all_leaf = mi.Bool(inner)
+        csum = dr.zeros(mi.UInt32, N)
+        best = dr.full(mi.UInt32, INVALID, N)
+        bestc = dr.zeros(mi.UInt32, N)
+        for k in range(8):
+            ck = dr.gather(mi.UInt32, code, first + k, inner)
+            cc = dr.gather(mi.UInt32, counts, first + k, inner)
+            all_leaf &= (ck & LEAF_BIT) != 0
+            csum += cc
+            better = (best == INVALID) | (cc > bestc)     # largest count, ties: the lowest slot (octant)
+            best = dr.select(better, first + k, best)
+            bestc = dr.select(better, cc, bestc)
+        collapse = all_leaf & (depth >= 1) & (csum < self._coll_d)
+        dr.eval(split, collapse, best, csum, first)
+        # -- rebuild: pop a free block per split (deterministic rank by prefix sum), push collapsed blocks --
+        one = mi.UInt32(1)
+        zero_idx = dr.zeros(mi.UInt32, N)
+        top = dr.gather(mi.UInt32, self._top, zero_idx)
+        rank = dr.prefix_sum(dr.select(split, one, 0))
+        ok = split & (rank < top)
+        blk = dr.gather(mi.UInt32, self._free, top - 1 - rank, ok)
+        child0 = 1 + 8 * blk
+        n_split = dr.block_reduce(dr.ReduceOp.Add, dr.select(ok, one, 0), N)
+        n_coll = dr.block_reduce(dr.ReduceOp.Add, dr.select(collapse, one, 0), N)
+        top_after = dr.gather(mi.UInt32, self._top, dr.zeros(mi.UInt32, 1)) - n_split
+        crank = dr.prefix_sum(dr.select(collapse, one, 0))
+        free = mi.UInt32(self._free)
+        dr.scatter(free, (first - 1) // 8, dr.gather(mi.UInt32, top_after, zero_idx) + crank, collapse)
+        new_top = dr.zeros(mi.UInt32, 2)
+        dr.scatter(new_top, top_after + n_coll, dr.zeros(mi.UInt32, 1))
+        code_n = dr.select(ok, child0, dr.select(collapse, LEAF_BIT | i, code))
+        alive_n = mi.Bool(alive)
+        depth_n = mi.UInt32(depth)
+        ijk_n = [mi.UInt32(a) for a in ijk]
+        parent_n = mi.UInt32(self.node_parent)
+        prev = dr.select(is_leaf & ~ok, i, dr.select(collapse, best, INVALID))
+        cnt_f = mi.Float(counts)
+        expected = dr.select(is_leaf & ~ok, cnt_f, dr.select(collapse, mi.Float(csum), 0.0))
+        for k in range(8):
+            j = child0 + k
+            dr.scatter(code_n, LEAF_BIT | j, j, ok)
+            dr.scatter(alive_n, True, j, ok)
+            dr.scatter(depth_n, depth + 1, j, ok)
+            for a in range(3):
+                dr.scatter(ijk_n[a], 2 * ijk[a] + ((k >> a) & 1), j, ok)
+            dr.scatter(parent_n, i, j, ok)
+            dr.scatter(prev, i, j, ok)
+            dr.scatter(expected, cnt_f * 0.125, j, ok)
+            dead = first + k
+            dr.scatter(alive_n, False, dead, collapse)
+            dr.scatter(prev, mi.UInt32(INVALID), dead, collapse)
+        # -- counters for stats() (device scalars; read only there) --
+        leaf_n = alive_n & ((code_n & LEAF_BIT) != 0)
+        self._counters = [dr.block_reduce(dr.ReduceOp.Add, dr.select(leaf_n, one, 0), N), n_split, n_coll,
+                          dr.block_reduce(dr.ReduceOp.Max, dr.select(leaf_n, depth_n, 0), N),
+                          dr.block_reduce(dr.ReduceOp.Add, counts, N)]
+        self._prev_state = (code, alive, depth, ijk)
+        self._prev_nodes = code
+        self._nodes, self._alive, self._depth, self._ijk = code_n, alive_n, depth_n, ijk_n
+        self._free, self._top = free, new_top
+        self.node_parent = parent_n
+        self.prev_leaf = prev
+        dr.eval(self._nodes, self._alive, self._depth, *self._ijk, self._free, self._top, self.node_parent,
+                self.prev_leaf, *self._counters)
+        self._derive(expected)
+        self.frame += 1
+        self.adapt_ms = 1e3 * (time.perf_counter() - t0)      # launch time (not synchronised)
+
+    def _host_slots(self, previous: bool = False) -> dict:
+        """Device path, read back (inspection): per slot depth (-1 off the tree), ijk, lo, size, leaf mask."""
+        code, alive, depth, ijk = self._prev_state if previous else (self._nodes, self._alive, self._depth, self._ijk)
+        code, alive = _to_host(code).astype(np.int64), _to_host(alive).astype(bool)
+        leaf = alive & ((code & LEAF_BIT) != 0)
+        d = np.where(leaf, _to_host(depth).astype(np.int64), -1)
+        ij = np.stack([_to_host(a).astype(np.int64) for a in ijk], 1)
+        ext = (self.bounds_max.astype(np.float64) - self.bounds_min.astype(np.float64))
+        size = np.where(leaf[:, None], ext[None, :] / (2.0 ** np.maximum(d, 0))[:, None], 0.0)
+        return {"depth": d, "ijk": ij, "size": size, "leaf": leaf,
+                "lo": self.bounds_min[None, :].astype(np.float64) + ij * size}
 
     # ------------------------------------------------------------------ device traversal (Sec. 6.3)
     def _q(self, p):
@@ -400,6 +628,9 @@ class AdaptiveOctree:
     # ------------------------------------------------------------------ adaptation (Sec. 6.2)
     def adapt(self) -> None:
         """End of frame: mark, rebuild, augment, allocate (Fig. 7); then counts reset."""
+        if self.device:
+            self._adapt_device()
+            return
         t0 = time.perf_counter()
         dr.eval(self.counts)
         dr.sync_thread()                 # pending place() kernels are the frame's cost, not the adaptation's
@@ -459,7 +690,12 @@ class AdaptiveOctree:
 
     # ------------------------------------------------------------------ inspection
     def host_leaves(self, previous: bool = False) -> dict:
-        """NumPy view of the leaves: depth, ijk (integer cell coordinates), lo, size (world)."""
+        """NumPy view of the leaves: depth, ijk (integer cell coordinates), lo, size (world).
+
+        Device path: arrays over all ``leaf_count`` slots (reads back), ``leaf`` marks the slots that are
+        leaves (elsewhere depth -1, size 0)."""
+        if self.device:
+            return self._host_slots(previous)
         t = self._prev_tree if previous else self._tree
         ext = (self.bounds_max.astype(np.float64) - self.bounds_min.astype(np.float64))
         size = ext[None, :] / (2.0 ** t.depth)[:, None]
@@ -468,7 +704,12 @@ class AdaptiveOctree:
 
     def host_lookup(self, p: np.ndarray, previous: bool = False) -> np.ndarray:
         """NumPy brute force of :meth:`lookup`: the leaf whose integer cell contains q (tests)."""
-        t = self._prev_tree if previous else self._tree
+        if self.device:
+            h = self._host_slots(previous)
+            slots = np.nonzero(h["leaf"])[0]
+            t = _Tree(h["depth"][slots], h["ijk"][slots])
+        else:
+            t = self._prev_tree if previous else self._tree
         q = (np.asarray(p, np.float32) - self.bounds_min[None, :]) * self.inv_extent[None, :]
         q = np.clip(q, 0.0, np.float32(_ONE_MINUS)).astype(np.float64)
         out = np.full(len(q), -1, np.int64)
@@ -476,9 +717,18 @@ class AdaptiveOctree:
             cell = np.floor(q * float(2 ** int(d))).astype(np.int64)
             hit = t.find(_pack(np.full(len(q), d), *cell.T))
             out = np.where((out < 0) & (hit >= 0), hit, out)
-        return out
+        return slots[out] if self.device else out
 
     def stats(self) -> dict:
+        if self.device:
+            st = {"leaves": None, "nodes": self.leaf_count, "splits": None, "collapses": None,
+                  "adapt_ms": self.adapt_ms, "count_sync_ms": 0.0, "max_depth": None, "placed": None,
+                  "sample_slots": self.sample_total, "adapt": "device"}
+            if self.report_stats:
+                c = [int(_to_host(x)[0]) for x in self._counters]
+                st.update(leaves=int(c[0]), splits=int(c[1]), collapses=int(c[2]), max_depth=int(c[3]),
+                          placed=int(c[4]))
+            return st
         return {"leaves": self.leaf_count, "nodes": int(len(self._tree.nodes)), "splits": self.splits,
                 "collapses": self.collapses, "adapt_ms": self.adapt_ms, "count_sync_ms": self.count_ms,
                 "max_depth": int(self._tree.depth.max()), "placed": self.placed_last, "sample_slots": self.sample_total}
