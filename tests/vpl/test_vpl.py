@@ -187,3 +187,37 @@ def test_untextured_mode_replaces_textures_by_their_mean(backend):
     data = np.asarray(mi.traverse(s)["r.bsdf.reflectance.data"])
     assert np.allclose(data, tex.reshape(-1, 3).mean(0), atol=1e-6)
     assert make_untextured(mi.load_dict({"type": "scene", "r": {"type": "rectangle"}})) == 0
+
+
+def test_device_selection_steps_match_the_host_ones(backend):
+    """The device twins (:mod:`dyngi.vpl.smc_device`) of the host selection steps: the same draw without
+    replacement for the same uniforms (Efraimidis-Spirakis keys; zero weights last, infinite first),
+    Eq. 9's quantile as ``numpy.quantile``, and the lowest-intensity ranks of lines 10-13."""
+    from dyngi.backend import mi
+    from dyngi.vpl.smc_device import quantile_device, ranks, sample_without_replacement_device
+
+    class _U:                          # a Generator stand-in that hands out fixed uniforms
+        def __init__(self, u):
+            self.u = u
+
+        def random(self, n):
+            return self.u[:n]
+
+    rng = np.random.default_rng(11)
+    for trial in range(3):
+        w = rng.pareto(1.5, 64)
+        w[rng.random(64) < 0.25] = 0.0
+        w[5] = np.inf if trial == 1 else w[5]
+        u = rng.random(64).astype(np.float32).astype(np.float64)
+        host = resample_without_replacement(w, 20, _U(u))
+        dev, ok = sample_without_replacement_device(mi.Float(w.astype(np.float32)), mi.Float(u.astype(np.float32)), 20)
+        assert np.array_equal(np.asarray(dev), host), (np.asarray(dev), host)
+        assert np.array_equal(np.asarray(ok), w[host] > 0)
+        mask = rng.random(64) < 0.7
+        q = float(np.asarray(quantile_device(mi.Float(u.astype(np.float32)),
+                                             mi.Bool(mask), 0.95))[0])
+        assert q == pytest.approx(np.quantile(u[mask], 0.95), rel=1e-5)
+    inten = np.array([5.0, 1.0, 3.0, 2.0, 0.0, 1.0], np.float32)
+    r = np.asarray(ranks(mi.Float(inten)))
+    assert r.tolist() == [5, 1, 4, 3, 0, 2]                          # stable: equal values keep their order
+    assert float(np.asarray(quantile_device(mi.Float(inten), mi.Bool(np.zeros(6, bool)), 0.95))[0]) == 0.0

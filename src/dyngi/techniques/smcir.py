@@ -34,6 +34,19 @@ frame; when the lighting changes, line 18 traces both streams (2x its rays; the 
 ``reestimate='same-seed'``, one estimate for both, the pre-fix behaviour). Tested by a synthetic
 winner's curse (tests/techniques/test_smcir_reestimate.py).
 
+Where it runs (``impl``): ``'device'`` (the default) keeps the VPL set in Dr.Jit arrays
+(:class:`dyngi.vpl.smc_device.DeviceVPLStore`) and runs lines 3-19 with fixed widths -- the k-NN
+densities on the device grid (:class:`dyngi.vpl.density.KNNGrid`), the resampling of line 6 by
+Efraimidis-Spirakis keys and a device sort, visibility as masked shadow rays, Eq. 9's quantile and the
+"lowest/highest intensity first" choices by stable sorts, the counts as device values read after the
+image: an iteration (also each warm-up one) reads nothing back and a steady frame compiles nothing
+(tests/techniques/test_smcir_device.py). ``'host'`` runs the same steps on NumPy arrays with a
+``cKDTree`` (the CPU fast path: small sets; each iteration reads the candidates back). The two draw
+different random numbers (the host one from NumPy generators), so their VPL sets differ; the radiosity
+of a VPL of a given seed is bit-identical in both (:func:`dyngi.vpl.radiosity.estimate_radiosity` is
+the host form of the device estimate). Random validation on the device draws its points of X with
+replacement (uniform among the valid x; our choice), the host one without.
+
 Initialisation: the first I candidates, then ``warmup`` (100) iterations before the first
 frame (Sec. 3.2). Radiosity paths have ``max_depth - 1`` vertices from the VPL: with the
 default ``max_depth = 5`` three bounces of indirect light in all (Sec. 5).
@@ -55,6 +68,7 @@ quantile : float = 0.95         the M_strong threshold of Eq. 9
 density_k : int = 0             k of the rendering density (line 19); 0: Eq. 8 (k = 1 for I <= 4095)
 reestimate : str = 'independent' line 18's rendering radiosity: stream 1 of the VPL's seed, or
                                 'same-seed' (the selection's own estimate)
+impl : str = 'device'           'device' (Dr.Jit, no host round trip) or 'host' (NumPy + k-d tree)
 
 Bias (Sec. 3.3): kNN densities make the estimate biased but consistent; clamping removes
 near-field interreflections; ray-traced visibility replaces the paper's shadow maps. Measured

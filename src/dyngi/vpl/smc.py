@@ -1,7 +1,9 @@
 """Host-side selection steps of SMC instant radiosity (Hedman et al. 2017, Algorithm 1, Sec. 3.2).
 
 Small NumPy functions over a few thousand VPLs and candidates; every random
-choice takes a ``numpy.random.Generator`` seeded from (seed, frame, stream).
+choice takes a ``numpy.random.Generator`` seeded from (seed, frame, stream). They serve
+``smcir:impl=host`` (the CPU fast path); the default ``impl='device'`` runs their twins in
+:mod:`dyngi.vpl.smc_device`. :func:`resample_with_replacement_device` is MIR's device resampling.
 """
 from __future__ import annotations
 

@@ -133,7 +133,9 @@ def sample_without_replacement_device(weights, u, n: int):
     infinite weights first, zero weights last -- as :func:`dyngi.vpl.smc.resample_without_replacement`)
     and whether each drawn element has a positive weight (a Bool)."""
     w = mi.Float(weights)
-    keys = dr.select(w > 0.0, dr.log(dr.maximum(mi.Float(u), 1e-30)) / w, -dr.inf)
+    u = mi.Float(u)
+    # (a select, not dr.maximum: LLVM cannot select IEEE fmaximum on a scalar tail of some widths)
+    keys = dr.select(w > 0.0, dr.log(dr.select(u > 1e-30, u, 1e-30)) / w, -dr.inf)
     keys = dr.select(dr.isinf(w) & (w > 0.0), 0.0, keys)
     order = dr.argsort(keys, descending=True)
     sel = dr.gather(mi.UInt32, order, dr.arange(mi.UInt32, int(n)))
@@ -154,12 +156,14 @@ def quantile_device(values, mask, q: float):
     vals = mi.Float(values)
     m = mi.Bool(mask)
     s = dr.gather(mi.Float, vals, dr.argsort(dr.select(m, vals, dr.inf)))
-    cnt = mi.Float(dr.count(m))
-    pos = dr.maximum(float(q) * (cnt - 1.0), 0.0)
+    cnt = dr.count(m)
+    # selects, not dr.minimum/maximum: a width-1 float min/max is a scalar LLVM fminimum/fmaximum, which
+    # LLVM cannot select on x86 when the result is evaluated on its own
+    pos = dr.select(cnt > 1, float(q) * (mi.Float(cnt) - 1.0), 0.0)
     lo = mi.UInt32(dr.floor(pos))
-    hi = mi.UInt32(dr.minimum(mi.Float(lo) + 1.0, dr.maximum(cnt - 1.0, 0.0)))
+    hi = dr.select(lo + 1 < cnt, lo + 1, lo)
     a, b = dr.gather(mi.Float, s, lo), dr.gather(mi.Float, s, hi)
-    return dr.select(cnt > 0.0, a + (b - a) * (pos - mi.Float(lo)), 0.0)
+    return dr.select(cnt > 0, a + (b - a) * (pos - mi.Float(lo)), 0.0)
 
 
 FIELDS3 = ("pos", "nrm", "albedo", "radiosity", "sel_radiosity", "mailbox", "mailbox_n")
