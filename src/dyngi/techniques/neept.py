@@ -97,14 +97,11 @@ from ..sampling.emitter_triangles import INVALID, EmitterTriangles
 from ..sampling.light_select import FrameCtx
 from ..sampling.lights import EmitterSubsetSampling
 from ..sampling.rng import make_sampler, mix_seed
+from ..transport.color import luminance
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
 MAX_DEPTH = 3
 """Mitsuba's vertex count of nee-pt's paths (emission at the tertiary hit): compare with --ref-depth 3."""
-
-
-def _lum(c):
-    return c.x * 0.212671 + c.y * 0.715160 + c.z * 0.072169
 
 
 def _balance(a, b):
@@ -402,10 +399,10 @@ class NeePT(Technique):
         if cdq is not None:
             # the indirect samples' luminance f cos L_i / p_mix without the camera-path prefix, L_i without
             # the emission of lights (NEE's job, Sec. 5.1) but with the environment (cdq.py docstring)
-            cdq.record(leaf1, wo1, _lum(bw1 * (Env2 + L_nee2 + bw2 * Env3)), ok1)
-            cdq.record(leaf2, wo2, _lum(bw2 * Env3), ok2)
-        L = dr.select(dr.isfinite(_lum(L)), L, 0.0)
-        L_ind = dr.select(dr.isfinite(_lum(L_ind)), L_ind, 0.0)
+            cdq.record(leaf1, wo1, luminance(bw1 * (Env2 + L_nee2 + bw2 * Env3)), ok1)
+            cdq.record(leaf2, wo2, luminance(bw2 * Env3), ok2)
+        L = dr.select(dr.isfinite(luminance(L)), L, 0.0)
+        L_ind = dr.select(dr.isfinite(luminance(L_ind)), L_ind, 0.0)
         pending = list(getattr(self.selector, "pending", lambda: [])())
         rays_total = dr.sum(rays)
         dr.eval(L, L_ind, rays_total, *pending)
