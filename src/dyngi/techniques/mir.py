@@ -30,7 +30,8 @@ the valid count back) and the resampling from an inverse CDF
 (:func:`dyngi.vpl.smc.resample_with_replacement_device`). The frame's only host reads are the shading's
 image and stats.
 
-Extra parameter: ``resampling_rate`` (256, the paper's). Bias: the kNN density ``q`` and clamping.
+Extra parameter: ``resampling_rate`` (256, the paper's); ``lights=`` chooses the light sampler of the paths'
+NEE (:mod:`~dyngi.techniques.vpl_base`). Bias: the kNN density ``q`` and clamping.
 """
 from __future__ import annotations
 
@@ -48,13 +49,13 @@ from .base import Frame, Param, StageTimer, register
 from .vpl_base import COMMON_PARAMS, VPLTechnique
 
 
-def path_radiance_device(mscene, pos, nrm, sampler, active, max_depth: int):
+def path_radiance_device(mscene, pos, nrm, sampler, active, max_depth: int, lights=None):
     """One path-tracer sample of the radiance leaving each y toward -n, without y's own emission
     (the device twin of :func:`dyngi.vpl.radiosity.estimate_radiosity` with one sample and an ordinary
     sampler); returns (L, rays per lane)."""
     eps = dr.opaque(mi.Float, RAY_OFFSET) * (1.0 + dr.max(dr.abs(pos)))
     ray = mi.Ray3f(pos + nrm * eps, -nrm)
-    L, _, n_rays, _ = trace_paths_split(mscene, sampler, ray, active, int(max_depth), int(max_depth) + 1, None,
+    L, _, n_rays, _ = trace_paths_split(mscene, sampler, ray, active, int(max_depth), int(max_depth) + 1, lights,
                                         True, split=False)
     si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
     L = L - mi.Color3f(si.emitter(mscene).eval(si, active))
@@ -69,6 +70,10 @@ class MetropolisIR(VPLTechnique):
     PARAMS = {**COMMON_PARAMS,
               "resampling_rate": Param(256, "camera paths per VPL, resampled by image contribution", min=1,
                                        max=4096)}
+    NEE_RADIOSITY = True
+
+    def walk_lanes(self) -> int:
+        return int(self.params["resampling_rate"]) * self.budget
 
     def update_vpls(self, frame: Frame, t: StageTimer):
         I, p = self.budget, self.params
@@ -81,7 +86,7 @@ class MetropolisIR(VPLTechnique):
             ok = cand["ok"]
             sampler = make_sampler(n, frame.seed, frame.index, 0x31C)
             L, n_rays = path_radiance_device(self.scene.mi_scene, cand["pos"], cand["nrm"], sampler, ok,
-                                             int(p["max_depth"]) - 1)
+                                             int(p["max_depth"]) - 1, self.lights)
             c = dr.select(ok, mi.Float(dr.dot(mi.Vector3f(cand["mailbox_albedo"] * L),
                                               mi.Vector3f(*(float(v) for v in LUMINANCE)))), 0.0)
             rays = dr.sum(n_rays) + dr.count(cand["okx"]) + n

@@ -69,6 +69,7 @@ density_k : int = 0             k of the rendering density (line 19); 0: Eq. 8 (
 reestimate : str = 'independent' line 18's rendering radiosity: stream 1 of the VPL's seed, or
                                 'same-seed' (the selection's own estimate)
 impl : str = 'device'           'device' (Dr.Jit, no host round trip) or 'host' (NumPy + k-d tree)
+lights : str = 'scene'          light sampler of the radiosity paths' NEE (:mod:`~dyngi.techniques.vpl_base`)
 
 Bias (Sec. 3.3): kNN densities make the estimate biased but consistent; clamping removes
 near-field interreflections; ray-traced visibility replaces the paper's shadow maps. Measured
@@ -152,6 +153,8 @@ class SMCIR(VPLTechnique):
                           min=0.0, max=1.0),
     }
 
+    NEE_RADIOSITY = True
+
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
         self._host_store = VPLStore(self.budget)
@@ -172,7 +175,7 @@ class SMCIR(VPLTechnique):
     def _radiosity(self, pos, nrm, seeds):
         """Radiosity estimates (``radiosity_spp`` paths, ``max_depth - 1`` vertices) with these seeds."""
         return estimate_radiosity(self.scene.mi_scene, pos, nrm, seeds, self.params["radiosity_spp"],
-                                  int(self.params["max_depth"]) - 1)
+                                  int(self.params["max_depth"]) - 1, self.lights)
 
     def _candidates(self, frame: Frame, key: int, t: StageTimer):
         """Lines 3, 5-8: X, raw hits, resampled candidates with radiosity, seed and k=1 density."""
@@ -318,7 +321,7 @@ class SMCIR(VPLTechnique):
     def _radiosity_device(self, pos, nrm, seeds, active):
         """:meth:`_radiosity` on Dr.Jit arrays: (Color3f, rays)."""
         return estimate_radiosity_device(self.scene.mi_scene, pos, nrm, seeds, self.params["radiosity_spp"],
-                                         int(self.params["max_depth"]) - 1, active)
+                                         int(self.params["max_depth"]) - 1, active, self.lights)
 
     def _candidates_device(self, frame: Frame, key: int, t: StageTimer):
         """Lines 3, 5-8 on the device: raw hits (16 I lanes, none dropped), line 6's k = 1 density among

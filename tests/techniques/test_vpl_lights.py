@@ -1,0 +1,59 @@
+"""``lights=`` on the VPL techniques (issue 29, item 3): the radiosity of ``smcir``'s and ``mir``'s VPLs
+is estimated by the path walk, whose NEE goes through a light sampler (:class:`dyngi.lights.nee.LightNEE`);
+``ir`` and ``tcas`` carry radiosity on photons (no NEE) and accept only 'scene'."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dyngi.errors import DyngiError
+from dyngi.scene import load_scene
+from dyngi.techniques import Frame, create_technique
+from dyngi.vpl.store import LUMINANCE
+
+
+def test_photon_techniques_reject_a_light_sampler_and_unknown_names_list_the_choices(backend):
+    sc = load_scene("cornell-static")
+    for spec in ("ir", "tcas"):
+        with pytest.raises(DyngiError, match="photons"):
+            create_technique(spec, sc, {"lights": "power"})
+    with pytest.raises(DyngiError, match="power"):
+        create_technique("smcir", sc, {"lights": "brightest"})
+
+
+@pytest.mark.slow
+def test_radiosity_through_a_light_sampler_has_the_same_mean(backend):
+    """maze (13 lights; a point on a wall), 1024 VPL seeds x 4 paths: the radiosity estimate with NEE by
+    ``lights=power`` and by ``lights=uniform`` has the mean of Mitsuba's emitter sampling (two-sample
+    z-test, |z| < 4); then one frame of ``smcir:lights=power`` and ``mir:lights=uniform`` is finite and lit."""
+    from dyngi.lights.nee import LightNEE
+    from dyngi.vpl.radiosity import estimate_radiosity
+
+    sc = load_scene("maze")
+    sc.at(0.0)
+    cam = sc.camera(0.0)
+    n = 1024
+    from dyngi.vpl.points import raw_candidates
+    cand, _, _ = raw_candidates(sc, cam, (32, 18), 4096, 0, 0)
+    pos = np.repeat(cand["pos"][:1], n, axis=0)
+    nrm = np.repeat(cand["nrm"][:1], n, axis=0)
+    seeds = np.random.default_rng(2).integers(0, 1 << 62, n, dtype=np.uint64)
+
+    def lum(lights, s):
+        L, _ = estimate_radiosity(sc.mi_scene, pos, nrm, s, 4, 4, lights)
+        return L.astype(np.float64) @ LUMINANCE
+
+    base = lum(None, seeds)
+    assert base.mean() > 0 and base.std() > 0
+    for kind in ("power", "uniform"):
+        nee = LightNEE(sc, kind)
+        nee.begin_frame(sc, Frame(0, 0.0, cam, (32, 18), seed=0), 16 * n)
+        got = lum(nee, seeds ^ np.uint64(0x5A5A))
+        assert not np.array_equal(lum(nee, seeds), base)       # the sampler is in use (same seeds differ)
+        nee.end_frame()
+        z = (got.mean() - base.mean()) / np.sqrt((got.var() + base.var()) / n)
+        assert abs(z) < 4.0, (kind, z, got.mean(), base.mean())
+    for spec, params in (("smcir", {"vpls": 64, "warmup": 2, "radiosity_spp": 4, "lights": "power"}),
+                         ("mir", {"vpls": 64, "resampling_rate": 8, "lights": "uniform"})):
+        r = create_technique(spec, sc, params).step(Frame(0, 0.0, cam, (32, 18), seed=0))
+        assert np.all(np.isfinite(r.indirect)) and r.indirect.mean() > 0, spec
