@@ -97,7 +97,9 @@ from ..sampling.emitter_triangles import INVALID, EmitterTriangles
 from ..sampling.light_select import FrameCtx
 from ..sampling.lights import EmitterSubsetSampling
 from ..sampling.rng import make_sampler, mix_seed
+from ..transport.accumulate import ProgressiveMean
 from ..transport.color import luminance
+from ..transport.mis import mis_weight
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
 MAX_DEPTH = 3
@@ -105,8 +107,8 @@ MAX_DEPTH = 3
 
 
 def _balance(a, b):
-    w = a / (a + b)
-    return dr.select(dr.isfinite(w), w, 0.0)
+    """Balance heuristic (Veach 1997, Eq. 9.13) of the one MIS module."""
+    return mis_weight(a, b, power=False)
 
 
 def _weights(text: str) -> tuple:
@@ -202,8 +204,7 @@ class NeePT(Technique):
             except ImportError as e:
                 raise DyngiError(f"nee-pt: directions=cdq needs dyngi.sampling.cdq ({e}); valid values: bsdf, cdq") \
                     from None
-        self.accum = self.accum_ind = None
-        self.n_samples = 0
+        self.accum = ProgressiveMean()
 
     # -- per-resolution setup ------------------------------------------------------------------
     def _setup(self, res, spp):
@@ -438,14 +439,7 @@ class NeePT(Technique):
             self.selector.end_frame()
             if self.octree is not None:
                 self.octree.adapt()
-        if p["progressive"] and frame.static and self.accum is not None and dr.width(self.accum) == dr.width(L):
-            a = dr.opaque(mi.Float, spp / (self.n_samples + spp))
-            self.accum = dr.fma(L - self.accum, a, self.accum)
-            self.accum_ind = dr.fma(L_ind - self.accum_ind, a, self.accum_ind)
-            self.n_samples += spp
-        else:
-            self.accum, self.accum_ind, self.n_samples = L, L_ind, spp
-        dr.eval(self.accum, self.accum_ind)
+        self.accum.add(L, L_ind, samples=spp, accumulate=p["progressive"] and frame.static)
         stats = t.as_dict()
         stats["spp"] = spp
         stats["lights"] = self.tris.count
@@ -454,5 +448,6 @@ class NeePT(Technique):
             stats["octree"] = self.octree.stats()
         if self.cdq is not None:
             stats.update(self.cdq.stats())
-        return FrameResult(image=to_image(self.accum, frame.res), indirect=to_image(self.accum_ind, frame.res),
+        return FrameResult(image=to_image(self.accum.mean, frame.res),
+                           indirect=to_image(self.accum.mean_ind, frame.res),
                            stats=stats)
