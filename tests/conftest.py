@@ -26,51 +26,47 @@ def shared_scene(rel: str) -> str:
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 
-BATTERY_SLOW = "tests/techniques/test_battery.py::test_finite_slow"
-BATTERY_GRIDS = tuple(f"tests/techniques/test_battery.py::{t}[" for t in (
-    "test_furnace", "test_furnace_depth_limited", "test_indirect_of_a_directly_lit_plane_is_zero"))
+CI_GRIDS = {
+    # slow grids over every built-in scene: CI's subset keeps this many of their cases, evenly spread
+    "tests/techniques/test_ddgi.py::test_no_nan_500_frames_every_builtin[": 2,
+    "tests/experiments/test_indirect_reference.py::test_agrees_with_mitsuba_difference_on_every_builtin_scene[": 3,
+}
+BATTERY = "tests/techniques/test_battery.py::"
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """The battery's 200-frame runs on every built-in scene (``test_finite_slow``: techniques x scenes,
-    the bulk of ``-m slow``) run after every other test, so a time-capped slow run always covers the
-    statistical tests first. Stable: the order within each group is kept. With
-    ``DYNGI_SLOW_SUBSET=ci`` (``.ci/run``) only a fixed sample of them runs (:func:`_ci_battery_sample`)."""
+    """With ``DYNGI_SLOW_SUBSET=ci`` (set by ``.ci/run``) only CI's fixed slow subset is kept
+    (:func:`_ci_subset`); a plain ``-m slow`` runs everything."""
     if os.environ.get("DYNGI_SLOW_SUBSET") == "ci":
-        kept, dropped = _ci_battery_sample(items)
+        kept, dropped = _ci_subset(items)
         if dropped:
             config.hook.pytest_deselected(items=dropped)
         items[:] = kept
-    last = [it for it in items if it.nodeid.startswith(BATTERY_SLOW)]
-    if last:
-        keep = [it for it in items if not it.nodeid.startswith(BATTERY_SLOW)]
-        items[:] = keep + last
 
 
-def _ci_battery_sample(items):
-    """The fixed, representative slow subset CI runs every time (``DYNGI_SLOW_SUBSET=ci``, set by
-    ``.ci/run``): every slow test except the battery's 200-frame ``test_finite_slow`` runs; of those
-    (techniques x scenes) each technique keeps one scene, rotated over the scene list by the
-    technique's sorted position so that the sample covers as many scenes as techniques. Deterministic:
-    the same commit always runs the same subset."""
-    battery = [it for it in items if it.nodeid.startswith(BATTERY_SLOW)]
-    pairs = {}
-    for it in battery:
-        name, scene = it.callspec.params["name"], it.callspec.params["scene_name"]
-        pairs.setdefault(name, []).append((scene, it))
+def _ci_subset(items):
+    """The fixed, representative slow subset CI runs every time: every slow test except (a) the battery's
+    grid, of which only the cases marked ``ci_slow`` run (one heavy check per technique, another than the
+    fast suite's: tests/techniques/test_battery.py, ``HEAVY_KINDS``), and (b) the grids over every built-in
+    scene in :data:`CI_GRIDS`, of which a few evenly spread cases run. Deterministic: the same commit always
+    runs the same subset."""
     keep, drop = [], []
-    for i, name in enumerate(sorted(pairs)):
-        scenes = sorted(pairs[name], key=lambda p: p[0])
-        chosen = scenes[i % len(scenes)][1]
-        keep.append(chosen)
-        drop.extend(it for _, it in scenes if it is not chosen)
-    rest = [it for it in items if not it.nodeid.startswith(BATTERY_SLOW)]
-    # the battery's other grids (furnace kinds, furnace depths, plane lights) are sampled in the fast
-    # suite already (tests/techniques/test_battery.py, _sampled); their remaining pairs run under a plain
-    # ``-m slow``, not in CI's subset
-    grid = [it for it in rest if it.nodeid.startswith(BATTERY_GRIDS)]
-    rest = [it for it in rest if not it.nodeid.startswith(BATTERY_GRIDS)]
-    return rest + keep, drop + grid
+    groups: dict = {}
+    for it in items:
+        if it.nodeid.startswith(BATTERY):
+            (keep if it.get_closest_marker("ci_slow") or not it.get_closest_marker("slow") else drop).append(it)
+            continue
+        prefix = next((p for p in CI_GRIDS if it.nodeid.startswith(p)), None)
+        if prefix is None:
+            keep.append(it)
+        else:
+            groups.setdefault(prefix, []).append(it)
+    for prefix, its in groups.items():
+        n = CI_GRIDS[prefix]
+        chosen = {round(k * (len(its) - 1) / max(n - 1, 1)) for k in range(n)} if len(its) > n else set(range(len(its)))
+        for k, it in enumerate(its):
+            (keep if k in chosen else drop).append(it)
+    return keep, drop
 
 
 def pytest_runtest_logreport(report):

@@ -8,10 +8,8 @@ future -- gets, with no per-technique test code:
   ``e / (1 - a)`` for an estimator of unbounded depth, and the geometric
   series ``e * (1 - a^D) / (1 - a)`` when the technique's resolved parameters
   carry ``max_depth = D`` (Mitsuba's vertex count: D = 1 is emission only);
-* ``test_finite_fast`` / ``test_finite_slow``: no NaN/Inf in ``image`` or
-  ``indirect`` at 32x24 (48 frames in the fast suite, 200 in slow): in the fast suite each technique on
-  one of three varied built-in scenes (a sample of the grid), every other
-  technique x built-in scene pair in ``@pytest.mark.slow``;
+* ``test_finite``: no NaN/Inf in ``image`` or ``indirect`` at 32x24 (48 frames on the three
+  ``FAST_SCENES``, 200 on every other built-in scene);
 * ``test_steady_state_compiles_nothing``: at the technique's defaults, after a
   warm-up, frames of an animated scene with a new seed each compile no new
   Dr.Jit kernel (``dr.kernel_history()``), also under each budget the
@@ -27,6 +25,9 @@ future -- gets, with no per-technique test code:
   indirect reference's definition): ~0 on a single plane under an area light,
   a sun, a point light and a sky. The furnace checks the indirect image too
   (its value: the full one minus ``e`` and ``a e``).
+
+Sampling (CI budget): the fast suite runs one of the heavy checks per technique, CI's slow subset
+another (:data:`HEAVY_KINDS`, :func:`_pick`); a plain ``-m slow`` runs the whole grid.
 
 Per-technique settings and capabilities
 ---------------------------------------
@@ -76,7 +77,7 @@ NAMES = technique_names()
 RES = (32, 24)
 N_FRAMES = 200
 FAST_FRAMES = 48
-"""The fast suite's finite runs are shorter (CI budget); ``test_finite_slow`` runs the full N_FRAMES."""
+"""The finite runs on FAST_SCENES are shorter (CI budget); on the other built-in scenes they run N_FRAMES."""
 FAST_SCENES = ("sky-pit", "maze", "glossy-floor")
 """Varied: sun + sky (directional + constant environment); point + area lights with a walking camera and
 heavy occlusion; glossy (rough plastic, GGX alpha 0.04) floor under sky + area light, moving object."""
@@ -225,17 +226,33 @@ def furnace_indirect_expected(a: float, e: float, max_depth) -> float:
     return furnace_expected(a, e, max_depth) - furnace_expected(a, e, direct_depth)
 
 
-def _sampled(values, id_of=str):
-    """The fast suite samples a technique x variant grid: technique ``i`` runs variant ``i mod n`` in the
-    fast suite and the others as ``slow`` (so every variant is covered in the fast suite by some technique,
-    and every pair by ``-m slow``)."""
+HEAVY_KINDS = ("furnace", "depth", "plane", "finite", "steady", "rerun")
+"""The battery's checks that render many frames. The fast suite runs ONE of them per technique (CI budget:
+on a cold kernel cache every technique x check pair compiles its own kernels): technique ``i`` (sorted
+registry order) runs kind ``HEAVY_KINDS[i mod 6]`` in the fast suite and kind ``HEAVY_KINDS[(i + 3) mod 6]``
+in CI's slow subset (marker ``ci_slow``); every other pair is ``slow`` (all run under a plain ``-m slow``).
+Within a kind the variant (furnace shape, depth, light, scene) rotates over the techniques that run it."""
+
+
+def _pick(i: int, kind: str, j: int, n: int):
+    """Marks of technique ``i``'s variant ``j`` (of ``n``) of check ``kind``: fast, ``ci_slow`` or ``slow``."""
+    k = HEAVY_KINDS.index(kind)
+    variant = (i // len(HEAVY_KINDS)) % n == j
+    if variant and k == i % len(HEAVY_KINDS):
+        return []
+    if variant and k == (i + 3) % len(HEAVY_KINDS):
+        return [pytest.mark.slow, pytest.mark.ci_slow]
+    return [pytest.mark.slow]
+
+
+def _sampled(kind, values, id_of=str):
+    """The technique x variant grid of check ``kind``, marked by :func:`_pick`."""
     for i, name in enumerate(NAMES):
         for j, v in enumerate(values):
-            marks = [] if j == i % len(values) else [pytest.mark.slow]
-            yield pytest.param(name, v, marks=marks, id=f"{name}-{id_of(v)}")
+            yield pytest.param(name, v, marks=_pick(i, kind, j, len(values)), id=f"{name}-{id_of(v)}")
 
 
-@pytest.mark.parametrize("name, kind", list(_sampled(sorted(FURNACES))))
+@pytest.mark.parametrize("name, kind", list(_sampled("furnace", sorted(FURNACES))))
 def test_furnace(backend, name, kind):
     if not attr(name, "FURNACE"):
         reason = attr(name, "FURNACE_REASON")
@@ -268,7 +285,7 @@ def test_furnace(backend, name, kind):
     assert worst < slack, f"{name} furnace-{kind}: a block mean is off by {worst:.4f} (allowed {slack:.4f})"
 
 
-@pytest.mark.parametrize("name, depth", list(_sampled([2, 3])))
+@pytest.mark.parametrize("name, depth", list(_sampled("depth", [2, 3])))
 def test_furnace_depth_limited(backend, name, depth):
     """Techniques with a ``max_depth`` parameter: the furnace gives the truncated geometric series."""
     if "max_depth" not in get_technique(name).PARAMS:
@@ -340,14 +357,13 @@ def plane_scene(light: str):
 
 
 def _plane_cases():
-    """Each technique under one light in the fast suite (rotated, as :func:`_sampled`), the others slow."""
+    """The technique x light grid, marked by :func:`_pick`."""
     for i, name in enumerate(NAMES):
         for j, light in enumerate(PLANE_LIGHTS):
             reason = _known_failure(name, light)
             marks = [pytest.mark.xfail(reason=reason, strict=True)] if reason else []
-            if j != i % len(PLANE_LIGHTS):
-                marks.append(pytest.mark.slow)
-            yield pytest.param(name, light, marks=marks, id=f"{name}-{light}")
+            yield pytest.param(name, light, marks=marks + _pick(i, "plane", j, len(PLANE_LIGHTS)),
+                               id=f"{name}-{light}")
 
 
 @pytest.mark.parametrize("name, light", list(_plane_cases()))
@@ -405,21 +421,21 @@ def _finite_run(name: str, scene_name: str, frames: int = N_FRAMES):
     assert not bad, f"{name} on {scene_name}: first bad frames {bad[:5]}"
 
 
-FAST_PAIRS = [(name, FAST_SCENES[i % len(FAST_SCENES)]) for i, name in enumerate(NAMES)]
-"""The fast suite samples the technique x scene grid: each technique on one of FAST_SCENES, in turn (every
-scene gets a third of the techniques); every other pair runs in ``slow``."""
+def _finite_cases():
+    """The technique x scene grid (FAST_SCENES at FAST_FRAMES, marked by :func:`_pick`; every other built-in
+    scene in ``slow`` at N_FRAMES)."""
+    for i, name in enumerate(NAMES):
+        for j, scene in enumerate(FAST_SCENES):
+            yield pytest.param(name, scene, FAST_FRAMES, marks=_pick(i, "finite", j, len(FAST_SCENES)),
+                               id=f"{name}-{scene}")
+        for scene in builtin_names():
+            if scene not in FAST_SCENES:
+                yield pytest.param(name, scene, N_FRAMES, marks=[pytest.mark.slow], id=f"{name}-{scene}")
 
 
-@pytest.mark.parametrize("name, scene_name", FAST_PAIRS)
-def test_finite_fast(backend, name, scene_name):
-    _finite_run(name, scene_name, FAST_FRAMES)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name, scene_name", [(n, s) for n in NAMES for s in builtin_names()
-                                              if (n, s) not in FAST_PAIRS])
-def test_finite_slow(backend, name, scene_name):
-    _finite_run(name, scene_name)
+@pytest.mark.parametrize("name, scene_name, frames", list(_finite_cases()))
+def test_finite(backend, name, scene_name, frames):
+    _finite_run(name, scene_name, frames)
 
 
 # -- no recompiles in steady state ------------------------------------------------------------
@@ -444,8 +460,12 @@ def budget_factor(i: int) -> float:
 
 
 def _steady_cases():
-    for name in NAMES:
-        marks = [pytest.mark.slow] if name in STEADY_SLOW else []
+    """Each technique at its defaults and under each budget it declares, marked by :func:`_pick` (one
+    variant: all budgets of a technique go together); ``STEADY_SLOW`` techniques never in the fast suite."""
+    for i, name in enumerate(NAMES):
+        marks = _pick(i, "steady", 0, 1)
+        if name in STEADY_SLOW and not marks:
+            marks = [pytest.mark.slow]
         budgets = [b for b in BUDGETS if b in getattr(get_technique(name), "BUDGETS", ())]
         for budget in (None, *budgets):
             yield pytest.param(name, budget, marks=marks, id=f"{name}-{budget or 'defaults'}")
@@ -566,7 +586,7 @@ at any size: measured (llvm, 2 threads), ``dr.scatter_reduce(Add)`` of 4k-1M flo
 gave 2-16 different results in 30 identical runs."""
 
 
-@pytest.mark.parametrize("name", NAMES)
+@pytest.mark.parametrize("name", [pytest.param(n, marks=_pick(i, "rerun", 0, 1)) for i, n in enumerate(NAMES)])
 def test_bit_identical_reruns(backend, name):
     """Two fresh instances with the same seed over the same frames of an animated scene: identical output;
     a third with another seed differs (unless the class declares ``DETERMINISTIC = True``)."""
@@ -629,7 +649,7 @@ def _broken_technique(mode: str, **attrs):
 
 
 @pytest.mark.parametrize("mode, test, message", [
-    ("nan", lambda: test_finite_fast(None, "battery-selftest", "sky-pit"), "non-finite image values"),
+    ("nan", lambda: _finite_run("battery-selftest", "sky-pit", FAST_FRAMES), "non-finite image values"),
     ("literal", lambda: test_steady_state_compiles_nothing(None, "battery-selftest", None), "compiled in steady"),
     ("seed", lambda: test_steady_state_compiles_nothing(None, "battery-selftest", None), "compiled in steady"),
     ("budget", lambda: test_steady_state_compiles_nothing(None, "battery-selftest", "equal-rays"),
@@ -674,4 +694,4 @@ def test_battery_checks_has_indirect(backend, monkeypatch):
 
     monkeypatch.setitem(REGISTRY, "battery-selftest", _broken_technique("ok", HAS_INDIRECT=True))
     with pytest.raises(AssertionError, match="HAS_INDIRECT = True but"):
-        test_finite_fast(None, "battery-selftest", "sky-pit")
+        _finite_run("battery-selftest", "sky-pit", FAST_FRAMES)
