@@ -124,3 +124,43 @@ def test_path_with_cdq_directions_is_unbiased(backend):
     assert np.all(np.isfinite(a)) and a.mean() > 0
     ok, info = z_test_images(a, b)
     assert ok, f"path:directions=cdq disagrees with path: {info}"
+
+
+class _Uniforms:
+    """A sampler that hands out given uniform numbers (the chi^2 harness's sample points)."""
+
+    def __init__(self, s):
+        self.s = s
+
+    def next_1d(self):
+        return self.s.x
+
+    def next_2d(self):
+        return mi.Point2f(self.s.y, self.s.z)
+
+
+@pytest.mark.parametrize("material", [{"type": "roughplastic", "alpha": 0.2},
+                                      {"type": "roughconductor", "alpha": 0.3}])
+def test_lobe_directions_follow_their_pdf_chi2(backend, material):
+    """The walk's lobe-restricted strategy (directions/lobes.py: the DDGI Resampling family's glossy
+    recursion) samples the glossy lobes with the density its ``pdf`` reports."""
+    from mitsuba.chi2 import ChiSquareTest, SphericalDomain
+    from dyngi.directions.lobes import LobeDirections
+    lobes = LobeDirections(mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DeltaReflection)
+    v = _vertex(material)
+
+    def vertex(n):
+        vv = _vertex(material)
+        vv.si = dr.gather(mi.SurfaceInteraction3f, v.si, dr.zeros(mi.UInt32, n))
+        return vv
+
+    def sample(s):
+        d = lobes.sample(vertex(dr.width(s)), _Uniforms(s), mi.Bool(True))
+        return d.wo, dr.select(d.ok, mi.Float(1.0), mi.Float(0.0))
+
+    def pdf(wo):
+        return lobes.pdf(vertex(dr.width(wo)), wo, mi.Bool(True))
+
+    test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
+                         sample_count=200_000, res=61, ires=8, seed=5)
+    assert test.run(0.01, 2), f"lobes: directions disagree with the pdf\n{test.messages}"

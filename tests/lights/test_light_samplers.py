@@ -85,16 +85,20 @@ def test_sample_frequencies_match_pmf_and_pmf_sums_to_one(backend, kind):
         assert good, f"{kind}: sample frequencies disagree with the pmf at {q} (p = {pval:.2e})"
 
 
-@pytest.mark.parametrize("kind", ["power", "vlc", pytest.param("lighttree", marks=pytest.mark.xfail(
-    strict=False, reason="pixels rejected per-pixel (5-6 here, 22 of 384 on warehouse-lights) while its pmf sums "
-    "to 1 and equals the sampled one at 3072 hit points: heavy-tailed weights or a frequency/pmf mismatch off "
-    "the tested points, to find (issue 24)"))])
-def test_path_with_light_sampler_is_unbiased(backend, kind):
-    """path:lights=X and path (Mitsuba's emitter sampling) estimate the same image (direct + 1 bounce)."""
+@pytest.mark.parametrize("kind,spp", [("power", 8), ("vlc", 8),
+                                      pytest.param("lighttree", 64, marks=pytest.mark.slow)])
+def test_path_with_light_sampler_is_unbiased(backend, kind, spp):
+    """path:lights=X and path (Mitsuba's emitter sampling) estimate the same image (direct + 1 bounce).
+
+    The light tree at 8 spp fails the per-pixel test on one pixel (p ~ 2e-6) while its mean is within 3%:
+    its importance bounds give some lights a small pmf where they contribute, so a render's per-pixel
+    estimate is heavy-tailed at 8 spp and the t statistic is not t-distributed. Not a pmf mismatch: at
+    8x the samples the relative mean difference falls from 2.9% to 0.07% and no pixel is rejected
+    (a bias would stay and become more significant), and the chi^2 test above checks its pmf."""
     from test_path import _ours
     from dyngi.lights.nee import LightNEE
     sc = _scene()
-    res, spp, K = (16, 12), 8, 12
+    res, K = (16, 12), 12
     ln = LightNEE(sc, kind)
     a = []
     for i in range(K):
@@ -123,6 +127,35 @@ def test_unknown_sampler_or_option_raises(backend):
     with pytest.raises(DyngiError):
         create_technique("path", sc, {"lights": "nope"})
 
+
+def test_light_nee_pdf_is_the_density_of_its_samples(backend):
+    """LightNEE.pdf (the strategy interface, from the direction alone) equals the solid-angle pdf that
+    sample_walk reported for every visible sample, and pdf_hit's for the hit it traces; 0 off the lights."""
+    from dyngi.backend import dr, mi
+    from dyngi.lights.nee import LightNEE
+    from dyngi.sampling.rng import make_sampler
+    sc = _scene()
+    ms = sc.mi_scene
+    ln = LightNEE(sc, "lighttree")
+    ln.begin_frame(sc, _F(sc, 0), 1)
+    res = (32, 24)
+    n = res[0] * res[1]
+    sampler = make_sampler(n, 3, 0)
+    ray = sc.camera(0.0).sample_rays(res, dr.arange(mi.UInt32, n), sampler.next_2d())
+    si = ms.ray_intersect(ray)
+    ds, w, traced = ln.sample_walk(ms, si, sampler, si.is_valid())
+    vis = np.asarray(traced & (dr.max(w) > 0.0))
+    pdf = ln.pdf(ms, si, ds, si.is_valid())
+    assert vis.sum() > 100
+    rel = np.abs(np.asarray(pdf)[vis] / np.asarray(ds.pdf)[vis] - 1.0)
+    # the traced ray reaches the sampled point up to float error (the hit lies up to ~1 mm before the point
+    # the emitter table sampled), except on a few lanes (a light's edge)
+    assert np.median(rel) < 1e-3 and np.mean(rel < 1e-2) > 0.97, (np.median(rel), np.mean(rel < 1e-2))
+    # a direction straight up from the floor reaches no light in most pixels: pdf 0 there
+    up = dr.zeros(mi.DirectionSample3f, n)
+    up.d = mi.Vector3f(0.0, 1.0, 0.0)
+    p_up = np.asarray(ln.pdf(ms, si, up, si.is_valid()))
+    assert np.all(p_up >= 0.0) and np.mean(p_up == 0.0) > 0.5
 
 
 @pytest.mark.parametrize("kind", ["power", "vlc"])

@@ -78,6 +78,8 @@ class LightNEE:
         self.bounds = (lo - 0.5 * grow, hi + 0.5 * grow)
         if "dynamic_shapes" in self.entry.options and "dynamic_shapes" not in opts:
             opts["dynamic_shapes"] = list(self.dynamic)
+        if "rebuild" in self.entry.options and "rebuild" not in opts:
+            opts["rebuild"] = "change"   # our choice: rebuild a hierarchy only when a light moved (not per frame)
         self.octree = None
         self._opts = opts
         self.sampler = None
@@ -210,5 +212,14 @@ class LightNEE:
                              (1.0 - self.p_tri) * self.others.pdf(scene, prev_si, ds, active & ~is_tri), 0.0)
         return pdf
 
-    def pdf(self, scene, ref_si, ds, active):   # the strategy interface without the hit (not used by the walk)
-        raise NotImplementedError("LightNEE needs the hit: the walk calls pdf_hit")
+    def pdf(self, scene, ref_si, ds, active):
+        """Solid-angle pdf with which :meth:`sample_walk` at ``ref_si`` produces the emitter point that a ray
+        from ``ref_si`` along ``ds.d`` reaches first (the density MIS against BSDF sampling needs; the
+        light-sampling strategies' interface, which gives the direction and not the hit): traces that ray,
+        then :meth:`pdf_hit`. 0 where the ray reaches no emitter."""
+        active = mi.Bool(active)
+        ref_si = mi.SurfaceInteraction3f(ref_si)
+        si = scene.ray_intersect(ref_si.spawn_ray(ds.d), ray_flags=mi.RayFlags.All, coherent=False, active=active)
+        ds_hit = mi.DirectionSample3f(scene, si, ref_si)
+        hit = active & (si.emitter(scene, active) != None)   # noqa: E711
+        return dr.select(hit, self.pdf_hit(scene, ref_si, si, ds_hit, hit), 0.0)
