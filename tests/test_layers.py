@@ -37,11 +37,9 @@ LAYERS = {
 
 # (importer module, imported module) pairs that break the rule today, with the issue that removes them
 KNOWN: dict[tuple[str, str], str] = {
-    # the DDGI+ volume reads ddgi's parameter table and warm-up: moves with the one probe pipeline
-    ("dyngi.probes.ddgi_plus", "dyngi.techniques.base"): "issue 23 (one probe pipeline)",
-    ("dyngi.probes.ddgi_plus", "dyngi.techniques.ddgi"): "issue 23 (one probe pipeline)",
-    ("dyngi.techniques.adgi.technique", "dyngi.techniques.ddgi"): "issue 23 (one probe pipeline)",
-    ("dyngi.techniques.isddgi", "dyngi.techniques.ddgi"): "issue 23 (one probe pipeline)",
+    # the DDGI+ volume builds its parameter table with the technique layer's ``Param`` type: removed when
+    # ``Param`` moves below ``probes`` (techniques/base.py)
+    ("dyngi.probes.ddgi_plus", "dyngi.techniques.base"): "issue 23 (Param below the probes layer)",
 }
 
 
@@ -95,7 +93,7 @@ def _technique_unit(mod: str) -> str | None:
     """The technique a module belongs to (``techniques.ddgi``, ``techniques.adgi``), None for the
     shared ``techniques`` modules (``base``, ``vpl_base``: the VPL techniques' common base, the package)."""
     parts = mod.split(".")
-    if len(parts) < 3 or parts[1] != "techniques" or parts[2] in ("base", "vpl_base", "__init__"):
+    if len(parts) < 3 or parts[1] != "techniques" or parts[2] in ("base", "vpl_base", "probe_base", "__init__"):
         return None
     return parts[2]
 

@@ -7,8 +7,9 @@ import pytest
 
 from stats import chi2_uniform
 
-from dyngi.probes.isddgi_estimator import integrate_sets, integrate_sets_dr, probe_states_alg2
-from dyngi.probes.isddgi_planner import (N_SETS, RAYS_LIMIT, ISDDGIPlanner, allocation_pdf, jittered_directions,
+from dyngi.techniques.isddgi.estimator import integrate_sets, integrate_sets_dr, probe_states_alg2
+from dyngi.techniques.isddgi.planner import ISDDGIPlanner
+from dyngi.techniques.isddgi.sets import (N_SETS, RAYS_LIMIT, allocation_pdf, jittered_directions,
                                          probe_shift, sample_allocation, set_solid_angles, uniform_mask)
 
 
@@ -247,7 +248,7 @@ def test_rendered_light_switch_concentrates_importance_rays(backend):
     (nothing else changes before 1.5 s). Frames at t = 0.9 (light on), then at t = 1.2: within 2-6 frames
     after the switch most importance rays go to the probes of that room (the probes inside it or on its
     walls, lattice points within 0.1 m: relocation may move those to either side; ~9% of the probes); bound
-    0.7. Measured 2026-12-02 with paired visits (keyed NEE randomness, :mod:`dyngi.probes.isddgi_shading`):
+    0.7. Measured 2026-12-02 with paired visits (keyed NEE randomness, :mod:`dyngi.techniques.isddgi.shading`):
     0.94-0.98 on frames 12-16 (before them, per-frame NEE noise gave ~0.05: the old strict xfail)."""
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dyngi.probes.isddgi_planner import N_SETS, ISDDGIPlanner
+from dyngi.techniques.isddgi.planner import N_SETS, ISDDGIPlanner
 
 
 def _planner_with_change(P=16):

@@ -77,14 +77,14 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError, unknown_choice
-from ..sampling.diffuse import diffuse_albedo
 from ..sampling.lights import EmitterSubsetSampling, sample_traced
 from ..sampling.octahedral import direction_to_texel_coords
 from ..sampling.sunsky import is_sunsky, split_sunsky
 from ..timing import StageTimer
 from .blend import HysteresisBlend
-from .glossy import glossy_lookup
+from .lookup import probe_radiance
 from .grid import ProbeGrid
+from .params import COMMON_SPECS, DDGI_SPECS, parse_probe_counts
 from .query import ProbeQuery, bilinear_gather
 from .rays import UniformSFDirections
 from .states import ProbeStates
@@ -212,27 +212,20 @@ class PlusHitShader:
         # -- L_DDGI+ from the previous probes: diffuse + glossy (Eq. 6) --
         if query is not None:
             smp = sampler if self.lookup == "stochastic" else None
-            albedo = diffuse_albedo(bsdf, si, front)
-            diff = dr.any(albedo > 0.0) & front
-            E = query.irradiance(si.p, n, -ray.d, active=diff, sampler=smp)
-            L += dr.select(diff, albedo * dr.inv_pi * E, 0.0)
-            if self.glossy:
-                L += glossy_lookup(query, si, n, -ray.d, sampler.next_1d(), sampler.next_2d(), front,
-                                   sampler=smp)
+            L += probe_radiance(query, si, bsdf, n, -ray.d, front, sampler=smp, glossy=self.glossy, draw=sampler)
         return L, hit, front, shadow
 
 
 def plus_params():
     """The probe parameters :class:`DDGIPlusVolume` takes (``Param`` entries; techniques merge them).
 
-    ``ddgi``'s probe parameters are declared once, on :class:`~dyngi.techniques.ddgi.DDGITechnique`
-    (with the ``Param`` type): they are imported here when called, not when this module is imported,
-    so :mod:`dyngi.probes` itself does not depend on :mod:`dyngi.techniques`.
+    ``ddgi``'s probe parameters (:mod:`dyngi.probes.params`, one table for every probe technique) less
+    the primary-shading ones, and the DDGI+ ones below. ``Param`` is the technique layer's type; it is
+    imported when called (it lives in :mod:`dyngi.techniques.base`, a layer above).
     """
     from ..techniques.base import Param
-    from ..techniques.ddgi import DDGITechnique
     skip = ("jitter", "direct_samples", "encoding", "glossy")
-    out = {k: v for k, v in DDGITechnique.PARAMS.items() if k not in skip}
+    out = {k: Param(**v) for k, v in {**COMMON_SPECS, **DDGI_SPECS}.items() if k not in skip}
     out.update({
         "emission_attenuation": Param(DEFAULT_ATTENUATION, "DDGI+ emission heuristic (Sec. 3.3): 'ratio' "
                                       "(t/(t+d))^2 (decided by test), 'inverse-square' 1/(t+d)^2, 'none'",
@@ -265,7 +258,6 @@ class DDGIPlusVolume:
         self.params = p
         self.mode = mode
         self.scene = scene
-        from ..techniques.ddgi import parse_probe_counts
         counts = parse_probe_counts(p["probe_counts"], scene)
         self.grid = ProbeGrid.from_scene(scene, counts)
         self.volume = ProbeVolume(self.grid, p["irradiance_texels"], p["distance_texels"],
@@ -362,13 +354,9 @@ class DDGIPlusVolume:
         two_sided = mi.has_flag(bsdf.flags(), mi.BSDFFlags.BackSide) & (bsdf != None)   # noqa: E711
         front = active & (geo_front | two_sided)
         n = dr.select(geo_front, si.sh_frame.n, -si.sh_frame.n)
-        albedo = diffuse_albedo(bsdf, si, front)
-        diff = front & dr.any(albedo > 0.0)
-        E = self.query.irradiance(si.p, n, wo, active=diff, sampler=sampler)
-        L = dr.select(diff, albedo * dr.inv_pi * E, 0.0)
         if glossy:
             u1 = mi.Float(0.5) if u1 is None else u1
-            L += glossy_lookup(self.query, si, n, wo, u1, u2, front, sampler=sampler)
+        L = probe_radiance(self.query, si, bsdf, n, wo, front, sampler=sampler, glossy=glossy, u1=u1, u2=u2)
         if delta_lights and self.routing.nee.count:
             if sampler is None:
                 raise DyngiError("DDGIPlusVolume.radiance(delta_lights=True) needs a sampler")

@@ -34,28 +34,28 @@ GLOSSY_LOBES = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.DeltaReflection | m
 """The lobes Eq. 6's glossy term (and ``ddgi-primary``'s recursion) samples: every non-diffuse lobe."""
 
 
-def glossy_context() -> "mi.BSDFContext":
-    """A BSDF context that enables only the glossy and delta lobes (:data:`GLOSSY_LOBES`)."""
+def glossy_context(lobes=GLOSSY_LOBES) -> "mi.BSDFContext":
+    """A BSDF context that enables only ``lobes`` (default the glossy and delta ones, :data:`GLOSSY_LOBES`)."""
     ctx = mi.BSDFContext()
-    ctx.type_mask = int(GLOSSY_LOBES)
+    ctx.type_mask = int(lobes)
     return ctx
 
 
-def has_glossy_lobe(bsdf):
-    """Per lane: does ``bsdf`` (a BSDFPtr) have a glossy or delta lobe?"""
+def has_glossy_lobe(bsdf, lobes=GLOSSY_LOBES):
+    """Per lane: does ``bsdf`` (a BSDFPtr) have one of ``lobes`` (default: a glossy or delta lobe)?"""
     flags = bsdf.flags()
-    return (bsdf != None) & ((flags & mi.UInt32(int(GLOSSY_LOBES))) != 0)   # noqa: E711
+    return (bsdf != None) & ((flags & mi.UInt32(int(lobes))) != 0)   # noqa: E711
 
 
-def sample_glossy(bsdf, si, u1, u2, active, with_delta: bool = False):
-    """One sample of the glossy lobes of ``bsdf`` at ``si`` (``si.wi`` set, local frame).
+def sample_glossy(bsdf, si, u1, u2, active, with_delta: bool = False, lobes=GLOSSY_LOBES):
+    """One sample of the glossy lobes (``lobes``) of ``bsdf`` at ``si`` (``si.wi`` set, local frame).
 
     Returns (world direction, weight = f_g cos / pdf as Color3f, valid mask[, delta mask where
-    ``with_delta``: the sample came from a delta lobe]). Lanes without a glossy lobe, or whose sample
+    ``with_delta``: the sample came from a delta lobe]). Lanes without such a lobe, or whose sample
     fails, are invalid (weight 0).
     """
-    active = mi.Bool(active) & has_glossy_lobe(bsdf)
-    bs, w = bsdf.sample(glossy_context(), si, u1, u2, active)
+    active = mi.Bool(active) & has_glossy_lobe(bsdf, lobes)
+    bs, w = bsdf.sample(glossy_context(lobes), si, u1, u2, active)
     w = mi.Color3f(w)
     ok = active & (bs.pdf > 0.0) & dr.all(dr.isfinite(w)) & dr.any(w > 0.0)
     out = (si.to_world(bs.wo), dr.select(ok, w, 0.0), ok)
@@ -64,14 +64,21 @@ def sample_glossy(bsdf, si, u1, u2, active, with_delta: bool = False):
     return out
 
 
-def glossy_lookup(query, si, n, wo, u1, u2, active, sampler=None, normalisation: float = GLOSSY_NORMALISATION):
+def glossy_lookup(query, si, n, wo, u1, u2, active, sampler=None, normalisation: float = GLOSSY_NORMALISATION,
+                  lobes=GLOSSY_LOBES, skip_delta: bool = False, bsdf=None):
     """Eq. 6's glossy term at ``si`` towards ``wo`` (world, towards the viewer): Color3f radiance.
 
     ``n``: the shading normal on ``wo``'s side (for the query's normal bias and wrap weight);
     ``query``: a :class:`~dyngi.probes.query.ProbeQuery`; ``sampler`` (optional): stochastic texel
-    filtering of the lookup (same expectation). ``si.wi`` must be ``si.to_local(wo)``.
+    filtering of the lookup (same expectation). ``si.wi`` must be ``si.to_local(wo)``. ``lobes``: the
+    lobes sampled (the primary vertex samples the rough ones only, :mod:`dyngi.probes.primary`);
+    ``skip_delta``: a sample from a delta lobe gives 0. ``bsdf``: ``si.bsdf()`` unless given.
     ``normalisation`` exists for the furnace test only (``2 pi`` is the paper's, wrong, divisor).
     """
-    d, w, ok = sample_glossy(si.bsdf(), si, u1, u2, active)
+    if skip_delta:
+        d, w, ok, delta = sample_glossy(si.bsdf() if bsdf is None else bsdf, si, u1, u2, active, True, lobes)
+        ok &= ~delta
+    else:
+        d, w, ok = sample_glossy(si.bsdf() if bsdf is None else bsdf, si, u1, u2, active, lobes=lobes)
     E = query.irradiance(si.p, n, wo, direction=d, active=ok, sampler=sampler)
     return dr.select(ok, w * E * (1.0 / normalisation), 0.0)

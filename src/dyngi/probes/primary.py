@@ -44,7 +44,8 @@ from ..sampling.diffuse import diffuse_albedo
 from ..sampling.lights import sample_traced
 from ..sampling.passthrough import intersect_through_glass, scene_has_glass
 from ..sampling.rng import make_sampler
-from .glossy import GLOSSY_NORMALISATION
+from .glossy import glossy_lookup
+from .lookup import diffuse_radiance
 from .trace import light_routing, shading_side
 
 PRIMARY_GLOSSY_LOBES = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.GlossyTransmission
@@ -106,8 +107,7 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
         L += dr.select(front, f * wl * (1.0 / k), 0.0)
     # -- indirect light from the probes (diffuse lobe only) --
     albedo = diffuse_albedo(bsdf, si, front)
-    E = volume_query.irradiance(si.p, n_side, -ray.d, active=front)
-    ind = dr.select(front, albedo * dr.inv_pi * E, 0.0)
+    ind = diffuse_radiance(albedo, volume_query.irradiance(si.p, n_side, -ray.d, active=front), front)
     if glossy:
         ind += glossy_term(volume_query, si, bsdf, n_side, -ray.d, sampler, front)
     L += ind
@@ -117,13 +117,6 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     L = dr.select(dr.isfinite(L), L, 0.0)
     dr.eval(L, ind, shadow_rays)
     return L, ind, dr.sum(shadow_rays) + n + dr.sum(passes)
-
-
-def glossy_context_rough() -> "mi.BSDFContext":
-    """A BSDF context with only :data:`PRIMARY_GLOSSY_LOBES` enabled."""
-    ctx = mi.BSDFContext()
-    ctx.type_mask = int(PRIMARY_GLOSSY_LOBES)
-    return ctx
 
 
 def glossy_term(volume_query, si, bsdf, n, wo, sampler, active):
@@ -137,11 +130,5 @@ def glossy_term(volume_query, si, bsdf, n, wo, sampler, active):
     """
     u1 = sampler.next_1d()
     u2 = sampler.next_2d()
-    flags = bsdf.flags()
-    has = mi.Bool(active) & (bsdf != None) & ((flags & mi.UInt32(int(PRIMARY_GLOSSY_LOBES))) != 0)  # noqa: E711
-    bs, w = bsdf.sample(glossy_context_rough(), si, u1, u2, has)
-    w = mi.Color3f(w)
-    ok = has & (bs.pdf > 0.0) & dr.all(dr.isfinite(w)) & dr.any(w > 0.0) & \
-        ~mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-    E = volume_query.irradiance(si.p, n, wo, direction=si.to_world(bs.wo), active=ok)
-    return dr.select(ok, w * E * (1.0 / GLOSSY_NORMALISATION), 0.0)
+    return glossy_lookup(volume_query, si, n, wo, u1, u2, active, lobes=PRIMARY_GLOSSY_LOBES, skip_delta=True,
+                         bsdf=bsdf)

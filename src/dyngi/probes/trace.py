@@ -87,6 +87,7 @@ from ..sampling.passthrough import intersect_through_glass, scene_has_glass
 from ..sampling.rng import make_sampler
 from ..sampling.sunsky import is_sunsky, split_sunsky
 from ..timing import maybe_stage
+from .lookup import diffuse_radiance
 from .rays import RayPlan
 
 DIRECT_MODES = ("sun", "sky", "nee", "emissive")
@@ -324,7 +325,7 @@ class DiffuseHitShader:
         if query is not None:
             E += query.irradiance(si.p, n, -ray.d, active=front,
                                   sampler=sampler if self.lookup == "stochastic" else None)
-        L += dr.select(front, albedo * dr.inv_pi * E, 0.0)
+        L += diffuse_radiance(albedo, E, front)
         return L, hit, front, shadow
 
 

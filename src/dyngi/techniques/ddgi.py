@@ -59,92 +59,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import DyngiError
-from ..probes import (DiffuseHitShader, HysteresisBlend, LobeDirections, ProbeGrid, ProbeQuery, ProbeStates,
-                      ProbeVolume, TrueAverage, UniformSFDirections)
+from ..probes import (DiffuseHitShader, HysteresisBlend, LobeDirections, ProbeStates, TrueAverage,
+                      UniformSFDirections)
+from ..probes.params import DDGI_SPECS, parse_probe_counts  # noqa: F401  (parse_probe_counts re-exported)
 from ..probes.pipeline import UPDATE_STAGES, WARMUP_FRAME_BASE, ProbePipeline, probes_in_frustum  # noqa: F401
 from ..probes.debug import render_probe_view  # noqa: F401  (re-exported: the probe view lives in probes)
 from ..probes.primary import shade_primary  # noqa: F401  (re-exported: primary shading lives in probes)
-from ..probes.trace import (DEFAULT_DIRECT, DEFAULT_TWO_SIDED, DIRECT_MODES, HIT_LOOKUPS, TWO_SIDED_RULES,
-                            check_direct_mode)
-from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
-
-
-def parse_probe_counts(text: str, scene) -> tuple:
-    """'' -> the scene's counts; 'n' -> (n, n, n); 'nx,ny,nz' -> tuple."""
-    text = str(text).strip()
-    if not text:
-        return tuple(int(c) for c in scene.meta.probe_counts)
-    try:
-        parts = [int(p) for p in text.replace("x", ",").split(",") if p.strip()]
-    except ValueError:
-        parts = []
-    if len(parts) == 1:
-        parts = parts * 3
-    if len(parts) != 3 or min(parts) < 2:
-        raise DyngiError(f"parameter 'probe_counts' must be 'n' or 'nx,ny,nz' with counts >= 2, got '{text}'")
-    return tuple(parts)
-
-
-class _ProbeTechniqueBase(Technique):
-    """Shared set-up: grid, volume, query and primary shading."""
-
-    HAS_INDIRECT = True   # FrameResult.indirect: albedo/pi * probe irradiance at the primary hit
-    PROBE_TECHNIQUE = True  # traces a DDGI probe volume (the probe-leak tests run on every such technique)
-    # Known limitation: under direct='sun'|'sky'|'emissive' the light the probes carry directly (the sky on
-    # a probe ray's miss) is part of the probe irradiance, hence of FrameResult.indirect: the volume has
-    # no bounced-only channel. ``compare --indirect`` warns; direct='nee' gives a true indirect image.
-    INDIRECT_INCLUDES_PROBE_SKY = True
-
-    def _setup_volume(self, irradiance_texels: int, distance_texels: int):
-        p = self.params
-        check_direct_mode(p["direct"])
-        counts = parse_probe_counts(p["probe_counts"], self.scene)
-        self.grid = ProbeGrid.from_scene(self.scene, counts)
-        # the clamp never goes below the cell diagonal (issue 11, item 2): a shorter one caps the stored
-        # mean distance below the distance from a probe to points of its own cell, and the Chebyshev test
-        # then rejects probes that see the point
-        self.volume = ProbeVolume(self.grid, irradiance_texels, distance_texels,
-                                  max_distance=max(p["max_distance"] * self.grid.max_spacing,
-                                                   self.grid.cell_diagonal), two_sided=p["two_sided"])
-        self.query = ProbeQuery(self.volume, p["normal_bias"], p["view_bias"], visibility=p["visibility"])
-
-    def _primary(self, frame: Frame, t: StageTimer):
-        p = self.params
-        with t.stage("primary"):
-            L, ind, rays = shade_primary(self.scene, frame.camera, frame.res, self.query, frame.seed,
-                                         frame.index, p["direct"], p["jitter"],
-                                         direct_samples=p["direct_samples"], glossy=p["glossy"])
-        t.add_rays("primary", rays)
-        return to_image(L, frame.res), to_image(ind, frame.res)
-
-    def debug_view(self, camera, res, radius: float = 0.15):
-        """Image of the probes as spheres shaded by their stored irradiance (see :func:`render_probe_view`)."""
-        return render_probe_view(self.scene, self.volume, camera, res, radius)
-
-
-COMMON_PARAMS = {
-    "probe_counts": Param("", "probe grid counts: 'nx,ny,nz' or 'n' (default: the scene's grid)"),
-    "normal_bias": Param(0.05, "query offset along the normal, in units of the smallest probe spacing", min=0.0),
-    "view_bias": Param(0.2, "query offset towards the viewer, in units of the smallest probe spacing", min=0.0),
-    "visibility": Param(True, "Chebyshev visibility test at query time"),
-    "max_distance": Param(1.5, "distance clamp, in units of the largest probe spacing; never below the "
-                          "cell diagonal", min=0.1),
-    "direct": Param(DEFAULT_DIRECT, "light handled by NEE (the rest by the probes, see dyngi.probes.trace): "
-                    "'sun' all emitters and a sunsky's sun, not the sky; 'sky' all but the environment; "
-                    "'nee' all; 'emissive' delta lights only", choices=DIRECT_MODES),
-    "jitter": Param(True, "jitter primary rays uniformly inside the pixel, as the box-filtered reference "
-                    "integrates (False: pixel centres, which counts aliasing at edges as error)"),
-    "direct_samples": Param(1, "NEE samples per pixel for direct light at the primary hit", min=1, max=64),
-    "two_sided": Param(DEFAULT_TWO_SIDED, "how a probe ray that hits the back of a two-sided surface counts for "
-                       "the distance moments, relocation and classification: 'enclosed' a back face iff the "
-                       "probe is enclosed by something thinner than a cell along that line (a slab, a thick "
-                       "wall), else a front face; 'front' always a front face; 'back' always a back face "
-                       "(dyngi.probes.trace, 'The two-sided rule')", choices=TWO_SIDED_RULES),
-    "glossy": Param(False, "add the glossy probe lookup (DDGI Resampling Eq. 6: one glossy-lobe BSDF sample, "
-                    "the probe irradiance along it / pi) at the primary hit; False: diffuse indirect only, "
-                    "as DDGI (dyngi.probes.primary)"),
-}
+from .base import Frame, FrameResult, Param, StageTimer, register
+from .probe_base import COMMON_PARAMS, _ProbeTechniqueBase, params_from
 
 
 @register
@@ -156,35 +78,7 @@ class DDGITechnique(_ProbeTechniqueBase):
     description = ("DDGI irradiance probes (Majercik et al. 2019): NEE direct + probe indirect at the primary "
                    "hit; indirect light is diffuse only (glossy surfaces get no indirect reflections) unless "
                    "glossy=true (Eq. 6 glossy probe lookup)")
-    PARAMS = {
-        **COMMON_PARAMS,
-        "rays_per_probe": Param(256, "rays per active probe per frame", min=1, max=1 << 14),
-        "warmup": Param(8, "extra probe updates on the first frame, blended without hysteresis, so that "
-                        "multi-bounce light exists in the first image (0: start from empty probes)",
-                        min=0, max=256),
-        "hysteresis": Param(0.97, "weight of the old texel value in the blend", min=0.0, max=1.0),
-        "irradiance_texels": Param(8, "irradiance texels per side incl. the 1-texel border", min=3, max=64),
-        "distance_texels": Param(16, "distance texels per side incl. the 1-texel border", min=3, max=64),
-        "distance_power": Param(50.0, "cosine power of the distance blend", min=1.0),
-        "irradiance_gamma": Param(5.0, "perceptual blending exponent (1: linear blend)", min=1.0),
-        "change_threshold": Param(0.25, "per-texel change that lowers the hysteresis (perceptual space)", min=0.0),
-        "brightness_threshold": Param(1e30, "luminance of a brightening step that is damped by 0.25 "
-                                      "(RTXGI's firefly guard, 0.1 there; default 1e30 = off: the DDGI paper "
-                                      "has no such damping and it slows the reaction to new light ~4x)",
-                                      min=0.0),
-        "encoding": Param("fp32", "texel storage encoding", choices=("fp32", "qddgi", "adgi")),
-        "estimator": Param("auto", "per-texel estimate of the frame's rays: 'matrix' (BLAS, CPU), 'scatter' "
-                           "(Dr.Jit scatter-reduce, deterministic), 'auto' (matrix on the CPU backend)",
-                           choices=("auto", "matrix", "scatter")),
-        "hit_lookup": Param("stochastic", "how probe-ray hits read the previous probes (multi-bounce): "
-                            "'stochastic' one texel of one probe with the filtered value as expectation "
-                            "(Pharr et al. 2024), 'filtered' DDGI's 8 probes x bilinear texels",
-                            choices=HIT_LOOKUPS),
-        "update_offscreen": Param(True, "update probes outside the (extended) camera frustum"),
-        "relocate": Param(True, "move probes out of geometry"),
-        "classify": Param(True, "deactivate probes inside geometry or far from any surface"),
-        "reclassify_interval": Param(8, "frames between re-tests of inactive probes (0: never)", min=0),
-    }
+    PARAMS = {**COMMON_PARAMS, **params_from(DDGI_SPECS)}
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)

@@ -4,8 +4,10 @@ Estimates DDGI's irradiance/visibility probes, but spends the ray budget where
 a guide over probe position x direction says rays matter, sampled by
 persistent Metropolis chains (:mod:`dyngi.sampling.metropolis`); each sample
 updates the probe texels it lands in with Algorithm 3's moving average
-(:mod:`.moving_average`). Primary shading and the frame-0 warm-up are
-``ddgi``'s (:mod:`dyngi.techniques.ddgi`), with its ``glossy`` parameter (default off): the primary
+(:mod:`.moving_average`). The probe pipeline (:mod:`dyngi.probes.pipeline`) does the tracing,
+merging, relocation/classification and the frame-0 warm-up; the chains are its planner
+(:class:`.planner.ADGIChainPlanner`). Primary shading is ``ddgi``'s
+(:mod:`dyngi.techniques.probe_base`), with its ``glossy`` parameter (default off): the primary
 vertex adds the Eq. 6 glossy probe lookup of DDGI Resampling (:mod:`dyngi.probes.primary`), which
 Fig. 10's glossy floor needs (``dyngi reproduce adgi``).
 
@@ -23,7 +25,7 @@ One frame, in the paper's stages (Table 4; ``stats['ms']`` keys ``P``, ``S``, ``
   ``g`` the luminance of the previous frame's cached irradiance at a coarser
   mip (Sec. 4.8: "from the previous frame and from a higher mip-level"):
   mip ``guide_mip`` = 1 of the 6x6 interior, i.e. 3x3 cells of 2x2 texels per
-  probe (the level is ours; :meth:`ADGITechnique.guide_feedback`).
+  probe (the level is ours; :meth:`.planner.ADGIChainPlanner.guide_feedback`).
   Samples in entries with ``f_d > 0`` are snapped to the centre of their
   irradiance texel. Each sample costs two rays: along ``w`` (radiance) and
   along ``-w`` (distance, the shadow ray).
@@ -66,16 +68,12 @@ ray on its last frame, then shared as above (so the chain counts scale with
 the time; the first frame, with nothing measured, runs the defaults); the
 spend is recorded (``stats['static_chains_run']``), not guaranteed.
 
-Speed (measured 2026-12-02, 2-core box under load 10-15, so +-50%; /tmp/figs/adgi.md): at the tunnel's
-8x6x32 grid and Q-DDGI's ~36k rays a frame, an ``adgi`` frame ran 55-100 ms of which only 17-26 ms is
-kernel execution: it launches ~106 JIT kernels (~375 launches with reductions and copies) against
-Q-DDGI's ~30 (~133), and syncs with the host for the ragged plans (host sort), the chain/proxy counts and
-the radiance convolution (NumPy). That fixed cost, not the rays, makes it slower than ``qddgi`` at small
-grids, and it is why an equal-time budget below it cannot be met (the chains shrink to 1 and the frame
-overspends; recorded, not hidden). Fused here: the two trigger convolutions (Eqs. 15, 18) share one
-launch per axis. At the defaults' ray counts the ratio of probe-sampling times adgi/qddgi fell from 10.7
-(1536 probes) to 4.7 (12288) to 2.7 (98304 probes, the largest grid whose set-up + 4 frames ran within a
-minute here); the paper's 2.36M-probe grid is out of reach on this CPU.
+Speed: an ``adgi`` frame launches several times the kernels of a ``qddgi`` frame and syncs with the
+host for the ragged plans (host sort), the chain/proxy counts and the radiance convolution (NumPy);
+that fixed cost, not the rays, makes it slower than ``qddgi`` at small grids, and it is why an
+equal-time budget below it cannot be met (the chains shrink to 1 and the frame overspends; recorded,
+not hidden). The two trigger convolutions (Eqs. 15, 18) share one launch per axis. Figures:
+docs/benchmarks.md, "Figures moved out of the probe docstrings".
 
 Probe relocation and classification carry over from ``ddgi`` (the paper is
 silent; ours): during the warm-up updates, then every
@@ -111,25 +109,22 @@ import numpy as np
 
 from ...backend import dr, mi
 from ...errors import DyngiError
-from ...probes import DiffuseHitShader, HysteresisBlend, ProbeStates, RayPlan, ScatterEstimator
-from ...probes import UniformSFDirections
+from ...probes import DiffuseHitShader, HysteresisBlend, ProbeStates, RayPlan, ScatterEstimator, UniformSFDirections
 from ...probes.accumulator import MeanAccumulator, pull_from
 from ...probes.encoding import get_encoding
+from ...probes.lookup import diffuse_radiance
 from ...probes.pipeline import ProbePipeline
 from ...probes.trace import HIT_LOOKUPS, ProbeRayResults
 from ...probes.volume import upload
 from ...sampling.diffuse import diffuse_albedo
-from ...sampling.metropolis import ADGI_DIRECTION_STEP, ChainState, MetropolisChains
-from ...sampling.octahedral import direction_to_texel_coords, texel_directions
+from ...sampling.metropolis import ADGI_DIRECTION_STEP
 from ..base import Frame, FrameResult, Param, StageTimer, register
-from ..ddgi import COMMON_PARAMS, _ProbeTechniqueBase
-from .heuristics import (OCTANTS, ADGIHeuristics, frusta, octant_of, octant_signs, pack_heuristics,
-                         static_guide, unpack_heuristics)
+from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase
+from .heuristics import OCTANTS, ADGIHeuristics, frusta, pack_heuristics, unpack_heuristics
 from .moving_average import N_MAX_DYNAMIC, N_MAX_STATIC, Algorithm3Accumulator
+from .planner import ADGIChainPlanner, negated
 from .radiance import RadianceCache
 
-PROXY = 3                 # 3x3x3 probes per virtual proxy (Sec. 4.9)
-DYNAMIC_STRATA = 8        # 8x8 deterministic rays per probe octant
 
 
 class PilotShader(DiffuseHitShader):
@@ -143,29 +138,9 @@ class PilotShader(DiffuseHitShader):
             albedo = diffuse_albedo(si.bsdf(ray), si, front)
             E = query.irradiance(si.p, si.sh_frame.n, -ray.d, active=front,
                                  sampler=sampler if self.lookup == "stochastic" else None)
-            L = L + dr.select(front, albedo * dr.inv_pi * E, 0.0)
+            L = L + diffuse_radiance(albedo, E, front)
         dr.schedule(self.last_direct)
         return L, hit, front, shadow
-
-
-def sorted_plan(probe, direction, weight, n_probes: int) -> RayPlan:
-    """A ragged :class:`RayPlan` from unordered per-sample probe ids: samples grouped by probe with a stable
-    host sort (one host copy of the ids; deterministic order). Directions/weights follow the sort."""
-    pid = np.asarray(probe, np.uint32)
-    order = np.argsort(pid, kind="stable").astype(np.uint32)
-    counts = np.bincount(pid, minlength=n_probes)
-    ids = np.flatnonzero(counts).astype(np.uint32)
-    idx = upload(order, mi.UInt32)
-    d = dr.gather(mi.Vector3f, direction, idx)
-    w = None if weight is None else dr.gather(mi.Float, weight, idx)
-    dr.eval(d, w)
-    return RayPlan.ragged(ids, counts[ids], d, weight=w)
-
-
-def negated(plan: RayPlan) -> RayPlan:
-    """The same plan along ``-w`` (the shadow rays of Sec. 4.8)."""
-    return RayPlan(plan.probe, -plan.direction, plan.rays_per_probe, None, plan.probe_ids, plan.offsets,
-                   plan.slot, plan.weight)
 
 
 @register
@@ -235,18 +210,8 @@ class ADGITechnique(_ProbeTechniqueBase):
         self.est_dist = ScatterEstimator(p["distance_power"], "bin")
         self.heur = ADGIHeuristics(g, p["camera_threshold"] or None, p["beta"], p["mu"], p["theta"])
         self.hstate = self.heur.initial_state()
-        # -- chains: static over probe cells, dynamic over 3x3x3 proxies (grid units) --
-        n = np.asarray(self.counts, np.float64)
-        self.proxies = tuple(int(c) for c in np.ceil(n / PROXY).astype(int))
-        step = p["position_step"]
-        self.static = MetropolisChains(-0.5 * np.ones(3), n - 0.5, step, p["direction_step"], p["burn_in"],
-                                       p["iterations"], stream=0xAD61)
-        npx = np.asarray(self.proxies, np.float64)
-        self.dynamic = MetropolisChains(-0.5 * np.ones(3), npx - 0.5, step * p["dynamic_position_scale"] / PROXY,
-                                        min(p["direction_step"] * p["dynamic_direction_scale"], 3.0),
-                                        p["burn_in"], p["iterations"], stream=0xAD62)
-        self.static_state = self.static.initial_state(p["static_chains"], 0)
-        self.dynamic_state = self.dynamic.initial_state(p["dynamic_chains"], 1) if p["dynamic_chains"] else None
+        # -- the planner: static chains over probe cells, dynamic ones over 3x3x3 proxies (grid units) --
+        self.planner = ADGIChainPlanner(self.volume, p)
         # -- ddgi's warm-up pieces (hysteresis blend, shared SF set, relocation/classification) --
         self.blender = HysteresisBlend(0.0, p["distance_power"], 1.0, 0.25, 1e30, p["encoding"], "auto")
         self.blender.encoding = self.encoding             # the warm-up stores through the same encoding
@@ -262,23 +227,18 @@ class ADGITechnique(_ProbeTechniqueBase):
         self._time_avail_ms = None             # equal time: this frame's ms for S + D (None: no time budget)
         self._ms_per_ray = {"S": None, "D": None}   # measured on the last frame that traced in the stage
         self._ms_fixed = 0.0                   # measured: the last frame's time outside S and D
-        self._setup_guide_mip(p["guide_mip"])
         self.radiance = RadianceCache(vol_n := self.volume.n_probes, p["radiance_texels"],
                                       self.volume.irradiance_texels)
         self._updated = np.zeros(vol_n, bool)
-        self._texel_dirs = mi.Float(texel_directions(self.volume.irradiance_texels)[1:-1, 1:-1]
-                                    .reshape(-1).astype(np.float32))
-        self._strata = self._octant_strata(int(round(np.sqrt(p["dynamic_rays"]))))
 
-    @staticmethod
-    def _octant_strata(k: int):
-        """(k*k) directions in the +++ octant: centres of an equal-area k x k stratification."""
-        i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-        z = (i.ravel() + 0.5) / k
-        phi = (j.ravel() + 0.5) / k * np.pi / 2
-        r = np.sqrt(1 - z * z)
-        d = np.stack([r * np.cos(phi), r * np.sin(phi), z], -1).astype(np.float32)
-        return mi.Vector3f(*[upload(d[:, c]) for c in range(3)])
+    # the planner's chains and guide, readable here (the viewer draws the static chains)
+    @property
+    def static_state(self):
+        return self.planner.static_state
+
+    def guide_feedback(self):
+        """The static guide's irradiance feedback (:meth:`.planner.ADGIChainPlanner.guide_feedback`)."""
+        return self.planner.guide_feedback()
 
     # -- one frame ------------------------------------------------------------------------------
     def step(self, frame: Frame) -> FrameResult:
@@ -336,14 +296,14 @@ class ADGITechnique(_ProbeTechniqueBase):
             self._dynamic_rays = None if per is None else max(self._time_avail_ms - t.ms.get("S", 0.0), 0.0) / per
         # -- D: dynamic chains on proxies (Sec. 4.9) --
         with t.stage("D"):
-            stats["dynamic_proxy_octants"] = self._dynamic(frame, vin_dr, fd, t) if self.dynamic_state else 0
+            stats["dynamic_proxy_octants"] = self._dynamic(frame, vin_dr, fd, t)
             self._cap_outer(v_out & ~v_in, p["outer_count_cap"])
             stats["probes_updated"] = self._convolve_updated()
         img, ind = self._primary(frame, t)
         out = t.as_dict()
         out.update(stats)
         out["v_in"], out["v_out"] = int(v_in.sum()), int(v_out.sum())
-        out["static_chains_run"] = self._n_run
+        out["static_chains_run"] = self.planner.n_run
         self._measure_time(out)
         return FrameResult(image=img, indirect=ind, stats=out)
 
@@ -363,7 +323,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         # traces nothing and S gets it all); one host read of the f_d scale, only under a budget
         if frame.ray_budget is None and frame.time_budget_ms is None:
             return
-        dyn = self.dynamic_state is not None and float(np.asarray(self.lut_scale).ravel()[0]) > 0.0
+        dyn = self.planner.dynamic_state is not None and float(np.asarray(self.lut_scale).ravel()[0]) > 0.0
         share = 0.5 if dyn else 0.0
         if frame.ray_budget is None:
             if frame.time_budget_ms is not None and self._ms_per_ray["S"]:
@@ -392,199 +352,33 @@ class ADGITechnique(_ProbeTechniqueBase):
         """``ddgi``'s relocation and classification after the warm-up (issue 12 item 5; the paper is
         silent, ours): every ``reclassify_interval`` frames, the probes of ``V_out`` (those the frame can
         use; ``ddgi`` re-tests the probes it updates) and every inactive probe (``ddgi``'s re-test) are
-        re-tested with
-        ``ddgi``'s fixed set of classification rays (:class:`~dyngi.probes.update.ProbeUpdater`'s
-        ``classify_dirs``, 32 spherical-Fibonacci rays) and :class:`~dyngi.probes.states.ProbeStates`
-        moves / (de)activates it as ``ddgi`` does. The rays are counted (stage ``states``) and come out
-        of an equal-ray budget before the chains are sized."""
+        re-tested with ``ddgi``'s fixed set of classification rays (:meth:`ProbePipeline.classify
+        <dyngi.probes.pipeline.ProbePipeline.classify>`, 32 spherical-Fibonacci rays) and
+        :class:`~dyngi.probes.states.ProbeStates` moves / (de)activates it as ``ddgi`` does. The rays are
+        counted (stage ``states``) and come out of an equal-ray budget before the chains are sized."""
         self.pipeline.classify(self.scene, np.flatnonzero(mask).astype(np.uint32), frame.index, frame.seed, t)
 
-    def _chains_to_run(self) -> int:
-        n = self.static_state.n
-        if self._static_rays is None:
-            return n
-        per_chain = self.static.samples_per_chain * (2.0 + self._shadow_rate)
-        return int(min(max(self._static_rays // per_chain, 1), n))
-
-    # -- pieces --------------------------------------------------------------------------------
-    def _probe_of(self, x, counts):
-        """Lattice point (probe or proxy index) nearest to continuous grid coordinates ``x``."""
-        nx, ny, nz = counts
-        i = dr.clip(mi.Int32(dr.round(x.x)), 0, nx - 1)
-        j = dr.clip(mi.Int32(dr.round(x.y)), 0, ny - 1)
-        k = dr.clip(mi.Int32(dr.round(x.z)), 0, nz - 1)
-        return mi.UInt32(i + nx * (j + ny * k))
-
-    def _texel_of(self, w):
-        T = self.volume.irradiance_texels
-        c = direction_to_texel_coords(w, T)
-        ix = dr.clip(mi.Int32(dr.floor(c.x)) - 1, 0, T - 3)
-        iy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, T - 3)
-        return mi.UInt32(iy * (T - 2) + ix), mi.UInt32((iy + 1) * T + ix + 1)
-
-    # -- the guide's feedback at a coarser mip (Sec. 3.2, 4.8) --
-    def _setup_guide_mip(self, level: int) -> None:
-        """Mip ``level`` of the irradiance maps' interiors: ``(T-2) / 2^level`` texels per side (rounded
-        up), each the mean luminance of the ``2^level x 2^level`` interior texels it covers (fewer at an odd
-        edge). Our choice: level 1 (3x3 per probe for the 8x8 maps), the first level coarser than the
-        texels the samples update; the paper says only "a higher mip-level" (Sec. 4.8)."""
-        T = self.volume.irradiance_texels
-        n = T - 2
-        self._mip_level = int(level)
-        self._mip_n = m = -(-n // (1 << self._mip_level))
-        iy, ix = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-        cell = ((iy >> self._mip_level) * m + (ix >> self._mip_level)).ravel()
-        self._mip_cell = upload(cell.astype(np.uint32), mi.UInt32)                  # interior texel -> mip cell
-        self._mip_src = upload(((iy + 1) * T + ix + 1).ravel().astype(np.uint32), mi.UInt32)   # -> atlas texel
-        self._mip_norm = upload((1.0 / np.bincount(cell, minlength=m * m)).astype(np.float32), mi.Float)
-
-    def guide_feedback(self):
-        """Per probe and mip cell (``P * m * m`` Floats): the luminance of the irradiance atlas at mip
-        ``guide_mip``, read at the start of the static stage, i.e. the previous frame's convolved
-        irradiance (this frame's samples reach the atlas only at the end of the frame). Luminance is our
-        scalar of the RGB cache (Rec. 709 weights)."""
-        vol = self.volume
-        T = vol.irradiance_texels
-        n_int = (T - 2) ** 2
-        mm = self._mip_n * self._mip_n
-        lane = dr.arange(mi.UInt32, vol.n_probes * n_int)
-        probe = lane // n_int
-        k = lane - probe * n_int
-        lum = mi.luminance(dr.gather(mi.Color3f, vol.device.irradiance,
-                                     probe * (T * T) + dr.gather(mi.UInt32, self._mip_src, k)))
-        cell = dr.gather(mi.UInt32, self._mip_cell, k)
-        g = dr.zeros(mi.Float, vol.n_probes * mm)
-        dr.scatter_reduce(dr.ReduceOp.Add, g, lum * dr.gather(mi.Float, self._mip_norm, cell), probe * mm + cell)
-        dr.eval(g)
-        return g
-
-    def _mip_cell_of(self, w):
-        """Mip cell (row-major in the ``m x m`` mip) that direction ``w`` falls in."""
-        T = self.volume.irradiance_texels
-        c = direction_to_texel_coords(w, T)
-        ix = dr.clip(mi.Int32(dr.floor(c.x)) - 1, 0, T - 3)
-        iy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, T - 3)
-        L = self._mip_level
-        return mi.UInt32((iy >> L) * self._mip_n + (ix >> L))
-
+    # -- the stages' traces and merges ----------------------------------------------------------------
     def _static(self, frame: Frame, vin_dr, fd, t: StageTimer) -> int:
-        vol = self.volume
-        fs = self._fs_q                      # f_s from the 6-10-10 word (Sec. 4.3)
-        g_mip = self.guide_feedback()
-        mm = self._mip_n * self._mip_n
-
-        def target(x, w):
-            probe = self._probe_of(x, self.counts)
-            e = probe * OCTANTS + octant_of(w)
-            f = dr.gather(mi.Float, fs, e) * dr.gather(mi.Float, vin_dr, probe)
-            g = dr.gather(mi.Float, g_mip, probe * mm + self._mip_cell_of(w))
-            return static_guide(f, g)
-
-        n_run = self._n_run = self._chains_to_run()
-        st = self.static_state
-        if self._static_rays is not None:     # a budget runs the first n_run chains; the others keep their
-            # states (this path even when n_run is all of them: one set of kernels whatever the budget)
-            # + an opaque 0: Dr.Jit turns a gather of all lanes by a plain arange into the source itself, which
-            # would make the n_run == n frames launch other kernels than the others
-            lane = dr.arange(mi.UInt32, n_run) + dr.opaque(mi.UInt32, 0)
-            sub = ChainState(dr.gather(mi.Vector3f, st.position, lane), dr.gather(mi.Vector3f, st.direction, lane))
-            sub, s = self.static.run(sub, target, frame.seed, frame.index)
-            pos, dirs = mi.Vector3f(st.position), mi.Vector3f(st.direction)
-            dr.scatter(pos, sub.position, lane)
-            dr.scatter(dirs, sub.direction, lane)
-            dr.eval(pos, dirs)
-            self.static_state = ChainState(pos, dirs)
-        else:
-            self.static_state, s = self.static.run(st, target, frame.seed, frame.index)
-        ok = s.value > 0.0
-        n = int(dr.count(ok)[0])
-        if n == 0:
+        """S: the planner's static plan, traced and merged with N_max static (Sec. 4.8)."""
+        plan = self.planner.plan(frame.index, frame.seed, stage="static", vin=vin_dr, fs=self._fs_q, fd=fd,
+                                 rays=self._static_rays, shadow_rate=self._shadow_rate)
+        if plan is None:
             return 0
-        idx = dr.compress(ok)
-        x = dr.gather(mi.Vector3f, s.position, idx)
-        w = dr.gather(mi.Vector3f, s.direction, idx)
-        h = dr.gather(mi.Float, s.value, idx)
-        probe = self._probe_of(x, self.counts)
-        # samples in entries with f_d > 0 go through their irradiance texel's centre (Sec. 4.9)
-        snap = dr.gather(mi.Float, fd, probe * OCTANTS + octant_of(w)) > 0.0
-        ti, _ = self._texel_of(w)
-        w = dr.select(snap, dr.gather(mi.Vector3f, self._texel_dirs, ti), w)
-        dr.eval(probe, w, h)
-        plan = sorted_plan(probe, w, None, vol.n_probes)
         spent = self._trace_and_merge(frame, plan, self.acc_static, self.params["n_max_static"], stream=43)
         t.add_rays("S", spent)
         if self._dynamic_rays is not None:
             self._dynamic_rays = max(self._dynamic_rays - spent, 0.0)
-        return n
+        return self.planner.last_samples
 
     def _dynamic(self, frame: Frame, vin_dr, fd, t: StageTimer) -> int:
-        vol = self.volume
-        nx, ny, nz = self.counts
-        px, py, pz = self.proxies
-        n_entries = px * py * pz * OCTANTS
-        # -- the proxy table: max of f_d over the proxy's 27 probes in V_in, per octant --
-        e = dr.arange(mi.UInt32, n_entries)
-        q = e // OCTANTS
-        o = e - q * OCTANTS
-        qi, qj, qk = mi.Int32(q % px), mi.Int32((q // px) % py), mi.Int32(q // (px * py))
-        table = dr.zeros(mi.Float, n_entries)
-        for di in range(PROXY):
-            for dj in range(PROXY):
-                for dk in range(PROXY):
-                    i, j, k = qi * PROXY + di, qj * PROXY + dj, qk * PROXY + dk
-                    inside = (i < nx) & (j < ny) & (k < nz)
-                    pr = mi.UInt32(dr.select(inside, i + nx * (j + ny * k), 0))
-                    v = dr.gather(mi.Float, fd, pr * OCTANTS + o, inside) * dr.gather(mi.Float, vin_dr, pr, inside)
-                    table = dr.maximum(table, v)
-        dr.eval(table)
-
-        def target(x, w):
-            return dr.gather(mi.Float, table, self._probe_of(x, self.proxies) * OCTANTS + octant_of(w))
-
-        self.dynamic_state, s = self.dynamic.run(self.dynamic_state, target, frame.seed, frame.index)
-        # -- each proxy octant a chain visited (with h > 0) traces once --
-        mark = dr.zeros(mi.UInt32, n_entries)
-        ent = self._probe_of(s.position, self.proxies) * OCTANTS + octant_of(s.direction)
-        dr.scatter(mark, mi.UInt32(1), ent, s.value > 0.0)
-        dr.eval(mark)
-        n_marked = int(dr.count(mark != 0)[0])
-        if n_marked == 0:
-            return 0
-        marked = dr.compress(mark != 0)
-        # -- lanes: (marked proxy octant, sub-probe of 27, stratum) --
-        R = dr.width(self._strata.x)
-        lane = dr.arange(mi.UInt32, n_marked * 27 * R)
-        m = lane // (27 * R)
-        rest = lane - m * (27 * R)
-        sub = rest // R
-        r = rest - sub * R
-        ent = dr.gather(mi.UInt32, marked, m)
-        q = ent // OCTANTS
-        oo = ent - q * OCTANTS
-        i = mi.Int32(q % px) * PROXY + mi.Int32(sub % PROXY)
-        j = mi.Int32((q // px) % py) * PROXY + mi.Int32((sub // PROXY) % PROXY)
-        k = mi.Int32(q // (px * py)) * PROXY + mi.Int32(sub // (PROXY * PROXY))
-        inside = (i < nx) & (j < ny) & (k < nz)
-        probe = mi.UInt32(dr.select(inside, i + nx * (j + ny * k), 0))
-        ok = inside & (dr.gather(mi.Float, vin_dr, probe, inside) > 0.0)
-        d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(oo)
-        dr.eval(probe, d, ok)
-        if self._dynamic_rays is not None:    # budget: whole proxy octants, in order, while rays remain
-            # lanes of one proxy octant are contiguous: a block sum, not a scatter into n_marked slots
-            # (on LLVM that bakes n_marked into the kernel, a new kernel whenever it changes)
-            per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27 * R)
-            cost = np.cumsum(np.asarray(per, np.float64) * (2.0 + self._shadow_rate))
-            n_keep = int(np.searchsorted(cost, self._dynamic_rays, side="right"))
-            ok &= m < dr.opaque(mi.UInt32, n_keep)
-            dr.eval(ok)
-        if int(dr.count(ok)[0]) == 0:
-            return n_marked
-        keep = dr.compress(ok)
-        plan = sorted_plan(dr.gather(mi.UInt32, probe, keep), dr.gather(mi.Vector3f, d, keep), None,
-                           vol.n_probes)
-        t.add_rays("D", self._trace_and_merge(frame, plan, self.acc_dynamic, self.params["n_max_dynamic"],
-                                              stream=45))
-        return n_marked
+        """D: the planner's dynamic plan, traced and merged with N_max dynamic (Sec. 4.9)."""
+        plan = self.planner.plan(frame.index, frame.seed, stage="dynamic", vin=vin_dr, fd=fd,
+                                 rays=self._dynamic_rays, shadow_rate=self._shadow_rate)
+        if plan is not None:
+            t.add_rays("D", self._trace_and_merge(frame, plan, self.acc_dynamic, self.params["n_max_dynamic"],
+                                                  stream=45))
+        return self.planner.last_samples
 
     def _trace_and_merge(self, frame: Frame, plan: RayPlan, acc, n_max: int, stream: int) -> int:
         """Trace ``plan`` (radiance along ``w``, distance along ``-w``) and merge; returns the rays cast

@@ -1,5 +1,5 @@
 """IS-DDGI integration per direction set (Algorithm 3) and probe states (Algorithm 2) of Liu et al. 2023
-(supplement), on a ragged plan of :mod:`dyngi.probes.isddgi_planner`.
+(supplement), on a ragged plan of :mod:`dyngi.techniques.isddgi.planner`.
 
 **Storage** (Algorithm 3; issue 13 item 1): irradiance and visibility are stored per direction set, i.e.
 the probe volume's irradiance and distance squares are ``18 x 18``: the 16x16 interior holds the 256 sets
@@ -15,7 +15,7 @@ supplement's ``2 / |Omega^H| sum <ds, r>^+ L``; with the weights it is the cosin
 radiance, i.e. ``E / pi`` -- the pi convention of Sec. 4.2 (``r_diff = rho * irr``) and of
 :mod:`dyngi.probes.volume`: texels hold ``E / pi``; the query returns ``E = pi * texel`` and primary
 shading multiplies by ``albedo / pi``, i.e. ``r_diff = rho * irr``. The distance moments use DDGI's
-``cos^distance_power`` lobe with the same weights. Back faces: as the probe core (:mod:`.estimator`).
+``cos^distance_power`` lobe with the same weights. Back faces: as the probe core (:mod:`dyngi.probes.estimator`).
 
 The sums are a Dr.Jit loop over the probe's rays (:func:`integrate_sets_dr`: one lane per (probe, pair of
 antipodal sets), a ragged ``dr.while_loop`` over ``offsets[slot] .. offsets[slot+1]``; sequential sums per
@@ -31,10 +31,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..backend import dr, mi
-from .estimator import MIN_BLEND_WEIGHT, TexelEstimate, _int_power_dr
-from .isddgi_planner import N_SETS, set_directions
-from .volume import upload
+from ...backend import dr, mi
+from ...probes.estimator import MIN_BLEND_WEIGHT, TexelEstimate, _int_power_dr
+from .sets import N_SETS, set_directions
+from ...probes.volume import upload
 
 MIN_BUCKET = 8
 CHUNK_ELEMENTS = 1 << 22        # probe x ray x texel elements per batched product (memory bound, ours)
@@ -60,7 +60,7 @@ def _power(c: np.ndarray, p: float) -> np.ndarray:
 def integrate_sets(info, radiance: np.ndarray, dist: np.ndarray, max_distance: float, power: float = 50.0):
     """Per traced probe and set: irradiance sums/weights/counts and distance-moment sums/weights/counts.
 
-    ``info`` an :class:`~dyngi.probes.isddgi_planner.ISDDGIPlanInfo`; ``radiance`` (R, 3), ``dist`` (R,)
+    ``info`` an :class:`~dyngi.techniques.isddgi.planner.ISDDGIPlanInfo`; ``radiance`` (R, 3), ``dist`` (R,)
     signed distances. Returns ``(irr (S,256,3) means, irr_w (S,256), irr_n (S,256), mom (S,256,2) means,
     mom_w, mom_n)``; means are 0 where the weight is 0.
     """
@@ -129,7 +129,7 @@ def _planar(channels, n: int):
 def antipodal_sets() -> np.ndarray:
     """(256,) int64: the set whose centre direction is the opposite of set ``j``'s (an involution without
     fixed points on the 16x16 octahedral grid: the octahedral fold maps texel centres to texel centres)."""
-    from ..sampling.octahedral import oct_encode_np
+    from ...sampling.octahedral import oct_encode_np
     p = (oct_encode_np(-set_directions()) * 0.5 + 0.5) * 16 - 0.5
     return np.round(p[:, 1]).astype(np.int64) * 16 + np.round(p[:, 0]).astype(np.int64)
 

@@ -5,11 +5,12 @@ DDGI's probe volume with 256 direction sets per probe (a 16x16 octahedral tile, 
 1-texel border: 18x18 irradiance and visibility squares) and, per frame, ``x_i`` uniform rays per probe
 (rotating cells, random per-probe shift, adaptive ``x_i``) plus importance rays allocated to the
 (probe, set) pairs whose hits changed (balance-heuristic mixture, Secs. 4.3-4.4). Planner, change
-measure (paired visits) and adaptive rule: :mod:`dyngi.probes.isddgi_planner`; integration (Algorithm 3)
-and probe states (Algorithm 2): :mod:`dyngi.probes.isddgi_estimator`; hit shading is ``ddgi``'s with
-per-ray keyed random numbers (:mod:`dyngi.probes.isddgi_shading`: a check visit repeats its reference's
-NEE sample and hit lookup, so a static set's difference is ~0). Hysteresis blend (0.97), frame-0 warm-up,
-relocation, query and primary shading are ``ddgi``'s (:mod:`dyngi.techniques.ddgi`).
+measure (paired visits) and adaptive rule: :mod:`.planner`; integration (Algorithm 3)
+and probe states (Algorithm 2): :mod:`.estimator`; hit shading is ``ddgi``'s with
+per-ray keyed random numbers (:mod:`.shading`: a check visit repeats its reference's
+NEE sample and hit lookup, so a static set's difference is ~0). Tracing, merging, the hysteresis blend
+(0.97), the frame-0 warm-up and relocation are the probe pipeline's (:mod:`dyngi.probes.pipeline`); the
+query and primary shading are ``ddgi``'s (:mod:`dyngi.techniques.probe_base`).
 
 Parameters (besides ``ddgi``'s common ones: probe_counts, biases, direct, jitter, ...)
 ----------
@@ -41,12 +42,9 @@ Bias: as ``ddgi`` (hysteresis lag, spatial/angular blur, leaks); in addition a s
 ``256 / x_i`` frames lags a change that the change measure did not see (a change the uniform rays miss is
 found only when the rotation reaches it), and the per-frame estimate is a ratio (self-normalised). The
 perceptual (gamma 5) blend biases few-ray per-frame estimates low (Jensen: the blend averages
-``E^(1/5)``), and isddgi's static probes drop to ``x_min = 8`` rays. Measured 2026-12-02 (static
-``cornell-moving-box``, probe_counts=4, 32x24, mean indirect of frames 16-39 over ddgi-256's): ddgi at 8
-rays/probe 0.886 (gamma 5) vs 1.054 (gamma 1) -- the same bias without any IS-DDGI part, so it is the
-blend, not the per-set estimator; isddgi 0.916 (gamma 5; 0.904 before the per-cell permutation of the
-uniform layout and the keyed shading) vs 0.996 (gamma 1), x_min=16: 0.935. ``irradiance_gamma=1`` removes
-it. Not explained: at equal rays isddgi stays below ddgi at gamma 5 (x_min=16: 0.935 vs ddgi-16 0.982).
+``E^(1/5)``), and isddgi's static probes drop to ``x_min = 8`` rays: the same low bias as ``ddgi`` at
+few rays per probe, the blend's and not the per-set estimator's; ``irradiance_gamma=1`` removes it
+(figures: docs/benchmarks.md, "Figures moved out of the probe docstrings").
 Texel counts (``irradiance_count``) count frames that gave a texel weight, not rays.
 
 Budgets (``dyngi compare --budget equal-rays|equal-time``; ours): the frame's probe-ray target (equal rays:
@@ -59,15 +57,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..probes import HysteresisBlend, ProbeStates
-from ..probes.grid import PROBE_ACTIVE, PROBE_INACTIVE
-from ..probes.isddgi_estimator import BACKFACE_THRESHOLD, integrate_sets_dr, probe_states_alg2
-from ..probes.isddgi_planner import SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
-from ..probes.isddgi_shading import KeyedHitShader
-from ..probes.pipeline import ProbePipeline
-from ..probes.trace import HIT_LOOKUPS
-from .base import Frame, FrameResult, Param, StageTimer, register
-from .ddgi import COMMON_PARAMS, _ProbeTechniqueBase
+from ...probes import HysteresisBlend, ProbeStates
+from ...probes.grid import PROBE_ACTIVE, PROBE_INACTIVE
+from ...probes.pipeline import ProbePipeline
+from ...probes.trace import HIT_LOOKUPS
+from ..base import Frame, FrameResult, Param, StageTimer, register
+from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase
+from .estimator import BACKFACE_THRESHOLD, integrate_sets_dr, probe_states_alg2
+from .planner import SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
+from .shading import KeyedHitShader
 
 UPDATE_STAGES = ("plan", "trace probes", "shade probes", "blend", "states")
 TEXELS = SETS_PER_SIDE + 2      # 16x16 sets + the 1-texel border the bilinear query reads

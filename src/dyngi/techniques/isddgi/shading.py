@@ -6,7 +6,7 @@ stochastic multi-bounce lookup, both from a per-frame sampler) two visits of an 
 their shading noise: in ``corridor-rooms`` one NEE sample over 14 lights makes a single ray's luminance
 0 or ~14x its mean, which hides a light switch (measured before this change: ~5% of the importance rays in
 the switched room). Here every ray's NEE sample and hit lookup draw from hashes of the
-ray's own key (:attr:`ISDDGIPlanInfo.ray_key <dyngi.probes.isddgi_planner.ISDDGIPlanInfo>`): the planner
+ray's own key (:attr:`ISDDGIPlanInfo.ray_key <dyngi.techniques.isddgi.planner.ISDDGIPlanInfo>`): the planner
 gives the two uniform rays of a *pattern* (two successive visits of a set) the same key and the same
 jitter, so in a static scene they hit the same point, pick the same light point and read the same probe
 texel, and their luminance differs only by the drift of the probes they read. All other rays (and the
@@ -15,8 +15,8 @@ that each uniform sample enters twice (the price of the clean change signal).
 """
 from __future__ import annotations
 
-from ..backend import dr, mi
-from .trace import DiffuseHitShader
+from ...backend import dr, mi
+from ...probes.trace import DiffuseHitShader
 
 DIM_STREAM = 0x68E31DA4                    # mixes the dimension index into the key
 
@@ -34,7 +34,7 @@ class KeyedSampler:
         self.dim = 0
 
     def _next(self):
-        from .isddgi_planner import _hash_u32_dr
+        from .sets import _hash_u32_dr
         self.dim += 1
         h = _hash_u32_dr(self.keys ^ ((self.dim * DIM_STREAM) & 0xFFFFFFFF))
         h = _hash_u32_dr(h + self.dim)

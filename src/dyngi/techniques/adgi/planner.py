@@ -1,0 +1,290 @@
+"""ADGI's Metropolis-guided ray planner (Datta et al. 2022, Secs. 4.8-4.9): a planner of the probe pipeline.
+
+:class:`ADGIChainPlanner` owns the persistent chains and turns one frame's samples into ragged
+:class:`~dyngi.probes.rays.RayPlan` s (``plan(frame, seed, probe_ids, stage=..., ...)``, the
+:class:`~dyngi.probes.protocols.RayPlanner` protocol with ADGI's hints):
+
+* ``stage='static'`` -- ``static_chains`` chains over continuous probe-grid coordinates (a probe owns
+  the unit cell around it) x direction, target ``h = exp(min(g / f_s, 1)) f_s`` on probes of ``V_in``
+  (0 elsewhere), ``g`` the luminance of the previous frame's cached irradiance at mip ``guide_mip``
+  (:meth:`ADGIChainPlanner.guide_feedback`; Sec. 4.8 "from the previous frame and from a higher
+  mip-level", the level is ours). Samples in entries with ``f_d > 0`` are snapped to the centre of
+  their irradiance texel (Sec. 4.9). Under a ray budget only the first ``n_run`` chains run.
+* ``stage='dynamic'`` -- ``dynamic_chains`` chains over 3x3x3 virtual proxies with 8 octant directions,
+  target the max of ``f_d`` over the proxy's 27 probes; every proxy octant a chain visits traces, for
+  each of its probes in ``V_in``, the centres of an equal-area ``k x k`` stratification of the octant
+  (ours: the paper's texel centres repeat directions in an 8x8 map).
+
+The hints: ``vin`` (per probe, 1 in V_in), ``fs`` / ``fd`` (per probe octant, from the 6-10-10 word),
+``rays`` (the stage's ray allowance or None) and ``shadow_rate`` (measured NEE shadow rays per probe
+ray). :attr:`last_samples` is the stage's sample (static) or proxy-octant (dynamic) count. The
+technique traces each plan along ``w`` (radiance) and ``-w`` (:func:`negated`, the distance rays).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ...backend import dr, mi
+from ...probes.rays import RayPlan
+from ...probes.volume import upload
+from ...sampling.metropolis import ChainState, MetropolisChains
+from ...sampling.octahedral import direction_to_texel_coords, texel_directions
+from .heuristics import OCTANTS, octant_of, octant_signs, static_guide
+
+PROXY = 3                 # 3x3x3 probes per virtual proxy (Sec. 4.9)
+STAGES = ("static", "dynamic")
+
+
+def sorted_plan(probe, direction, weight, n_probes: int) -> RayPlan:
+    """A ragged :class:`RayPlan` from unordered per-sample probe ids: samples grouped by probe with a stable
+    host sort (one host copy of the ids; deterministic order). Directions/weights follow the sort."""
+    pid = np.asarray(probe, np.uint32)
+    order = np.argsort(pid, kind="stable").astype(np.uint32)
+    counts = np.bincount(pid, minlength=n_probes)
+    ids = np.flatnonzero(counts).astype(np.uint32)
+    idx = upload(order, mi.UInt32)
+    d = dr.gather(mi.Vector3f, direction, idx)
+    w = None if weight is None else dr.gather(mi.Float, weight, idx)
+    dr.eval(d, w)
+    return RayPlan.ragged(ids, counts[ids], d, weight=w)
+
+
+def negated(plan: RayPlan) -> RayPlan:
+    """The same plan along ``-w`` (the shadow rays of Sec. 4.8)."""
+    return RayPlan(plan.probe, -plan.direction, plan.rays_per_probe, None, plan.probe_ids, plan.offsets,
+                   plan.slot, plan.weight)
+
+
+class ADGIChainPlanner:
+    """Static and dynamic Metropolis chains of ADGI as one ray planner; see the module docstring.
+
+    ``params``: the ``adgi`` technique's (chains, iterations, burn-in, steps, ``dynamic_rays``,
+    ``guide_mip``).
+    """
+
+    def __init__(self, volume, params: dict):
+        p = params
+        self.volume = volume
+        self.counts = tuple(int(c) for c in volume.grid.counts)
+        n = np.asarray(self.counts, np.float64)
+        self.proxies = tuple(int(c) for c in np.ceil(n / PROXY).astype(int))
+        step = p["position_step"]
+        self.static = MetropolisChains(-0.5 * np.ones(3), n - 0.5, step, p["direction_step"], p["burn_in"],
+                                       p["iterations"], stream=0xAD61)
+        npx = np.asarray(self.proxies, np.float64)
+        self.dynamic = MetropolisChains(-0.5 * np.ones(3), npx - 0.5, step * p["dynamic_position_scale"] / PROXY,
+                                        min(p["direction_step"] * p["dynamic_direction_scale"], 3.0),
+                                        p["burn_in"], p["iterations"], stream=0xAD62)
+        self.static_state = self.static.initial_state(p["static_chains"], 0)
+        self.dynamic_state = self.dynamic.initial_state(p["dynamic_chains"], 1) if p["dynamic_chains"] else None
+        self._setup_guide_mip(p["guide_mip"])
+        self._texel_dirs = mi.Float(texel_directions(volume.irradiance_texels)[1:-1, 1:-1]
+                                    .reshape(-1).astype(np.float32))
+        self._strata = self._octant_strata(int(round(np.sqrt(p["dynamic_rays"]))))
+        self.n_run = self.static_state.n
+        self.last_samples = 0
+
+    def plan(self, frame: int, seed: int, probe_ids=None, previous=None, stage: str = "static", vin=None,
+             fs=None, fd=None, rays=None, shadow_rate: float = 1.0) -> RayPlan | None:
+        """This stage's rays (None: no sample this frame). ``probe_ids`` is unused: the chains choose the
+        probes (those of ``vin``)."""
+        if stage == "static":
+            return self._static_plan(frame, seed, vin, fs, fd, rays, shadow_rate)
+        if stage == "dynamic":
+            if self.dynamic_state is None:
+                self.last_samples = 0
+                return None
+            return self._dynamic_plan(frame, seed, vin, fd, rays, shadow_rate)
+        from ...errors import unknown_choice
+        raise unknown_choice("ADGI planner stage", stage, STAGES)
+
+    @staticmethod
+    def _octant_strata(k: int):
+        """(k*k) directions in the +++ octant: centres of an equal-area k x k stratification."""
+        i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+        z = (i.ravel() + 0.5) / k
+        phi = (j.ravel() + 0.5) / k * np.pi / 2
+        r = np.sqrt(1 - z * z)
+        d = np.stack([r * np.cos(phi), r * np.sin(phi), z], -1).astype(np.float32)
+        return mi.Vector3f(*[upload(d[:, c]) for c in range(3)])
+
+    def _chains_to_run(self, rays, shadow_rate: float) -> int:
+        n = self.static_state.n
+        if rays is None:
+            return n
+        per_chain = self.static.samples_per_chain * (2.0 + shadow_rate)
+        return int(min(max(rays // per_chain, 1), n))
+
+    def _probe_of(self, x, counts):
+        """Lattice point (probe or proxy index) nearest to continuous grid coordinates ``x``."""
+        nx, ny, nz = counts
+        i = dr.clip(mi.Int32(dr.round(x.x)), 0, nx - 1)
+        j = dr.clip(mi.Int32(dr.round(x.y)), 0, ny - 1)
+        k = dr.clip(mi.Int32(dr.round(x.z)), 0, nz - 1)
+        return mi.UInt32(i + nx * (j + ny * k))
+
+    def _texel_of(self, w):
+        T = self.volume.irradiance_texels
+        c = direction_to_texel_coords(w, T)
+        ix = dr.clip(mi.Int32(dr.floor(c.x)) - 1, 0, T - 3)
+        iy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, T - 3)
+        return mi.UInt32(iy * (T - 2) + ix), mi.UInt32((iy + 1) * T + ix + 1)
+
+    # -- the guide's feedback at a coarser mip (Sec. 3.2, 4.8) --
+    def _setup_guide_mip(self, level: int) -> None:
+        """Mip ``level`` of the irradiance maps' interiors: ``(T-2) / 2^level`` texels per side (rounded
+        up), each the mean luminance of the ``2^level x 2^level`` interior texels it covers (fewer at an odd
+        edge). Our choice: level 1 (3x3 per probe for the 8x8 maps), the first level coarser than the
+        texels the samples update; the paper says only "a higher mip-level" (Sec. 4.8)."""
+        T = self.volume.irradiance_texels
+        n = T - 2
+        self._mip_level = int(level)
+        self._mip_n = m = -(-n // (1 << self._mip_level))
+        iy, ix = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+        cell = ((iy >> self._mip_level) * m + (ix >> self._mip_level)).ravel()
+        self._mip_cell = upload(cell.astype(np.uint32), mi.UInt32)                  # interior texel -> mip cell
+        self._mip_src = upload(((iy + 1) * T + ix + 1).ravel().astype(np.uint32), mi.UInt32)   # -> atlas texel
+        self._mip_norm = upload((1.0 / np.bincount(cell, minlength=m * m)).astype(np.float32), mi.Float)
+
+    def guide_feedback(self):
+        """Per probe and mip cell (``P * m * m`` Floats): the luminance of the irradiance atlas at mip
+        ``guide_mip``, read at the start of the static stage, i.e. the previous frame's convolved
+        irradiance (this frame's samples reach the atlas only at the end of the frame). Luminance is our
+        scalar of the RGB cache (Rec. 709 weights)."""
+        vol = self.volume
+        T = vol.irradiance_texels
+        n_int = (T - 2) ** 2
+        mm = self._mip_n * self._mip_n
+        lane = dr.arange(mi.UInt32, vol.n_probes * n_int)
+        probe = lane // n_int
+        k = lane - probe * n_int
+        lum = mi.luminance(dr.gather(mi.Color3f, vol.device.irradiance,
+                                     probe * (T * T) + dr.gather(mi.UInt32, self._mip_src, k)))
+        cell = dr.gather(mi.UInt32, self._mip_cell, k)
+        g = dr.zeros(mi.Float, vol.n_probes * mm)
+        dr.scatter_reduce(dr.ReduceOp.Add, g, lum * dr.gather(mi.Float, self._mip_norm, cell), probe * mm + cell)
+        dr.eval(g)
+        return g
+
+    def _mip_cell_of(self, w):
+        """Mip cell (row-major in the ``m x m`` mip) that direction ``w`` falls in."""
+        T = self.volume.irradiance_texels
+        c = direction_to_texel_coords(w, T)
+        ix = dr.clip(mi.Int32(dr.floor(c.x)) - 1, 0, T - 3)
+        iy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, T - 3)
+        L = self._mip_level
+        return mi.UInt32((iy >> L) * self._mip_n + (ix >> L))
+
+    def _static_plan(self, frame: int, seed: int, vin_dr, fs, fd, rays, shadow_rate: float):
+        """S (Sec. 4.8): run the static chains (the first ``n_run`` under a ray budget), one ray per sample
+        with ``h > 0``; ``fs`` is f_s from the 6-10-10 word (Sec. 4.3)."""
+        vol = self.volume
+        g_mip = self.guide_feedback()
+        mm = self._mip_n * self._mip_n
+
+        def target(x, w):
+            probe = self._probe_of(x, self.counts)
+            e = probe * OCTANTS + octant_of(w)
+            f = dr.gather(mi.Float, fs, e) * dr.gather(mi.Float, vin_dr, probe)
+            g = dr.gather(mi.Float, g_mip, probe * mm + self._mip_cell_of(w))
+            return static_guide(f, g)
+
+        n_run = self.n_run = self._chains_to_run(rays, shadow_rate)
+        st = self.static_state
+        if rays is not None:     # a budget runs the first n_run chains; the others keep their
+            # states (this path even when n_run is all of them: one set of kernels whatever the budget)
+            # + an opaque 0: Dr.Jit turns a gather of all lanes by a plain arange into the source itself, which
+            # would make the n_run == n frames launch other kernels than the others
+            lane = dr.arange(mi.UInt32, n_run) + dr.opaque(mi.UInt32, 0)
+            sub = ChainState(dr.gather(mi.Vector3f, st.position, lane), dr.gather(mi.Vector3f, st.direction, lane))
+            sub, s = self.static.run(sub, target, seed, frame)
+            pos, dirs = mi.Vector3f(st.position), mi.Vector3f(st.direction)
+            dr.scatter(pos, sub.position, lane)
+            dr.scatter(dirs, sub.direction, lane)
+            dr.eval(pos, dirs)
+            self.static_state = ChainState(pos, dirs)
+        else:
+            self.static_state, s = self.static.run(st, target, seed, frame)
+        ok = s.value > 0.0
+        n = self.last_samples = int(dr.count(ok)[0])
+        if n == 0:
+            return None
+        idx = dr.compress(ok)
+        x = dr.gather(mi.Vector3f, s.position, idx)
+        w = dr.gather(mi.Vector3f, s.direction, idx)
+        h = dr.gather(mi.Float, s.value, idx)
+        probe = self._probe_of(x, self.counts)
+        # samples in entries with f_d > 0 go through their irradiance texel's centre (Sec. 4.9)
+        snap = dr.gather(mi.Float, fd, probe * OCTANTS + octant_of(w)) > 0.0
+        ti, _ = self._texel_of(w)
+        w = dr.select(snap, dr.gather(mi.Vector3f, self._texel_dirs, ti), w)
+        dr.eval(probe, w, h)
+        return sorted_plan(probe, w, None, vol.n_probes)
+
+    def _dynamic_plan(self, frame: int, seed: int, vin_dr, fd, rays, shadow_rate: float):
+        """D (Sec. 4.9): run the dynamic chains on the proxy table; every proxy octant they visit traces
+        ``dynamic_rays`` strata per probe of it in V_in (under a budget: whole octants while ``rays`` last)."""
+        vol = self.volume
+        nx, ny, nz = self.counts
+        px, py, pz = self.proxies
+        n_entries = px * py * pz * OCTANTS
+        # -- the proxy table: max of f_d over the proxy's 27 probes in V_in, per octant --
+        e = dr.arange(mi.UInt32, n_entries)
+        q = e // OCTANTS
+        o = e - q * OCTANTS
+        qi, qj, qk = mi.Int32(q % px), mi.Int32((q // px) % py), mi.Int32(q // (px * py))
+        table = dr.zeros(mi.Float, n_entries)
+        for di in range(PROXY):
+            for dj in range(PROXY):
+                for dk in range(PROXY):
+                    i, j, k = qi * PROXY + di, qj * PROXY + dj, qk * PROXY + dk
+                    inside = (i < nx) & (j < ny) & (k < nz)
+                    pr = mi.UInt32(dr.select(inside, i + nx * (j + ny * k), 0))
+                    v = dr.gather(mi.Float, fd, pr * OCTANTS + o, inside) * dr.gather(mi.Float, vin_dr, pr, inside)
+                    table = dr.maximum(table, v)
+        dr.eval(table)
+
+        def target(x, w):
+            return dr.gather(mi.Float, table, self._probe_of(x, self.proxies) * OCTANTS + octant_of(w))
+
+        self.dynamic_state, s = self.dynamic.run(self.dynamic_state, target, seed, frame)
+        # -- each proxy octant a chain visited (with h > 0) traces once --
+        mark = dr.zeros(mi.UInt32, n_entries)
+        ent = self._probe_of(s.position, self.proxies) * OCTANTS + octant_of(s.direction)
+        dr.scatter(mark, mi.UInt32(1), ent, s.value > 0.0)
+        dr.eval(mark)
+        n_marked = self.last_samples = int(dr.count(mark != 0)[0])
+        if n_marked == 0:
+            return None
+        marked = dr.compress(mark != 0)
+        # -- lanes: (marked proxy octant, sub-probe of 27, stratum) --
+        R = dr.width(self._strata.x)
+        lane = dr.arange(mi.UInt32, n_marked * 27 * R)
+        m = lane // (27 * R)
+        rest = lane - m * (27 * R)
+        sub = rest // R
+        r = rest - sub * R
+        ent = dr.gather(mi.UInt32, marked, m)
+        q = ent // OCTANTS
+        oo = ent - q * OCTANTS
+        i = mi.Int32(q % px) * PROXY + mi.Int32(sub % PROXY)
+        j = mi.Int32((q // px) % py) * PROXY + mi.Int32((sub // PROXY) % PROXY)
+        k = mi.Int32(q // (px * py)) * PROXY + mi.Int32(sub // (PROXY * PROXY))
+        inside = (i < nx) & (j < ny) & (k < nz)
+        probe = mi.UInt32(dr.select(inside, i + nx * (j + ny * k), 0))
+        ok = inside & (dr.gather(mi.Float, vin_dr, probe, inside) > 0.0)
+        d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(oo)
+        dr.eval(probe, d, ok)
+        if rays is not None:    # budget: whole proxy octants, in order, while rays remain
+            # lanes of one proxy octant are contiguous: a block sum, not a scatter into n_marked slots
+            # (on LLVM that bakes n_marked into the kernel, a new kernel whenever it changes)
+            per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27 * R)
+            cost = np.cumsum(np.asarray(per, np.float64) * (2.0 + shadow_rate))
+            n_keep = int(np.searchsorted(cost, rays, side="right"))
+            ok &= m < dr.opaque(mi.UInt32, n_keep)
+            dr.eval(ok)
+        if int(dr.count(ok)[0]) == 0:
+            return None
+        keep = dr.compress(ok)
+        return sorted_plan(dr.gather(mi.UInt32, probe, keep), dr.gather(mi.Vector3f, d, keep), None,
+                           vol.n_probes)
