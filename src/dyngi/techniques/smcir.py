@@ -103,14 +103,13 @@ import numpy as np
 
 from ..sampling.rng import make_sampler, mix_seed
 from ..backend import dr, mi
-from ..vpl.density import MIN_RADIUS, knn_density, knn_density_device, knn_k
+from ..vpl.density import MIN_RADIUS, KNNGrid, knn_density, knn_density_device, knn_k
 from ..vpl.points import camera_sees, candidates_to_host, raw_candidates_device, segment_clear
 from ..vpl.radiosity import RENDER_STREAM, estimate_radiosity, stream_seeds
 from ..vpl.smc import clamp_size, grow_invalid, m_min, resample_with_replacement_device, resample_without_replacement
 from ..vpl.smc_device import (DeviceVPLStore, camera_sees_device, estimate_radiosity_device, luminance,
                               quantile_device, ranks, sample_without_replacement_device, segment_clear_device,
                               stream_seeds_device)
-from ..vpl.density import KNNGrid
 from ..vpl.store import LUMINANCE, VPLStore
 from .base import Frame, Param, StageTimer, register
 from .vpl_base import COMMON_PARAMS, VPLTechnique

@@ -201,15 +201,3 @@ class DeviceVPLStore:
         st.seed = np.asarray(self.seed, np.uint64)
         st.used = np.asarray(self.used, bool)
         return st
-
-    @staticmethod
-    def from_host(st: VPLStore) -> "DeviceVPLStore":
-        d = DeviceVPLStore(st.capacity)
-        for k in FIELDS3:
-            a = np.ascontiguousarray(getattr(st, k), np.float32)
-            setattr(d, k, type(getattr(d, k))(*(mi.Float(np.ascontiguousarray(a[:, i])) for i in range(3))))
-        d.density = mi.Float(np.asarray(st.density, np.float32))
-        d.seed = mi.UInt64(np.asarray(st.seed, np.uint64))
-        d.used = mi.Bool(np.asarray(st.used, bool))
-        return d
-
