@@ -42,7 +42,9 @@ before the primary vertex).
 
 Parameters
 ----------
-candidates, temporal, m_cap, spatial, radius, combine   ReSTIR DI, as ``restir-pt`` (32, True, 20, 3, 30, 'mis')
+candidates, temporal, m_cap, spatial, radius, combine, lights
+                            ReSTIR DI, as ``restir-pt`` (32, True, 20, 3, 30, 'mis', 'scene'); ``lights``
+                            also samples the NEE of the path after the primary vertex and of the recursion
 glossy_depth : int = 4      glossy bounces of the T_fg L recursion (0: none, i.e. ``ddgi``'s diffuse-only indirect)
 probe parameters            ``ddgi``'s (probe_counts, rays_per_probe, hysteresis, warmup, ...), through
                             :func:`dyngi.probes.ddgi_plus.plus_params`; the probes' ``direct`` routing is
@@ -65,7 +67,6 @@ from ..directions.lobes import LobeDirections
 from ..probes.glossy import GLOSSY_LOBES
 from ..probes.trace import shading_side
 from ..sampling.diffuse import diffuse_albedo
-from ..sampling.lights import EmitterSampling
 from ..sampling.rng import make_sampler
 from ..transport.path_walk import walk
 from ..transport.restir_di import PARAM_SPECS, ReSTIRDI
@@ -136,7 +137,7 @@ class DDGIPrimaryTechnique(Technique):
         probe = {k: p[k] for k in plus_params() if k in p}
         probe["direct"] = "nee"
         self.probes = DDGIPlusVolume(scene, probe, mode="ddgi")
-        self.lights = EmitterSampling()
+        self.lights = self.restir.lights       # ``lights``: ReSTIR's candidates, the path's and the recursion's NEE
 
     def _direct(self, frame: Frame, t: StageTimer):
         """``L_e + T_f L_e`` at the primary vertex (an H x W x 3 image): ReSTIR DI through the smooth lobes,
@@ -155,6 +156,7 @@ class DDGIPrimaryTechnique(Technique):
         p = self.params
         t = StageTimer()
         self.probes.update(frame, timer=t)
+        self.restir.lights_begin(frame, t)
         direct_img = self._direct(frame, t)       # G-buffer, ReSTIR DI, delta-lobe emission: L_e + T_f L_e
         gb = self.restir.hist.cur
         si, ray = gb.si, gb.ray
@@ -176,6 +178,7 @@ class DDGIPrimaryTechnique(Technique):
                 gl = dr.select(dr.all(dr.isfinite(gl)), gl, 0.0)
                 dr.eval(gl, rays)
             t.add_rays("glossy", dr.sum(rays))
+        self.restir.lights_end(t)
         indirect = to_image(ind + gl, frame.res)
         img = direct_img + indirect
         stats = t.as_dict()

@@ -67,12 +67,8 @@ The candidates per pixel are the cost on a CPU; the 1.5x target is not met (2.9x
 """
 from __future__ import annotations
 
-from .. import lights as light_samplers
 from ..backend import mi
-from ..lights.candidates import LightCandidates
-from ..lights.nee import LightNEE
 from ..errors import DyngiError
-from ..sampling.lights import EmitterSampling
 from ..transport.accumulate import ProgressiveMean
 from ..transport.restir_di import PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
@@ -90,32 +86,21 @@ class ReSTIRPTTechnique(Technique):
         "max_depth": Param(12, "maximum path depth (-1: unbounded; 1 emission, 2 direct light)", min=-1),
         "rr_depth": Param(5, "Russian roulette start depth", min=1),
         "progressive": Param(True, "accumulate over frames while the scene is static"),
-        "lights": Param("scene", "light sampler of the candidates and the path's NEE: 'scene' (Mitsuba's emitter "
-                        "sampling) or a dyngi.lights sampler over the emitter triangles",
-                        choices=("scene",) + light_samplers.names()),
     }
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
         if self.params["max_depth"] == 0:
             raise DyngiError("parameter 'max_depth' = 0 renders nothing; use -1 (unbounded) or >= 1")
-        kind = self.params["lights"]
-        if kind == "scene":
-            self.lights = EmitterSampling()
-            self.restir = ReSTIRDI.from_params(scene, self.params)
-        else:    # one light sampler for the candidates and the rest of the path (a learning one sees both)
-            self.lights = LightNEE(scene, kind)
-            self.restir = ReSTIRDI.from_params(scene, self.params,
-                                               cand=LightCandidates(self.lights, scene.mi_scene))
+        # the light sampler of the candidates and the rest of the path (the component's ``lights``)
+        self.restir = ReSTIRDI.from_params(scene, self.params)
+        self.lights = self.restir.lights
         self.accum = ProgressiveMean()
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
-        learned = isinstance(self.lights, LightNEE)
-        if learned:     # the light sampler's per-frame hook (rebuild, cache construction)
-            with t.stage("lights"):
-                self.lights.begin_frame(self.scene, frame, 2 * frame.res[0] * frame.res[1])
+        self.restir.lights_begin(frame, t)     # the light sampler's per-frame hook (rebuild, caches)
         # -- G-buffer and reprojection --
         pv = self.restir.begin(frame, t)
         # -- ReSTIR DI: candidates, temporal, spatial, one shadow ray --
@@ -124,9 +109,7 @@ class ReSTIRPTTechnique(Technique):
             direct = self.restir.direct(pv, t)
         # -- emission at the primary vertex (and the environment where the ray escapes); the rest of the path --
         Le0, L_d, L_ind = self.restir.path_after(pv, frame, self.lights, p["max_depth"], p["rr_depth"], t)
-        if learned:
-            with t.stage("lights adapt"):
-                self.lights.end_frame()
+        self.restir.lights_end(t)
         # -- accumulation --
         with t.stage("accumulate"):
             self.accum.add(mi.Color3f(Le0 + direct + L_d + L_ind), mi.Color3f(L_ind),

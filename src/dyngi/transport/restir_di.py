@@ -29,8 +29,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .. import lights as light_samplers
 from ..backend import dr, mi
+from ..lights.candidates import LightCandidates
+from ..lights.nee import LightNEE
 from ..sampling.candidates import EmitterCandidates
+from ..sampling.lights import EmitterSampling
 from ..sampling.gbuffer import GBufferHistory, render_gbuffer, similar
 from ..sampling.reservoir import COMBINE_MODES, Reservoir, finalize, finalize_single, merge
 from ..sampling.rng import make_sampler
@@ -48,6 +52,9 @@ PARAM_SPECS = {
     "radius": dict(default=30.0, doc="spatial reuse radius (pixels)", min=1.0, max=1e4),
     "combine": dict(default="mis", doc="reservoir combination: unbiased 'mis' or '1/z', or 'biased'",
                     choices=COMBINE_MODES),
+    "lights": dict(default="scene", doc="light sampler of the candidates and the path's NEE: 'scene' (Mitsuba's "
+                   "emitter sampling) or a dyngi.lights sampler over the emitter triangles",
+                   choices=("scene",) + light_samplers.names()),
 }
 """The component's settings, as keyword arguments of a technique's parameter declaration (``Param``):
 a technique that holds a :class:`ReSTIRDI` exposes these under these names."""
@@ -173,8 +180,15 @@ class ReSTIRDI:
     reservoir) uses the same temporal and spatial reuse."""
 
     def __init__(self, scene, candidates: int = 32, temporal: bool = True, m_cap: float = 20.0, spatial: int = 3,
-                 radius: float = 30.0, combine: str = "mis", target_fn=target, cand=None):
+                 radius: float = 30.0, combine: str = "mis", target_fn=target, cand=None, lights: str = "scene"):
         self.scene = scene
+        # -- the light choice (``lights``): one strategy for the candidates and the NEE of the path after --
+        if lights == "scene":
+            self.lights = EmitterSampling()
+        else:    # a light sampler (a learning one sees the candidates' and the path's samples)
+            self.lights = LightNEE(scene, lights)
+            if cand is None:
+                cand = LightCandidates(self.lights, scene.mi_scene)
         self.target_fn = target_fn
         self.m = int(candidates)
         self.temporal = bool(temporal)
@@ -200,6 +214,18 @@ class ReSTIRDI:
         return cls(scene, **{k: params[k] for k in PARAM_SPECS}, **kw)
 
     # -- per frame ------------------------------------------------------------------------------
+    def lights_begin(self, frame, timer) -> None:
+        """A light sampler's per-frame hook (rebuild, cache construction; stage ``lights``)."""
+        if isinstance(self.lights, LightNEE):
+            with timer.stage("lights"):
+                self.lights.begin_frame(self.scene, frame, 2 * frame.res[0] * frame.res[1])
+
+    def lights_end(self, timer) -> None:
+        """A learning light sampler's update from the frame's samples (stage ``lights adapt``)."""
+        if isinstance(self.lights, LightNEE):
+            with timer.stage("lights adapt"):
+                self.lights.end_frame()
+
     def begin_frame(self, frame) -> None:
         """Follow moving or changing emissive meshes (the candidates' triangle table)."""
         if self.light_anim and not frame.static and self.cand.has_fast:

@@ -219,6 +219,7 @@ class SecondaryShading(Technique):
         """Probe update, then the ReSTIR DI component's frame set-up (G-buffer, reprojection); returns
         (:class:`~dyngi.transport.restir_di.PrimaryVertex`, Eq. 8's camera footprint ``a0`` per pixel)."""
         self._update_probes(frame, t)
+        self.restir.lights_begin(frame, t)
         pv = self.restir.begin(frame, t)
         gb = pv.gb
         return pv, camera_footprint(gb.depth, dr.abs(dr.dot(gb.n_geo, gb.ray.d)))
@@ -238,6 +239,7 @@ class SecondaryShading(Technique):
 
     def _finish(self, frame, t, L, L_ind):
         p = self.params
+        self.restir.lights_end(t)
         with t.stage("accumulate"):
             self.accum.add(mi.Color3f(L), mi.Color3f(L_ind), accumulate=p["progressive"] and frame.static)
         stats = t.as_dict()
