@@ -48,20 +48,15 @@ probe shades can be along ``-w`` -- giving ``d``; then
 Which one: decided by ``tests/probes/test_ddgi_plus.py::test_attenuation_ratio_matches_exact_irradiance``
 (a probe 0.6 m above a floor and 1.4 m below a 0.6 x 0.6 m emitter: the
 floor's query must return the floor's exact irradiance (closed-form form
-factor). Measured: ``'ratio'`` -2% in the scene and in the scene scaled by 10;
-``'none'`` +100% (too bright, as the paper says); ``'inverse-square'`` -50%
-at scale 1 and -99.5% at scale 10 -- wrong by the squared unit of length,
-while the true irradiance does not change with the scale).
+factor): ``'ratio'`` is within a few percent at both scales, ``'none'`` is too bright (as the paper
+says) and ``'inverse-square'`` is wrong by the squared unit of length.
 ``emission_scale`` (the paper's user slider; default 1.0, since the ratio is
 exact for a small emitter straight above a shaded floor): the surfaces a
 probe shades lie at various distances and not only behind it, and a user may
-correct the remaining brightness bias per scene. Measured on ``cornell-static``
-(64x36 image shaded by ``radiance()`` at the primary hits + ``L_e``, 30
-updates, vs Mitsuba ``path`` 512 spp): ``'ratio'`` -13.6% (relMSE 0.016),
-``'none'`` +9.3% (0.019), ``'inverse-square'`` -36.9% (0.082) -- the heuristic
-"slightly underestimates", as Sec. 3.3 says; a smaller clip box
-(:data:`ATTENUATION_CLIP` 0.25) gave -2.2% there but fails the isolated test
-above (our choice: the probe boundary as the paper says, the slider for the rest).
+correct the remaining brightness bias per scene; against Mitsuba ``path`` on ``cornell-static`` the
+heuristic "slightly underestimates", as Sec. 3.3 says. A smaller clip box fits that scene better but
+fails the isolated test above (our choice: the probe boundary as the paper says, the slider for the
+rest). Figures: docs/benchmarks.md, "Figures moved out of the probe docstrings".
 
 Mode ``'ddgi'`` runs the plain DDGI update instead (``DiffuseHitShader`` with
 the ``direct`` routing; the probes hold bounced light only): what

@@ -1,11 +1,12 @@
 """Ray planners for probe updates (replaceable piece #1) and the ray plan they return.
 
-A planner decides, per frame, which rays each probe traces. Interface:
+A planner decides, per frame, which rays each probe traces. Interface
+(:class:`~dyngi.probes.protocols.RayPlanner`):
 
-``plan(frame, seed, probe_ids, previous=None) -> RayPlan``. ``previous`` is
+``plan(frame, seed, probe_ids, previous=None, **hints) -> RayPlan``. ``previous`` is
 the :class:`~dyngi.probes.trace.ProbeRayResults` of the previous update (its
 per-ray radiance, distance and plan), or ``None`` on the first update; the
-:class:`~dyngi.probes.update.ProbeUpdater` passes it. ADGI's Metropolis
+:class:`~dyngi.probes.pipeline.ProbePipeline` passes it. ADGI's Metropolis
 chains (Datta et al. 2022, Algorithm 1-3) and IS-DDGI's allocation (its
 supplement: ray counts per probe and per direction set from the previous
 frame's change measure) consume it; the planners below ignore it.
@@ -152,7 +153,7 @@ class UniformSFDirections:
         R = rotation_for_frame(seed, frame, self.stream)
         return self.base @ R.T
 
-    def plan(self, frame: int, seed: int, probe_ids, previous=None) -> RayPlan:
+    def plan(self, frame: int, seed: int, probe_ids, previous=None, **hints) -> RayPlan:
         return _shared_plan(probe_ids, self.directions(frame, seed))
 
 
@@ -184,7 +185,7 @@ class LobeDirections:
         self.texel_dirs = mi.Float(inner.astype(np.float32).ravel())
         self.n_texels = len(inner)
 
-    def plan(self, frame: int, seed: int, probe_ids, previous=None) -> RayPlan:
+    def plan(self, frame: int, seed: int, probe_ids, previous=None, **hints) -> RayPlan:
         n = self.n_texels * self.k
         pids = mi.UInt32(np.asarray(probe_ids, np.uint32))
         m = len(probe_ids) * n

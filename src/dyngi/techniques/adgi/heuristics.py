@@ -9,7 +9,7 @@ Frusta (Fig. 6b)
 ----------------
 ``V_in``: ``|clip xy| <= 1.2`` and ``f_c >= 0.75``; ``V_out``: ``|clip xy| <= 1.4``
 and ``f_c >= 0.5`` (:func:`frusta`; the clip test is
-:func:`~dyngi.probes.update.probes_in_frustum`, which also keeps probes within
+:func:`~dyngi.probes.pipeline.probes_in_frustum`, which also keeps probes within
 one cell diagonal of the camera).
 
 Pilot rays (Sec. 4.4)
@@ -82,7 +82,7 @@ import numpy as np
 from ...backend import dr, mi
 from ...errors import DyngiError
 from ...probes.rays import RayPlan
-from ...probes.update import probes_in_frustum
+from ...probes.pipeline import probes_in_frustum
 from ...probes.volume import upload
 from ...sampling.rng import mix_seed
 

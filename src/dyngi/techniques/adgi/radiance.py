@@ -7,9 +7,9 @@ A chain sample ``(p, w)`` with radiance ``L`` updates the one *radiance* texel
 (:mod:`.moving_average`): per texel the stored value is the mean of the
 samples that landed in it, whatever their density -- the paper's Eq. 8
 argument, which a cosine splat over many texels does not have (there the
-splat's result depends on where in the hemisphere the chains happened to be;
-measured: -50% on the Cornell box probes whose -w rays miss through the open
-front, where the guide is 0).
+splat's result depends on where in the hemisphere the chains happened to be:
+biased low on the Cornell box probes whose -w rays miss through the open
+front, where the guide is 0; docs/benchmarks.md).
 
 Irradiance is then a convolution pass over the radiance texels of every probe
 updated this frame (:meth:`RadianceCache.irradiance_estimate`, NumPy/BLAS over
