@@ -70,11 +70,16 @@ class ProbePipeline:
     state_rays : str = 'update'   'update' (from the update's rays) | 'fixed' (classification rays, every frame)
     trace_inactive : bool = False trace every probe (the reference), not only the active ones
     streams : (int, int) = (11, 12)  random streams of the irradiance and distance traces
+    plan_stage : str | None = None   timer stage of the planner (None: untimed; IS-DDGI: 'plan')
+
+    Optional hook of a shader: ``prepare(plan)`` before the plan is traced and ``prepare(None)`` after
+    (IS-DDGI's per-ray shading keys).
     """
 
     def __init__(self, volume: ProbeVolume, planner, shader, blender, states: ProbeStates | None = None,
                  query=None, reclassify_interval: int = 8, classify_rays: int = 32, distance_planner=None,
-                 state_rays: str = "update", trace_inactive: bool = False, streams: tuple = (11, 12)):
+                 state_rays: str = "update", trace_inactive: bool = False, streams: tuple = (11, 12),
+                 plan_stage: str | None = None):
         check_part("planner", planner)
         check_part("shader", shader)
         if state_rays not in STATE_RAYS:
@@ -92,7 +97,9 @@ class ProbePipeline:
         self.state_rays = state_rays
         self.trace_inactive = bool(trace_inactive)
         self.streams = tuple(streams)
+        self.plan_stage = plan_stage
         self.last_results = None
+        self.last_plan = None
 
     # ``directions``: the planner's older name (techniques swap it for budgets)
     @property
@@ -127,9 +134,16 @@ class ProbePipeline:
         """Trace ``plan`` from the volume's probes and shade the hits (stages ``trace probes`` and
         ``shade probes``); ``query`` (default: the pipeline's) feeds multi-bounce, ``shader`` (default:
         the pipeline's) another shading of the same volume (ADGI's pilot rays)."""
-        return trace_probe_rays(scene, self.volume, plan, shader or self.shader,
-                                self.query if query is _DEFAULT else query, seed, frame,
-                                stream=self.streams[0] if stream is None else stream, timer=timer)
+        shader = shader or self.shader
+        prepare = getattr(shader, "prepare", None)
+        if prepare is not None:
+            prepare(plan)
+        try:
+            return trace_probe_rays(scene, self.volume, plan, shader, self.query if query is _DEFAULT else query,
+                                    seed, frame, stream=self.streams[0] if stream is None else stream, timer=timer)
+        finally:
+            if prepare is not None:
+                prepare(None)
 
     def trace_distances(self, scene, plan):
         """Signed hit distances of ``plan``'s rays (no shading): classification rays, ADGI's ``-w`` rays."""
@@ -189,15 +203,21 @@ class ProbePipeline:
 
     # -- one update -----------------------------------------------------------------------------
     def update(self, scene, frame: int, seed: int, probe_mask: np.ndarray | None = None, timer=None,
-               force_reclassify: bool = False, **hints) -> dict:
-        """Run one update; returns counts (probes traced, rays, state changes). ``hints`` go to the planner."""
+               force_reclassify: bool = False, probe_ids: np.ndarray | None = None, **hints) -> dict:
+        """Run one update; returns counts (probes traced, rays, state changes). ``hints`` go to the planner;
+        ``probe_ids`` (default :meth:`probes_to_trace`) the probes the planner plans for (IS-DDGI also
+        re-tests its inactive ones). :attr:`last_plan` is this update's plan (None: no probe)."""
         vol = self.volume
         info = {"probes_traced": 0, **_NO_STATE}
         if self.state_rays == "fixed":
             _add(info, self.classify(scene, self.probes_to_trace(probe_mask), frame, seed, timer))
-        ids = self.probes_to_trace(probe_mask)
+        ids = self.probes_to_trace(probe_mask) if probe_ids is None else probe_ids
         info["probes_traced"] = int(len(ids))
-        plan = self.planner.plan(frame, seed, ids, previous=self.last_results, **hints) if len(ids) else None
+        plan = None
+        if len(ids):
+            with maybe_stage(timer if self.plan_stage else None, self.plan_stage):
+                plan = self.planner.plan(frame, seed, ids, previous=self.last_results, **hints)
+        self.last_plan = plan
         if plan is not None and plan.n_rays:      # (a planner may give every probe 0 rays)
             res = self.trace(scene, plan, seed, frame, timer=timer)
             self.last_results = res

@@ -32,9 +32,10 @@ from __future__ import annotations
 import numpy as np
 
 from ...backend import dr, mi
+from ...probes.blend import HysteresisBlend
 from ...probes.estimator import MIN_BLEND_WEIGHT, TexelEstimate, _int_power_dr
-from .sets import N_SETS, set_directions
 from ...probes.volume import upload
+from .sets import N_SETS, set_directions
 
 MIN_BUCKET = 8
 CHUNK_ELEMENTS = 1 << 22        # probe x ray x texel elements per batched product (memory bound, ours)
@@ -224,6 +225,18 @@ def integrate_sets_dr(plan, radiance, dist, max_distance: float, power: float = 
     est_d = TexelEstimate(flat_d, nd, okd, n, 2, per_texel=False, weight=wd)
     dr.eval(flat_i, ne, oki, we, flat_d, nd, okd, wd)
     return est_i, est_d
+
+
+class SetBlend(HysteresisBlend):
+    """The probe pipeline's blend for IS-DDGI: DDGI's hysteresis accumulator and encoding (as
+    :class:`~dyngi.probes.blend.HysteresisBlend`) with the per-set estimator of the supplement's
+    Algorithm 3 (:func:`integrate_sets_dr`) in place of the texel-kernel one."""
+
+    def new_estimates(self, volume, results):
+        """(irradiance, distance) :class:`~dyngi.probes.estimator.TexelEstimate` of a ragged IS-DDGI plan."""
+        self.last_estimator = "sets"
+        return integrate_sets_dr(results.plan, results.radiance, results.distance, volume.max_distance,
+                                 self.distance_power)
 
 
 def to_texel_estimate(means: np.ndarray, weight: np.ndarray, count: np.ndarray) -> TexelEstimate:

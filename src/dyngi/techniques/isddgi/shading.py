@@ -50,9 +50,14 @@ class KeyedSampler:
 
 class KeyedHitShader(DiffuseHitShader):
     """:class:`DiffuseHitShader` whose random numbers come from ``keys`` (one UInt32 per ray of the plan
-    being traced; set before each trace). Without keys of the batch's width it uses the given sampler."""
+    being traced; set by :meth:`prepare`, which the probe pipeline calls around each trace). Without keys
+    of the batch's width it uses the given sampler."""
 
     keys = None
+
+    def prepare(self, plan) -> None:
+        """The keys of ``plan``'s rays (IS-DDGI's paired visits: ``plan.shade_key``); None clears them."""
+        self.keys = None if plan is None else getattr(plan, "shade_key", None)
 
     def shade(self, scene, ray, si, sampler, query, active):
         if self.keys is not None and dr.width(self.keys) == dr.width(ray.d):

@@ -57,13 +57,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...probes import HysteresisBlend, ProbeStates
+from ...probes import ProbeStates
 from ...probes.grid import PROBE_ACTIVE, PROBE_INACTIVE
 from ...probes.pipeline import ProbePipeline
 from ...probes.trace import HIT_LOOKUPS
 from ..base import Frame, FrameResult, Param, StageTimer, register
 from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase
-from .estimator import BACKFACE_THRESHOLD, integrate_sets_dr, probe_states_alg2
+from .estimator import BACKFACE_THRESHOLD, SetBlend, probe_states_alg2
 from .planner import SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
 from .shading import KeyedHitShader
 
@@ -115,13 +115,13 @@ class ISDDGITechnique(_ProbeTechniqueBase):
                                      p["importance_rays"], p["variant"], p["eps"], p["dynamic_threshold"],
                                      p["decay"], self.volume.max_distance)
         self.shader = KeyedHitShader(p["direct"], lookup=p["hit_lookup"])
-        self.blender = HysteresisBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
-                                       p["change_threshold"], float("inf"), "fp32", "scatter")
+        self.blender = SetBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
+                                p["change_threshold"], float("inf"), "fp32", "scatter")
         self.relocator = ProbeStates(relocate=True, classify=False) if p["relocate"] else None
         # plan, trace and merge through the pipeline; integration (Algorithm 3) and states (Algorithm 2)
         # are this technique's update step
-        self.pipeline = ProbePipeline(self.volume, self.planner, self.shader, self.blender, self.relocator,
-                                      self.query)
+        self.pipeline = ProbePipeline(self.volume, self.planner, self.shader, self.blender, None, self.query,
+                                      plan_stage="plan")
         self._warmed = False
         self.last_plan = None
         self._shadow_per_probe_ray = 1.0      # NEE shadow rays per probe ray (measured), for equal-ray budgets
@@ -144,26 +144,20 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         n_rays = None if frame is None else self._budget_probe_rays(frame, len(ids))
         if n_rays is not None:
             info["budget_probe_rays"] = n_rays
-        with t.stage("plan"):
-            plan = self.planner.plan(frame_index, seed, ids, importance=live[ids], n_rays=n_rays)
-        self.last_plan = plan
+        # plan (importance hints), trace with keyed shading, per-set estimate + hysteresis merge: the pipeline
+        self.pipeline.update(self.scene, frame_index, seed, timer=t, probe_ids=ids, importance=live[ids],
+                             n_rays=n_rays)
+        plan = self.last_plan = self.pipeline.last_plan
         info.update(plan.info.stats)
         if not plan.n_rays:
             return info
-        self.shader.keys = plan.shade_key          # paired visits: keyed NEE and hit-lookup randomness
-        try:
-            res = self.pipeline.trace(self.scene, plan, seed, frame_index, timer=t)
-        finally:
-            self.shader.keys = None
-        with t.stage("blend"):
-            est_i, est_d = integrate_sets_dr(plan, res.radiance, res.distance, vol.max_distance,
-                                             p["distance_power"])
-            self.pipeline.merge(est_i, est_d, plan.probe_ids, plan.counts)
+        res = self.pipeline.last_results
+        # -- states: relocation on re-test frames, Algorithm 2, the change measure (ours: this step's) --
         with t.stage("states"):
             L, d = res.host()
             if self.relocator is not None and wake:      # relocation on re-test frames only (ours: cost)
                 before = st.offsets.copy()
-                fin = self.pipeline.begin_states(plan, res)
+                fin = self.pipeline.begin_states(plan, res, self.relocator)
                 if fin is not None:
                     fin()
                 # a moved probe's stored samples are no reference for its next rays (ours)
