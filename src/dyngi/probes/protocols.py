@@ -19,7 +19,8 @@ these protocols; a new technique replaces a part, not the loop.
 A :class:`Blend` is an estimator + an accumulator + an encoding (:mod:`.blend`); the pipeline calls
 ``blend.update(volume, results)``. Optional hooks a part may have (the pipeline calls them when
 present): ``RayPlanner.begin_warmup()`` / ``end_warmup()`` (around the shared warm-up, e.g.
-IS-DDGI's one-ray-per-set warm-up); ``Blend.update(volume, results, distance_results)`` for
+IS-DDGI's one-ray-per-set warm-up); ``HitShader.prepare(plan)`` before a trace and ``prepare(None)``
+after (IS-DDGI's per-ray shading keys); ``Blend.update(volume, results, distance_results)`` for
 blends fed by a separate distance plan (the reference's cosine-power lobe rays).
 """
 from __future__ import annotations
