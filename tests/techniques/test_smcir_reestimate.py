@@ -66,7 +66,8 @@ def test_stream_seeds_device_match_the_host_ones(backend):
         assert np.array_equal(np.asarray(stream_seeds_device(mi.UInt64(s), k), np.uint64), stream_seeds(s, k))
 
 
-@pytest.mark.parametrize("mode, impl", [("independent", "device"), ("same-seed", "device"),
+@pytest.mark.parametrize("mode, impl", [("independent", "device"),
+                                        pytest.param("same-seed", "device", marks=pytest.mark.slow),
                                         pytest.param("independent", "host", marks=pytest.mark.slow)])
 def test_selection_on_noisy_estimates_does_not_bias_the_rendered_radiosity(backend, mode, impl):
     """Synthetic winner's curse: every VPL's true radiosity is 1, its estimate 2u (fixed per seed).
