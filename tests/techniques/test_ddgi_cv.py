@@ -90,7 +90,7 @@ def test_cube_bins_and_their_clipped_cosine_integrals(backend):
         assert np.all(np.abs(mc - ex[i]) / se < 4.5), (i, mc, ex[i])
 
 
-@pytest.mark.parametrize("kind", ["constant", "nearest-ray"])
+@pytest.mark.parametrize("kind", ["constant", pytest.param("nearest-ray", marks=pytest.mark.slow)])  # CI budget
 def test_control_variate_keeps_the_mean_and_a_wrong_one_is_detected(backend, monkeypatch, kind):
     scene = load_scene("cornell-static")
     plain = _means(scene, 0, N_FRAMES)
@@ -126,7 +126,7 @@ def test_control_variate_keeps_the_mean_and_a_wrong_one_is_detected(backend, mon
     assert pb[0] < ALPHA / len(p), (plain[:, 0].mean(), bad[:, 0].mean(), pb)
 
 
-@pytest.mark.parametrize("kind", ["constant", "nearest-ray"])
+@pytest.mark.parametrize("kind", ["constant", pytest.param("nearest-ray", marks=pytest.mark.slow)])  # CI budget
 def test_control_variate_steady_state_and_reruns(backend, kind):
     """With every reuse on (temporal, spatial, accumulation) on an animated scene: finite frames, no new
     kernel after the warm-up frames (the battery's check, which runs only the default parameters), and
@@ -160,6 +160,7 @@ def test_control_variate_steady_state_and_reruns(backend, kind):
     assert all(np.array_equal(a, b) for a, b in zip(imgs, again))
 
 
+@pytest.mark.slow   # CI budget: seconds on a cold cache; runs in CI's slow subset
 @pytest.mark.parametrize("kind", ["constant", "nearest-ray"])
 def test_control_variate_with_exact_radiance_matches_mitsuba(backend, kind):
     """With the exact-radiance hook (S(x) path-traced, so plain resampling is unbiased) the control

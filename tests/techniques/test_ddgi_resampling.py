@@ -54,7 +54,7 @@ def test_footprint_matches_eq7(backend):
     assert float(footprint_term(mi.Float(1.0), mi.Float(1.0), mi.Float(1.0), mi.Bool(True))[0]) == 0.0
 
 
-@pytest.mark.parametrize("c", [0.2, 0.05])
+@pytest.mark.parametrize("c", [0.2, pytest.param(0.05, marks=pytest.mark.slow)])
 def test_footprint_termination_where_eq8_says(backend, c):
     """glossy-floor (rough plastic floor, GGX alpha 0.04): after one frame, the pixels whose secondary
     vertex x_2 continued the glossy recursion are exactly those with a(x_1 x_2) <= c a0, recomputed here
@@ -98,6 +98,7 @@ def _indirect_means(scene, frames, seed, **params):
     return np.stack([ind.mean((1, 2))] + [q.mean((1, 2)) for q in quads], 1)   # frames x 5
 
 
+@pytest.mark.slow   # CI budget: seconds on a cold cache; runs in CI's slow subset
 def test_gmax_partition_sums_to_the_unpartitioned_estimate(backend):
     """Eq. 9 on cornell-static with frozen probes (hysteresis 1 after the warm-up), independent frames
     (no temporal reuse, no accumulation): the indirect image's mean and quadrant means with the partition
@@ -167,6 +168,7 @@ def test_exact_radiance_hook_converges_to_the_reference(backend, reuse_visibilit
         assert p > 0.01 / len(stats_a), (sa.mean(), sb.mean(), p)
 
 
+@pytest.mark.slow   # CI budget: seconds on a cold cache; runs in CI's slow subset
 def test_exact_radiance_hook_image_mean(backend):
     """Fast version of the convergence test: the image mean of the exact hook over independent frames
     (no temporal reuse, no accumulation) agrees with a 256-spp Mitsuba ``path`` render (z < 3.3)."""
@@ -184,6 +186,7 @@ LEAK_SCENE = "living-room"
 
 
 @pytest.mark.skipif(LEAK_SCENE not in builtin_names(), reason="thin-walled room scene not available yet")
+@pytest.mark.slow   # CI budget: seconds on a cold cache; runs in CI's slow subset
 @pytest.mark.parametrize("name", ["ddgi-secondary", "ddgi-resampling"])
 def test_leak_on_the_thin_walled_room_stays_small(backend, name):
     """Issue item 7 / issue 22: the thin sunlit walls of ``living-room`` leak little now that its probe

@@ -35,7 +35,8 @@ def uniform_covered(backend):
     return frames_of("nee-pt:lights=uniform", "covered-lights", 12, 16, seed=11)
 
 
-@pytest.mark.parametrize("lights", ["vlc", "lighttree", "sll", "sll-oracle"])
+@pytest.mark.parametrize("lights", [pytest.param(n, marks=[] if n == "sll" else [pytest.mark.slow])   # CI budget
+                                    for n in ("vlc", "lighttree", "sll", "sll-oracle")])
 def test_selectors_converge_to_uniform(backend, uniform_covered, lights):
     mod = {"lighttree": "dyngi.sampling.lighttree", "sll": "dyngi.sampling.pvs", "sll-oracle": "dyngi.sampling.sll"}.get(lights)
     if mod:
@@ -47,6 +48,7 @@ def test_selectors_converge_to_uniform(backend, uniform_covered, lights):
     assert ok, (lights, "indirect", info)
 
 
+@pytest.mark.slow   # CI budget: seconds on a cold cache; runs in CI's slow subset
 def test_vlc_is_mitsuba_at_depth_3_on_a_diffuse_scene(backend):
     """cornell-static (diffuse, triangle area light): nee-pt == Mitsuba's path with max_depth 3."""
     from dyngi.experiments.reference import _render
