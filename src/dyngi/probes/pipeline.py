@@ -209,8 +209,9 @@ class ProbePipeline:
         re-tests its inactive ones). :attr:`last_plan` is this update's plan (None: no probe)."""
         vol = self.volume
         info = {"probes_traced": 0, **_NO_STATE}
-        if self.state_rays == "fixed":
+        if self.state_rays == "fixed":      # -- states from fixed rays, before the update (the reference) --
             _add(info, self.classify(scene, self.probes_to_trace(probe_mask), frame, seed, timer))
+        # -- 1. plan --
         ids = self.probes_to_trace(probe_mask) if probe_ids is None else probe_ids
         info["probes_traced"] = int(len(ids))
         plan = None
@@ -219,6 +220,7 @@ class ProbePipeline:
                 plan = self.planner.plan(frame, seed, ids, previous=self.last_results, **hints)
         self.last_plan = plan
         if plan is not None and plan.n_rays:      # (a planner may give every probe 0 rays)
+            # -- 2. trace and shade (a separate distance plan without multi-bounce) --
             res = self.trace(scene, plan, seed, frame, timer=timer)
             self.last_results = res
             extra = ()
@@ -230,11 +232,13 @@ class ProbePipeline:
                 with maybe_stage(timer, "blend"):
                     res.host()      # the blend's host copies, pulled before anything else is queued
             info["rays"] = plan.n_rays
+            # -- 4. relocation / classification from the same rays (launched before the blend) --
             finish_states = None
             if self.state_rays == "update" and self.states is not None:
                 # the state summaries' kernels run on Dr.Jit's pool beside the blend's host products
                 with maybe_stage(timer, "states", sync=False):
                     finish_states = self.begin_states(plan, res)
+            # -- 3. estimate, accumulate, encode --
             with maybe_stage(timer, "blend"):
                 self.blender.update(vol, res, *extra)
             if finish_states is not None:
