@@ -46,7 +46,17 @@ if [ "$cmd" = test ] && ! command -v chromium >/dev/null 2>&1 && [ ! -e "$chrome
 fi
 case "$cmd" in
   demo)  exec .venv/bin/dyngi demo "$@" ;;
-  test)  exec .venv/bin/python -m pytest -q "$@" ;;
+  test)
+    # two workers (pytest-xdist, one per core; whole files per worker so module fixtures are built once):
+    # on a cold kernel cache most of the suite's time is single-threaded LLVM compilation.
+    # DYNGI_TEST_WORKERS=0 runs in one process; an explicit -n / -p no:xdist in the arguments wins
+    workers="${DYNGI_TEST_WORKERS:-2}"
+    xd=()
+    case " $* " in *" -n "*|*" -n="*|*"no:xdist"*) workers=0 ;; esac
+    if [ "$workers" != 0 ] && .venv/bin/python -c "import xdist" 2>/dev/null; then
+      xd=(-n "$workers" --dist loadfile)
+    fi
+    exec .venv/bin/python -m pytest -q "${xd[@]}" "$@" ;;
   dyngi) exec .venv/bin/dyngi "$@" ;;
   *) echo "run.sh: error: unknown command '$cmd'; valid commands: demo, test, dyngi" >&2; exit 2 ;;
 esac

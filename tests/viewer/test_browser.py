@@ -18,7 +18,7 @@ import pytest
 
 from dyngi.viewer.browser import Chromium, find_chromium
 
-pytestmark = pytest.mark.timeout(120)
+pytestmark = pytest.mark.timeout(300)   # a slow CI machine, another test worker compiling beside it
 
 SCENE = "cornell-moving-light"
 SPEC_A = "ddgi:rays_per_probe=64:probe_counts=4"
@@ -72,7 +72,7 @@ def viewer(tmp_path_factory):
 def page(viewer):
     with Chromium() as br:
         p = br.new_page(viewer["url"], width=900, height=700)
-        p.wait_for("window.dyngiView && window.dyngiView.frames >= 2", 60)
+        p.wait_for("window.dyngiView && window.dyngiView.frames >= 2", 120)
         yield p
 
 
@@ -96,12 +96,12 @@ def _frames(page, slot="a") -> int:
     return page.evaluate(f"window.dyngiView.framesBySlot['{slot}'] || 0")
 
 
-def _wait_frames(page, n: int, slot="a", timeout=30):
+def _wait_frames(page, n: int, slot="a", timeout=90):
     start = _frames(page, slot)
     page.wait_for(f"(window.dyngiView.framesBySlot['{slot}'] || 0) >= {start + n}", timeout)
 
 
-def _wait_idle(page, quiet_s=0.8, timeout=30):
+def _wait_idle(page, quiet_s=0.8, timeout=90):
     """Wait until no frame has arrived for ``quiet_s``: paused and still, the viewer stops after its still
     frames, so the image on the page no longer changes."""
     end = time.monotonic() + timeout
@@ -132,7 +132,7 @@ def test_page_loads_and_shows_a_frame(page):
 
 def test_camera_drag_changes_the_image(page):
     page.evaluate("window.dyngiView.send({type: 'play', playing: false})")
-    page.wait_for("window.dyngiView.state && window.dyngiView.state.playing === false", 10)
+    page.wait_for("window.dyngiView.state && window.dyngiView.state.playing === false", 60)
     _wait_idle(page)
     b = _canvas_png(page)
     r = page.evaluate("(() => { const r = document.getElementById('view').getBoundingClientRect();"
@@ -148,7 +148,7 @@ def test_camera_drag_changes_the_image(page):
 
 def test_fly_keys_move_the_camera(page):
     page.key("KeyR", "r")                       # the orbit above left the box; back inside
-    page.wait_for("window.dyngiView.state.follow === true", 10)
+    page.wait_for("window.dyngiView.state.follow === true", 60)
     _wait_idle(page)
     before = _canvas_png(page)
     page.key("KeyW", "w", hold_s=0.5)           # fly forward for half a second
@@ -163,7 +163,7 @@ def test_technique_switch_changes_the_stats(page):
     before = set(page.evaluate("Object.keys(window.dyngiView.stats.a.stats.ms)"))
     page.evaluate(f"document.getElementById('specA').value = '{SPEC_SWITCH}';"
                   "document.getElementById('applyA').click()")
-    page.wait_for(f"window.dyngiView.stats.a && window.dyngiView.stats.a.spec === '{SPEC_SWITCH}'", 30)
+    page.wait_for(f"window.dyngiView.stats.a && window.dyngiView.stats.a.spec === '{SPEC_SWITCH}'", 90)
     after = set(page.evaluate("Object.keys(window.dyngiView.stats.a.stats.ms)"))
     assert after and after != before
     assert page.evaluate("document.querySelector('#stats th').textContent").endswith(SPEC_SWITCH)
@@ -174,10 +174,10 @@ def test_technique_switch_changes_the_stats(page):
 def test_bad_spec_is_an_error_on_the_page_not_a_dead_server(page, viewer):
     page.evaluate("document.getElementById('specA').value = 'ddgi:bogus=1';"
                   "document.getElementById('applyA').click()")
-    page.wait_for("window.dyngiView.errors.some(e => e.includes(\"unknown parameter 'bogus'\"))", 10)
+    page.wait_for("window.dyngiView.errors.some(e => e.includes(\"unknown parameter 'bogus'\"))", 60)
     assert "bogus" in page.evaluate("document.getElementById('errors').textContent")
     page.evaluate("window.dyngiView.send({type: 'technique', slot: 'a', spec: 'no-such-technique'})")
-    page.wait_for("window.dyngiView.errors.some(e => e.includes(\"unknown technique 'no-such-technique'\"))", 10)
+    page.wait_for("window.dyngiView.errors.some(e => e.includes(\"unknown technique 'no-such-technique'\"))", 60)
     page.evaluate("window.dyngiView.send({type: 'camera', op: 'orbit', dx: 5, dy: 0})")   # still serving
     _wait_frames(page, 2)
     assert viewer["proc"].poll() is None
@@ -187,16 +187,16 @@ def test_bad_spec_is_an_error_on_the_page_not_a_dead_server(page, viewer):
 def test_split_view_renders_both(page):
     page.evaluate(f"document.getElementById('specB').value = '{SPEC_SPLIT}';"
                   "document.getElementById('applyB').click()")
-    page.wait_for(f"window.dyngiView.stats.b && window.dyngiView.stats.b.spec === '{SPEC_SPLIT}'", 30)
+    page.wait_for(f"window.dyngiView.stats.b && window.dyngiView.stats.b.spec === '{SPEC_SPLIT}'", 90)
     _wait_frames(page, 1, "b")
     assert page.evaluate("document.getElementById('labelB').style.display") == "block"
     page.evaluate("document.getElementById('offB').click()")
-    page.wait_for("window.dyngiView.state.want_b === null", 10)
+    page.wait_for("window.dyngiView.state.want_b === null", 60)
 
 
 def test_probe_overlay_and_error_view(page):
     page.key("KeyR", "r")                     # back to the scene's camera, inside the box
-    page.wait_for("window.dyngiView.state.follow === true", 10)
+    page.wait_for("window.dyngiView.state.follow === true", 60)
     page.evaluate(f"window.dyngiView.send({{type: 'technique', slot: 'a', spec: '{SPEC_A}'}})")
     page.wait_for(f"window.dyngiView.state.overlays.includes('probes') && "
                   f"window.dyngiView.stats.a.spec === '{SPEC_A}'", 30)
@@ -204,7 +204,7 @@ def test_probe_overlay_and_error_view(page):
     base = _canvas_png(page)
     page.evaluate("const s = document.getElementById('overlay'); s.value = 'probes';"
                   "s.dispatchEvent(new Event('change'))")
-    page.wait_for("window.dyngiView.stats.a.overlay_ms > 0", 30)
+    page.wait_for("window.dyngiView.stats.a.overlay_ms > 0", 90)
     _wait_frames(page, 1)
     drawn = np.abs(_blocks(_canvas_png(page), 12) - _blocks(base, 12)).mean()
     assert drawn > 1.5, drawn
@@ -214,7 +214,7 @@ def test_probe_overlay_and_error_view(page):
     ev = page.wait_for("window.dyngiView.errorview && window.dyngiView.errorview.state === 'ready' &&"
                        " window.dyngiView.errorview", 60)
     assert 0.0 < ev["flip"]["a"] < 1.0
-    page.wait_for("window.dyngiView.framesBySlot['err-a'] > 0", 10)
+    page.wait_for("window.dyngiView.framesBySlot['err-a'] > 0", 60)
 
 
 def test_sigterm_shuts_down_cleanly(viewer, page):
@@ -231,4 +231,4 @@ def test_sigterm_shuts_down_cleanly(viewer, page):
     s.bind(("127.0.0.1", viewer["port"]))     # nobody listens there any more: the port is free
     s.listen(1)
     s.close()
-    page.wait_for("window.dyngiView.connected === false", 10)
+    page.wait_for("window.dyngiView.connected === false", 60)
