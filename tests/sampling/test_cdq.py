@@ -362,18 +362,22 @@ def test_reproduce_cdq_recovery_criterion():
 
 def test_neept_cdq_steady_state_compiles_nothing(backend, monkeypatch):
     """Frame index, octree leaf count and CDQ fields change every frame: after a warm-up no frame of
-    nee-pt:directions=cdq compiles a new kernel (buffers padded, leaf count opaque), and the CDQ's
-    default (device) update never transfers to the host (every transfer of the module goes through
-    ``cdq._to_host``, counted here; the migration counters are read after the frames)."""
+    nee-pt:lights=vlc:directions=cdq compiles a new kernel (buffers padded, leaf count opaque), and the
+    default (device) updates of the octree, the VLC and the CDQ never transfer to the host (every
+    transfer of those modules goes through their ``_to_host``, counted here; the counters are read
+    after the frames)."""
     from dyngi.scene.library import make_builtin
     from dyngi.techniques.base import Frame, create_technique
 
     sc = make_builtin("cornell-moving-light")
-    tech = create_technique("nee-pt:directions=cdq", sc)
+    tech = create_technique("nee-pt:lights=vlc:directions=cdq", sc)
+    from dyngi.sampling import octree, vlc
     reads = []
-    real = cdq._to_host
-    monkeypatch.setattr(cdq, "_to_host", lambda x: reads.append(dr.width(x)) or real(x))
+    for mod in (cdq, octree, vlc):     # every device -> host transfer of the three learned structures
+        monkeypatch.setattr(mod, "_to_host", lambda x, real=mod._to_host: reads.append(dr.width(x)) or real(x))
     monkeypatch.setattr(cdq.CDQDirections, "report_migrations", False)
+    monkeypatch.setattr(octree.AdaptiveOctree, "report_stats", False)
+    monkeypatch.setattr(vlc.VLCSelector, "report_stats", False)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     seen, new = set(), []
     try:
@@ -388,7 +392,8 @@ def test_neept_cdq_steady_state_compiles_nothing(backend, monkeypatch):
             seen |= h
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, False)
-    assert reads == [] and tech.cdq.adapt == "device"
+    assert reads == [] and tech.cdq.adapt == "device" and tech.octree.adapt_mode == "device"
+    assert tech.selector.adapt == "device"
     assert tech.cdq.migrations_total > 0 and len(reads) == 1
     assert sum(new[6:]) == 0, new
 

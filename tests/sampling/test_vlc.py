@@ -134,7 +134,7 @@ def test_vlc_pmf_sums_to_one_minus_zero_importance_buckets(vlc_tech):
     """sum_k pmf(k) = 1 - (1 - f) * (#buckets of the leaf whose importance sum is 0) / B, per point."""
     tech = vlc_tech
     sel, tris, oc = tech.selector, tech.tris, tech.octree
-    assert sel.last["leaves_with_vlc"] > 0 and max(len(sel.host_buckets(c)) for c in range(oc.leaf_count)) >= 2
+    assert sel.stats()["leaves_with_vlc"] > 0 and sel.host_bucket_counts().max() >= 2
     rng = np.random.default_rng(2)
     p, n = _points(40, rng)
     pm = _all_pmfs(sel, tris, p, n)
@@ -178,8 +178,9 @@ def test_vlc_sampling_frequencies_match_pmf(vlc_tech):
 
 # -- construction: dedup, neighbour merge, buckets ----------------------------------------------
 
-@pytest.mark.parametrize("merge", [True, False])
-def test_construction_keeps_every_visible_light_once(backend, merge):
+@pytest.mark.parametrize("merge, adapt", [(True, "device"), (False, "device"), (True, "host")])
+def test_construction_keeps_every_visible_light_once(backend, merge, adapt):
+    """Device construction (octree slots, bit sets) and the host pass (dense leaves, NumPy) both."""
     from dyngi.sampling.emitter_triangles import EmitterTriangles
     from dyngi.sampling.light_select import FrameCtx
     from dyngi.sampling.octree import AdaptiveOctree
@@ -187,9 +188,10 @@ def test_construction_keeps_every_visible_light_once(backend, merge):
     sc = many_lights_scene(10)        # 200 lights
     tris = EmitterTriangles(sc.mi_scene)
     lo, hi = (np.asarray(b) for b in sc.meta.bounds)
-    oc = AdaptiveOctree(lo, hi)       # 8 leaves
+    oc = AdaptiveOctree(lo, hi, adapt=adapt)       # 8 leaves
     cap = 8
-    sel = VLCSelector(tris, octree=oc, capacity=cap, merge_neighbours=merge)
+    sel = VLCSelector(tris, octree=oc, capacity=cap, merge_neighbours=merge, adapt=adapt)
+    assert sel.adapt == adapt
     rng = np.random.default_rng(4)
     m = 20_000
     p = rng.uniform(lo + 0.01, hi - 0.01, size=(m, 3))
@@ -201,10 +203,13 @@ def test_construction_keeps_every_visible_light_once(backend, merge):
     sel.begin_frame(FrameCtx(sc.mi_scene, tris, 1, 0.0, oc, (lo, hi)))
     leaf = np.asarray(oc.lookup(_arr(p, mi.Point3f)))
     nb = np.asarray(oc.neighbours).reshape(-1, 6)
-    for c in range(oc.leaf_count):
+    caches = sel.host_caches()
+    assert not caches[np.setdiff1d(np.arange(oc.leaf_count), np.unique(leaf))].any() or merge
+    for c in np.unique(leaf):
         srcs = [c] + ([int(j) for j in nb[c] if j != 0xFFFFFFFF] if merge else [])
         want = np.unique(ids[vis & np.isin(leaf, srcs)])
         got = sel.host_cache(c)
+        assert np.array_equal(np.nonzero(caches[c])[0], want)
         assert np.array_equal(got, want), c          # every visible light, exactly once
         buckets = sel.host_buckets(c)
         B = len(buckets)
@@ -234,8 +239,15 @@ def test_bucket_hysteresis(backend):
 
 # -- occlusion ---------------------------------------------------------------------------------------
 
-def test_light_behind_a_wall_never_enters_a_vlc(backend):
+@pytest.mark.parametrize("adapt", ["device", "host"])
+def test_light_behind_a_wall_never_enters_a_vlc(backend, adapt, monkeypatch):
+    """Both constructions; the host pass's records also show the outside light explored and occluded."""
+    import functools
+
+    from dyngi.sampling import vlc as vlc_mod
     from dyngi.techniques import create_technique
+    monkeypatch.setattr(vlc_mod.VLCSelector, "__init__", functools.partialmethod(vlc_mod.VLCSelector.__init__,
+                                                                                 adapt=adapt))
     sc = many_lights_scene(3, outside=True)
     tech = create_technique("nee-pt", sc, {"lights": "vlc", "exploration": 0.5})
     outside = tech.tris.count - 2       # the last mesh: two triangles above the ceiling
@@ -247,10 +259,10 @@ def test_light_behind_a_wall_never_enters_a_vlc(backend):
         sc.at(0.0)
         tech.step(Frame(i, 0.0, sc.camera(0.0), (32, 24), seed=1))
         sel = tech.selector
-        for c in range(tech.octree.leaf_count):
-            cache = set(sel.host_cache(c).tolist())
-            assert not (cache & out_ids), f"frame {i}: the outside light is in leaf {c}'s VLC"
-            seen_inside |= cache
+        assert sel.adapt == adapt
+        caches = sel.host_caches()
+        assert not caches[:, sorted(out_ids)].any(), f"frame {i}: the outside light is in a VLC"
+        seen_inside |= set(np.nonzero(caches.any(0))[0].tolist())
         # the outside light was sampled (by exploration) and recorded as occluded
         rec = sel._records
         if rec:
@@ -258,7 +270,7 @@ def test_light_behind_a_wall_never_enters_a_vlc(backend):
             vis = np.concatenate([np.asarray(r[2]) for r in rec])
             explored += int(np.isin(ids, list(out_ids)).sum())
             assert not np.any(vis & np.isin(ids, list(out_ids)))
-    assert explored > 0
+    assert explored > 0 or adapt == "device"
     assert len(seen_inside) == tech.tris.count - 2      # every inside light was learnt somewhere
 
 
@@ -309,7 +321,7 @@ def test_lighttree_explorer_pmf_is_the_exact_mixture(vlc_lh_tech):
     light tree's own pmf and p_VLC recomputed here from the host buckets and the importances."""
     tech = vlc_lh_tech
     sel, tris, oc = tech.selector, tech.tris, tech.octree
-    assert sel._lh is not None and sel.last["leaves_with_vlc"] > 0
+    assert sel._lh is not None and sel.stats()["leaves_with_vlc"] > 0
     rng = np.random.default_rng(5)
     p, n = _points(30, rng)
     pm = _all_pmfs(sel, tris, p, n)

@@ -657,7 +657,8 @@ class CDQDirections:
 
     def _reset_stats(self):
         self.node_stats = dr.zeros(mi.Float, self._cap * (self.bits + 1))
-        dr.eval(self.node_stats)
+        self._touched = dr.zeros(mi.UInt32, self._cap)      # device path: fields that got a sample
+        dr.eval(self.node_stats, self._touched)
         if self.memory > 0.0:
             self.node_stats_x = dr.zeros(mi.Float, self._cap * (self.bits + 1))
             self.node_stats_y = dr.zeros(mi.Float, self._cap * (self.bits + 1))
@@ -761,6 +762,8 @@ class CDQDirections:
         c2 = c * c
         slot = leaf * (self.bits + 1) + node
         dr.scatter_reduce(dr.ReduceOp.Add, self.node_stats, c2, slot, ok)
+        if self.device:
+            dr.scatter(self._touched, mi.UInt32(1), leaf, ok & (c2 > 0.0))
         if self.memory > 0.0:     # centroid channels, so that a split hands memory to the right child
             dr.scatter_reduce(dr.ReduceOp.Add, self.node_stats_x, c2 * x, slot, ok)
             dr.scatter_reduce(dr.ReduceOp.Add, self.node_stats_y, c2 * y, slot, ok)
@@ -771,8 +774,11 @@ class CDQDirections:
         t0 = time.perf_counter()
         if self.device:
             leaf = dr.arange(mi.UInt32, self._cap)
-            ok = leaf < self._rows_dev
-            words = [dr.gather(mi.UInt32, self.field, leaf * WORDS + j, ok) for j in range(WORDS)]
+            # only fields that received a sample can migrate (0.1 * 0 > C_inner never holds): the others
+            # leave both loops at once (the octree pool has many slots that are no leaf)
+            valid = leaf < self._rows_dev
+            ok = valid & (self._touched != 0)
+            words = [dr.gather(mi.UInt32, self.field, leaf * WORDS + j, valid) for j in range(WORDS)]
             new, go = migrate_dr(words, self.node_stats, leaf * (self.bits + 1), self.bits,
                                  dr.opaque(mi.Float, self.stability), self.max_depth, ok)
             field = dr.empty(mi.UInt32, self._cap * WORDS)

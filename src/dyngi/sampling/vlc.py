@@ -109,7 +109,13 @@ CAPACITY = 32          # bucket capacity (Sec. 7)
 HYSTERESIS = 0.75      # capacity factor when the bucket count would drop (Sec. 4.2: "e.g., 75%")
 EXPLORATION = 0.1      # exploration fraction (Sec. 7)
 EXPLORE_WEIGHTS = (0.6, 0.2, 0.2)   # energy, change, camera distance (our choice)
-EXPLORERS = ("global", "lighttree")   # exploration strategy: the paper's global alias table, or (ours) a light tree
+EXPLORERS = ("global", "lighttree")
+ADAPT_CHOICES = ("device", "host")   # where the caches are built (module docstring, "Device construction")
+
+
+def _to_host(x) -> np.ndarray:
+    """The module's device -> host transfer on the device path (tests count its calls)."""
+    return np.asarray(x.numpy())   # exploration strategy: the paper's global alias table, or (ours) a light tree
 
 
 # ---------------------------------------------------------------------------------------------
@@ -238,16 +244,21 @@ class VLCSelector:
     Parameters: ``tris`` (EmitterTriangles), ``octree`` (AdaptiveOctree; else taken from the FrameCtx),
     ``exploration`` (fraction, 0.1), ``capacity`` (32), ``hysteresis`` (0.75), ``merge_neighbours``
     (True), ``explore_weights`` ((energy, change, distance) = (0.6, 0.2, 0.2)), ``memory`` (1),
-    ``explorer`` ("global" | "lighttree", module docstring).
+    ``explorer`` ("global" | "lighttree", module docstring), ``adapt`` ("device" | "host": where the
+    caches are built, module docstring "Device construction").
     """
 
     name = "vlc"
     accepts_leaf = True     # sample/pmf/record take an optional looked-up ``leaf=`` (nee-pt passes it)
+    report_stats = True     # device construction: stats() reads its counters back (inspection only)
 
     def __init__(self, tris: EmitterTriangles, mi_scene=None, bounds=None, octree=None,
                  exploration: float = EXPLORATION, capacity: int = CAPACITY, hysteresis: float = HYSTERESIS,
                  merge_neighbours: bool = True, explore_weights=EXPLORE_WEIGHTS, memory: int = 1,
-                 explorer: str = "global", **_ignored):
+                 explorer: str = "global", adapt: str = "device", **_ignored):
+        if adapt not in ADAPT_CHOICES:
+            raise DyngiError(f"VLC adapt '{adapt}' is unknown; valid choices: {', '.join(ADAPT_CHOICES)}")
+        self.adapt_request = adapt
         if not 0.0 < float(exploration) <= 1.0:
             raise DyngiError(f"VLC exploration fraction {exploration} is out of range (0, 1]")
         if int(capacity) < 1:
@@ -283,6 +294,140 @@ class VLCSelector:
         self._build_exploration(None)
         self._upload_empty(self._n_leaves())
         self.last = {"lights_mean": 0.0, "lights_max": 0, "buckets_mean": 0.0, "records": 0, "visible": 0}
+        self.device = False
+        self._dev_setup()
+
+    # -- device construction (module docstring) -------------------------------------------------
+    def _device_possible(self) -> bool:
+        oc = self.octree
+        return (self.adapt_request == "device" and self.memory == 1 and 0 < self.L <= 32 * 32
+                and self.capacity * 32 >= self.L and (oc is None or getattr(oc, "device", False)))
+
+    def _dev_setup(self) -> None:
+        """Choose the construction path; (re)allocate the device bit sets for the octree's slot count."""
+        self.device = self._device_possible()
+        self.adapt = "device" if self.device else "host"
+        if not self.device:
+            return
+        self._W = (self.L + 31) // 32
+        self._N = self._n_leaves()
+        self._dev_n = self._N
+        NW = max(self._N * self._W, 2)
+        self._vis = dr.zeros(mi.UInt32, NW)             # this frame's visible records, keyed by the placing leaf
+        self._bits = dr.zeros(mi.UInt32, NW)            # the caches of the current tree
+        self.leaf_bcnt = dr.zeros(mi.UInt32, max(self._N, 2))
+        self._bold = dr.zeros(mi.UInt32, max(self._N, 2))
+        self._rec_cnt = dr.zeros(mi.UInt32, 2)          # records, visible records (device counters)
+        self._dev_stats = None
+        masks = np.zeros(64, np.uint32)                 # masks[B + b]: bits j of a word with j mod B == b
+        for B in (1, 2, 4, 8, 16, 32):
+            for b in range(B):
+                masks[B + b] = sum(1 << j for j in range(b, 32, B))
+        self._masks = mi.UInt32(masks)
+        self._rec_prev_obj = getattr(self.octree, "prev_leaf", None)
+        dr.eval(self._vis, self._bits, self.leaf_bcnt, self._bold, self._rec_cnt)
+
+    def _construct_device(self) -> None:
+        """Populate, neighbour merge, buckets with hysteresis (Sec. 4.1/4.2) as Dr.Jit kernels over the
+        octree's slots; no host transfer. Same caches and bucket counts as the host pass."""
+        oc, N, W = self.octree, self._N, self._W
+        pl = getattr(oc, "prev_leaf", None)
+        c = dr.arange(mi.UInt32, N)
+        if pl is not None and pl is not self._rec_prev_obj:
+            src = mi.UInt32(pl)
+        else:
+            src = mi.UInt32(c)
+        src = dr.select(src < N, src, INVALID)
+        # populate + (c) merge: per (leaf, word) the OR of the previous leaf's and its neighbours' words
+        lane = dr.arange(mi.UInt32, N * W)
+        cl, wj = lane // W, lane % W
+        s0 = dr.gather(mi.UInt32, src, cl)
+        word = dr.gather(mi.UInt32, self._vis, s0 * W + wj, s0 != INVALID)
+        if self.merge and oc is not None:
+            for f in range(6):
+                j = dr.gather(mi.UInt32, oc.neighbours, cl * 6 + f)
+                sj = dr.gather(mi.UInt32, src, j, j != INVALID)
+                okj = (j != INVALID) & (sj != INVALID)
+                word |= dr.gather(mi.UInt32, self._vis, sj * W + wj, okj)
+        bits = word
+        dr.eval(bits)
+        # (d) bucket counts: 32 residue counters per leaf, merged pairwise down to B = 1 (Sec. 4.2)
+        cnt = [dr.zeros(mi.UInt32, N) for _ in range(32)]
+        for w in range(W):      # W <= 32 words, unrolled (the light count is fixed per selector)
+            x = dr.gather(mi.UInt32, bits, c * W + w)
+            for b in range(32):
+                cnt[b] += (x >> b) & 1
+        occ = {32: cnt}
+        B = 32
+        while B > 1:
+            h = B // 2
+            occ[h] = [occ[B][b] + occ[B][b + h] for b in range(h)]
+            B = h
+        total = occ[1][0]
+        prev_b = dr.select(src != INVALID, dr.gather(mi.UInt32, self._bold, src, src != INVALID), 0)
+        cap_low = max(1, int(np.floor(self.hysteresis * self.capacity)))
+        bcnt = dr.zeros(mi.UInt32, N)
+        done = total == 0
+        for B in (1, 2, 4, 8, 16, 32):
+            m = occ[B][0]
+            for b in range(1, B):
+                m = dr.maximum(m, occ[B][b])
+            cap = dr.select(B >= prev_b, self.capacity, cap_low)
+            take = ~done & (m <= cap)
+            bcnt = dr.select(take, B, bcnt)
+            done |= take
+        bcnt = dr.select(done, bcnt, 32)       # unreachable: capacity * 32 >= L (_device_possible)
+        nonempty = total > 0
+        one = mi.UInt32(1)
+        self._dev_stats = [dr.block_reduce(dr.ReduceOp.Add, total, N),
+                           dr.block_reduce(dr.ReduceOp.Add, dr.select(nonempty, one, 0), N),
+                           dr.block_reduce(dr.ReduceOp.Max, total, N),
+                           dr.block_reduce(dr.ReduceOp.Add, bcnt, N), self._rec_cnt]
+        self._bits, self.leaf_bcnt, self._bold = bits, bcnt, bcnt
+        self._vis = dr.zeros(mi.UInt32, max(N * W, 2))
+        self._rec_cnt = dr.zeros(mi.UInt32, 2)
+        self._rec_prev_obj = pl
+        dr.eval(self._bits, self.leaf_bcnt, self._vis, self._rec_cnt, *self._dev_stats[:4])
+
+    @dr.syntax
+    def _bucket_walk(self, p, n, leaf, bidx, B, target, target_acc, active, select: bool):
+        """Both traversals of Algorithm 1 over the bit set of bucket ``bidx`` of ``leaf`` (lights with
+        ``id mod B == bidx``, in increasing id: the order of the host tables). ``select=False``:
+        (sum of importances, importance of ``target``); ``select=True``: (the first light whose running
+        sum exceeds ``target_acc``, or the last light with nonzero importance; its importance)."""
+        W = self._W
+        mask = dr.gather(mi.UInt32, self._masks, B + bidx, active)
+        base = leaf * W
+        acc = mi.Float(0.0)
+        w = mi.Float(0.0)
+        chosen = mi.UInt32(INVALID)
+        last_k = mi.UInt32(INVALID)
+        last_w = mi.Float(0.0)
+        found = mi.Bool(False)
+        cur = mi.UInt32(0)
+        wi = mi.UInt32(0)
+        act = mi.Bool(active)
+        sel = mi.Bool(select)
+        while act & ((cur != 0) | (wi < W)) & ~found:
+            load = cur == 0
+            word = dr.gather(mi.UInt32, self._bits, base + wi, act & load)
+            cur = dr.select(load, word & mask, cur)
+            wi = dr.select(load, wi + 1, wi)
+            has = act & (cur != 0)
+            k = (wi - 1) * 32 + dr.tzcnt(cur)
+            wk = dr.select(has, self._importance(p, n, k, has), 0.0)
+            acc += wk
+            # select=True: the first light past target_acc (found ends the loop); else the target's importance
+            hit = has & (wk > 0.0) & (acc > target_acc) & sel
+            chosen = dr.select(hit, k, chosen)
+            w = dr.select(hit | (~sel & has & (k == target)), wk, w)
+            found |= hit
+            last_k = dr.select(has & (wk > 0.0), k, last_k)
+            last_w = dr.select(has & (wk > 0.0), wk, last_w)
+            cur = dr.select(has, cur & (cur - 1), cur)
+        chosen = dr.select(found, chosen, last_k)
+        w_sel = dr.select(found, w, last_w)
+        return (chosen, w_sel) if select else (acc, w)
 
     # -- host build ----------------------------------------------------------------------------
     def _n_leaves(self):
@@ -351,6 +496,12 @@ class VLCSelector:
         if self._lh is not None and self._lights_changed:    # the explorer's hierarchy follows moving lights
             self._lh.tris = self.tris
             self._lh.build()
+        if self._device_possible() != self.device or (self.device and self._n_leaves() != self._dev_n):
+            self._dev_setup()         # the octree came with the context, or changed its pool
+        if self.device:
+            self._construct_device()
+            self.preprocess_ms = 1e3 * (time.perf_counter() - t0)    # launch time (not synchronised)
+            return
         Nc = self._n_leaves()
         oc = self.octree
         if not self._records or not self.L:
@@ -423,13 +574,41 @@ class VLCSelector:
                      "records": n_rec, "visible": int(ok.sum()), "leaves_with_vlc": int(nonempty.size)}
         self.preprocess_ms = 1e3 * (time.perf_counter() - t0)
 
+    def _host_bits(self, leaf: int) -> np.ndarray:
+        W = self._W
+        words = _to_host(self._bits)[leaf * W:(leaf + 1) * W].astype(np.uint64)
+        bits = ((words[:, None] >> np.arange(32, dtype=np.uint64)) & 1).astype(bool).ravel()
+        return np.nonzero(bits)[0].astype(np.int64)
+
+    def host_caches(self) -> np.ndarray:
+        """(leaves, L) bool: light k is in leaf c's VLC (current tree; tests; one read-back on the device path)."""
+        Nc = self._n_leaves()
+        if self.device:
+            words = _to_host(self._bits)[:Nc * self._W].reshape(Nc, self._W).astype(np.uint64)
+            bits = ((words[:, :, None] >> np.arange(32, dtype=np.uint64)) & 1).astype(bool)
+            return bits.reshape(Nc, -1)[:, :self.L]
+        out = np.zeros((Nc, self.L), bool)
+        c_leaf, c_light = self._host_sets
+        out[c_leaf, c_light] = True
+        return out
+
+    def host_bucket_counts(self) -> np.ndarray:
+        """(leaves,) bucket count B per leaf (tests)."""
+        return _to_host(self.leaf_bcnt)[:self._n_leaves()].astype(np.int64)
+
     def host_cache(self, leaf: int) -> np.ndarray:
-        """Light ids in ``leaf``'s VLC (current tree), sorted (for tests)."""
+        """Light ids in ``leaf``'s VLC (current tree), sorted (for tests; reads back on the device path)."""
+        if self.device:
+            return self._host_bits(int(leaf))
         c_leaf, c_light = self._host_sets
         return np.sort(c_light[c_leaf == leaf])
 
     def host_buckets(self, leaf: int) -> list:
         """[array of light ids] per bucket of ``leaf`` (for tests)."""
+        if self.device:
+            lt = self._host_bits(int(leaf))
+            B = int(_to_host(self.leaf_bcnt)[int(leaf)])
+            return [lt[lt % B == b] for b in range(B)]
         boff = np.asarray(self.leaf_boff.numpy(), np.int64)
         bcnt = np.asarray(self.leaf_bcnt.numpy(), np.int64)
         bs, bl = np.asarray(self.b_start.numpy(), np.int64), np.asarray(self.b_len.numpy(), np.int64)
@@ -521,10 +700,15 @@ class VLCSelector:
         b_v = dr.minimum(mi.UInt32(uv * Bf), dr.maximum(B, 1) - 1)
         u_l = uv * Bf - mi.Float(b_v)
         bidx = dr.select(explore, k_e % dr.maximum(B, 1), b_v)
-        start, length = self._bucket(leaf, bidx, has)
-        length = dr.select(has, length, 0)
-        acc, w_e = self._accumulate(p, n, start, length, dr.select(explore, k_e, mi.UInt32(INVALID)), has)
-        k_v, w_v = self._select(p, n, start, length, u_l * acc, has & ~explore & (acc > 0.0))
+        tgt = dr.select(explore, k_e, mi.UInt32(INVALID))
+        if self.device:
+            acc, w_e = self._bucket_walk(p, n, leaf, bidx, B, tgt, 0.0, has, False)
+            k_v, w_v = self._bucket_walk(p, n, leaf, bidx, B, tgt, u_l * acc, has & ~explore & (acc > 0.0), True)
+        else:
+            start, length = self._bucket(leaf, bidx, has)
+            length = dr.select(has, length, 0)
+            acc, w_e = self._accumulate(p, n, start, length, tgt, has)
+            k_v, w_v = self._select(p, n, start, length, u_l * acc, has & ~explore & (acc > 0.0))
         k = dr.select(explore, k_e, k_v)
         w = dr.select(explore, w_e, w_v)
         if self._lh is not None:
@@ -545,9 +729,12 @@ class VLCSelector:
         B = dr.gather(mi.UInt32, self.leaf_bcnt, leaf, active)
         has = active & (B > 0)
         frac = dr.select(has, self.fraction, 1.0)
-        start, length = self._bucket(leaf, light_id % dr.maximum(B, 1), has)
-        length = dr.select(has, length, 0)
-        acc, w = self._accumulate(p, n, start, length, light_id, has)
+        if self.device:
+            acc, w = self._bucket_walk(p, n, leaf, light_id % dr.maximum(B, 1), B, light_id, 0.0, has, False)
+        else:
+            start, length = self._bucket(leaf, light_id % dr.maximum(B, 1), has)
+            length = dr.select(has, length, 0)
+            acc, w = self._accumulate(p, n, start, length, light_id, has)
         if self._lh is not None:
             pe = self._lh.pmf(p, n, light_id, active)
         else:
@@ -561,18 +748,44 @@ class VLCSelector:
         leaf = self._leaf(p, None, active) if leaf is None else mi.UInt32(leaf)
         leaf = dr.select(active, leaf, mi.UInt32(INVALID))
         vis = mi.Bool(visible) & active
+        if self.device:
+            # (b) dedup by construction: one bit per (placing leaf, light); a side effect of the frame's kernel
+            k = mi.UInt32(light_id)
+            ok = vis & (leaf != INVALID) & (leaf < self._N) & (k < self.L)
+            dr.scatter_reduce(dr.ReduceOp.Or, self._vis, mi.UInt32(1) << (k & 31), leaf * self._W + (k >> 5), ok,
+                              mode=dr.ReduceMode.Local)
+            z = dr.zeros(mi.UInt32, dr.width(ok))
+            dr.scatter_reduce(dr.ReduceOp.Add, self._rec_cnt, mi.UInt32(1), z, True, mode=dr.ReduceMode.Local)
+            dr.scatter_reduce(dr.ReduceOp.Add, self._rec_cnt, mi.UInt32(1), z + 1, ok, mode=dr.ReduceMode.Local)
+            return
         self._records.append((leaf, mi.UInt32(light_id), vis))
         self._rec_leaves = self._n_leaves()
 
     def pending(self) -> list:
-        """This frame's record arrays (nee-pt evaluates them in the path-tracing kernel)."""
+        """This frame's record arrays (nee-pt evaluates them in the path-tracing kernel; device
+        construction: none, its records are scatters evaluated with that kernel)."""
         return [x for r in self._records for x in r]
 
     def end_frame(self) -> None:
+        if self.device:
+            dr.eval(self._vis, self._rec_cnt)
+            return
         if self._records:
             dr.eval(*[x for r in self._records for x in r])
 
     def stats(self) -> dict:
+        if self.device:
+            st = {"preprocess_ms": self.preprocess_ms, "explore_ms": self.explore_ms, "vlc_adapt": "device"}
+            if self.report_stats and self._dev_stats is not None:
+                tot, ne, mx, bs = (int(_to_host(x)[0]) for x in self._dev_stats[:4])
+                rec = _to_host(self._dev_stats[4])
+                st.update(lights_in_cache=tot / ne if ne else 0.0, lights_in_cache_max=mx,
+                          buckets_mean=bs / ne if ne else 0.0, leaves_with_vlc=ne, records=int(rec[0]),
+                          visible_records=int(rec[1]))
+            else:
+                st.update(lights_in_cache=None, lights_in_cache_max=None, buckets_mean=None, leaves_with_vlc=None,
+                          records=None, visible_records=None)
+            return st
         return {"preprocess_ms": self.preprocess_ms, "explore_ms": self.explore_ms,
                 "lights_in_cache": self.last.get("lights_mean", 0.0),
                 "lights_in_cache_max": self.last.get("lights_max", 0),
