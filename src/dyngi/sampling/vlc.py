@@ -14,8 +14,9 @@ Frame protocol (driven by ``nee-pt``)
 2. ``octree.adapt()`` at the end of the frame (nee-pt): the tree the records were
    keyed in becomes the previous tree; ``octree.prev_leaf`` maps every new leaf
    to its previous leaf (Sec. 6.2 populate).
-3. ``begin_frame`` (construction, Sec. 4.1/4.2, Fig. 2 b-d) -- a documented host
-   (NumPy) pass whose time is reported as ``preprocess_ms``:
+3. ``begin_frame`` (construction, Sec. 4.1/4.2, Fig. 2 b-d) -- on the device by default (see "Device
+   construction" below); the host (NumPy) pass, the CPU fast path, whose time is reported as
+   ``preprocess_ms``:
 
    * (b) deduplication: visible records only, one entry per (leaf, light): an
      exact dedup over the key ``leaf * L + light`` by a direct-address table
@@ -42,6 +43,22 @@ Frame protocol (driven by ``nee-pt``)
    at the point yields no light (``INVALID``, pmf 0): unbiased, since such lights
    send nothing to a diffuse receiver there; the pmf over the lights then sums to
    ``1 - (1 - fraction) * (#such buckets) / B`` (tested exactly in tests/sampling/test_vlc.py).
+
+Device construction (``adapt="device"``, the default where the octree keeps its topology on the device,
+:mod:`dyngi.sampling.octree`): the caches never leave the device. A cache is a bit set per octree slot
+(``ceil(L / 32)`` words; bit k = light k). ``record`` ORs the bit of each visible record into the set of
+its placing leaf (a ``dr.scatter_reduce`` that runs inside the frame's path-tracing kernel; (b)'s
+deduplication is implied by the bit set). ``begin_frame`` then runs, as Dr.Jit kernels over all
+slots: populate + (c) merge (per slot and word, the OR of the words of ``prev_leaf`` and of the
+previous leaves of its six neighbours), and (d) the bucket count: per slot the 32 counters of
+``id mod 32`` (popcounts over the words), merged pairwise down to B = 1 (the paper's bottom-up merge of
+a modulo table) and the smallest power of two B whose fullest bucket fits the capacity, with the same
+hysteresis. Bucket ``b`` of a slot is then the lights whose bit is set and ``id mod B == b``, walked in
+increasing id by both traversals of Algorithm 1 (``_bucket_walk``: a loop over the words and, in each,
+over the set bits under a precomputed residue mask), which is the order of the host tables, so the two
+paths give the same pmfs and bit-identical images. It needs ``L <= 1024`` (B <= 32 then always fits
+a capacity >= L / 32) and ``memory = 1``; otherwise the host pass below is used (``adapt`` reports
+which). ``stats()`` reads a few device counters back (``report_stats``, inspection only).
 
 Importance ``w_k``: the unoccluded irradiance (luminance) of triangle k at the
 shading point, analytic for a diffuse receiver
