@@ -29,6 +29,12 @@ indirect : bool = True  also return ``FrameResult.indirect``: the same paths
                         unclamped; costs < 1% (measured, cornell-static 160x120)
 lights : str = 'scene'  NEE light sampler (``dyngi techniques`` lists the registered ones)
 directions : str = 'bsdf'  indirect directions: the BSDF, or 'cdq' (:class:`dyngi.directions.walk.WalkDirections`)
+freeze : bool = True    replay the trace of a static frame with ``dr.freeze`` (Dr.Jit's frozen functions: the
+                        kernels recorded once, no Python tracing per frame; bit-identical, ``tests/techniques/
+                        test_path.py``); only with ``lights=scene``, ``directions=bsdf`` and no budget (our
+                        choice: learning samplers change their state between frames). The recording is keyed
+                        by the camera (a PyTree of its parameters), resolution, spp and a motion epoch that
+                        advances on every non-static frame; at most two recordings are kept
 
 Budgets: with ``Frame.ray_budget`` the frame's spp is the budget divided by
 the rays per sample measured on the previous frame; with
@@ -80,6 +86,7 @@ class PathTechnique(Technique):
         "directions": Param("bsdf", "indirect directions (dyngi.directions): the BSDF's own sampling, or 'cdq' "
                             "(CDQ/BSDF one-sample MIS mixture, learned per octree leaf)",
                             choices=direction_samplers.names()),
+        "freeze": Param(True, "replay static frames' trace with dr.freeze (lights=scene, directions=bsdf, no budget)"),
     }
 
     def __init__(self, scene, params=None):
@@ -92,6 +99,16 @@ class PathTechnique(Technique):
         self.accum = ProgressiveMean()   # running mean, and its indirect part (with the 'indirect' parameter)
         self._rays_per_sample = None   # measured on the previous frame
         self._ms_per_sample = None
+        self._epoch = 0                # advances on every non-static frame (a key of the frozen trace)
+        self._frozen = dr.freeze(self._trace_frozen, limit=2)
+
+    def _trace_frozen(self, mi_scene, seed, camera, res, spp, epoch):
+        """The trace of one frame as a frozen function's body (``mi_scene``: an input, so that its variables
+        are traversed; ``seed``: a mixed ``mi.UInt32``; ``camera`` and the Python arguments key the
+        recording)."""
+        p = self.params
+        return render_paths_split(mi_scene, camera, res, spp, seed, 0, p["max_depth"], p["rr_depth"], None,
+                                  p["mis"] == "power", p["indirect"], None)
 
     def frame_spp(self, frame: Frame) -> int:
         """spp for this frame: the parameter, or what fits the frame's ray/time budget."""
@@ -132,7 +149,15 @@ class PathTechnique(Technique):
             self._ms_per_sample = t.ms["pilot"]
             spp = self.frame_spp(frame) - 1
         with t.stage("trace"):
-            if spp > 0:
+            if not frame.static:
+                self._epoch += 1
+            frozen = (p["freeze"] and frame.static and pilot is None and p["lights"] == "scene"
+                      and self.directions is None and frame.ray_budget is None and frame.time_budget_ms is None)
+            if spp > 0 and frozen:
+                seed = dr.opaque(mi.UInt32, mix_seed(frame.seed, frame.index, 0))
+                L, L_ind, rays = self._frozen(self.scene.mi_scene, seed, frame.camera, tuple(frame.res), spp,
+                                                self._epoch)
+            elif spp > 0:
                 L, L_ind, rays = render_paths_split(self.scene, frame.camera, frame.res, spp, frame.seed,
                                                     frame.index, p["max_depth"], p["rr_depth"], self.lights,
                                                     p["mis"] == "power", split, self.directions)

@@ -322,11 +322,16 @@ def render_paths_split(scene, camera, res, spp: int, seed: int, frame_index: int
                        rr_depth: int, lights=None, power_heuristic=True, split: bool = True, directions=None):
     """Render ``spp`` paths per pixel; return (mean colour, mean indirect colour, total rays as a UInt32 sum).
 
-    The indirect image comes from the same paths (:func:`trace_paths_split`); without ``split`` it is
-    0 and costs nothing. ``scene``: a dyngi Scene or a Mitsuba scene."""
+    ``seed``: a Python int mixed with ``frame_index`` (:func:`~dyngi.sampling.rng.make_sampler`), or a
+    ``mi.UInt32`` seed already mixed (then ``frame_index`` is not read). The indirect image comes from the
+    same paths (:func:`trace_paths_split`); without ``split`` it is 0 and costs nothing. ``scene``: a dyngi Scene or a Mitsuba scene."""
     w, h = res
     n = w * h * spp
-    sampler = make_sampler(n, seed, frame_index)
+    if isinstance(seed, mi.UInt32):     # an already mixed Dr.Jit seed (a frozen frame's input)
+        sampler = mi.load_dict({"type": "independent"})
+        sampler.seed(seed, n)
+    else:
+        sampler = make_sampler(n, seed, frame_index)
     idx = dr.arange(mi.UInt32, n)
     pix = idx // dr.opaque(mi.UInt32, spp) if spp > 1 else idx
     ray = camera.sample_rays(res, pix, sampler.next_2d())
