@@ -192,3 +192,27 @@ def test_steady_frames_with_samplers_compile_nothing(backend, spec):
         tech.step(Frame(f, 0.0, sc.camera(0.0), (32, 24), seed=7 + f))
 
     assert_steady_state_compiles_nothing(step, 7, 4, nonempty=True)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the ~7000-op trace kernel is recompiled (~1.5 s) every frame a light "
+                   "moves: its IR differs only in the alignment of loads from inputs (align 1 vs 4), i.e. arrays "
+                   "of the rebuilt hierarchy / emitter table uploaded from NumPy with varying alignment; the "
+                   "upload (sampling/lighttree.py, sampling/emitter_triangles.py) should copy into Dr.Jit-owned "
+                   "memory (issue 24)")
+def test_moving_light_frames_with_lighttree_compile_nothing(backend):
+    """A light hierarchy rebuilt every frame a light moves stays a kernel input: on cornell-moving-light (two
+    emitter triangles: size-1 tree arrays, which Dr.Jit would otherwise bake in as literals) no frame after
+    the warm-up compiles a new kernel."""
+    from helpers import assert_steady_state_compiles_nothing
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+    sc = load_scene("cornell-moving-light")
+    tech = create_technique("path:lights=lighttree:max_depth=3", sc)
+
+    def step(f):
+        t = f / 30.0
+        sc.at(t)
+        tech.step(Frame(f, t, sc.camera(t), (32, 24), seed=7 + f, static=False))
+
+    assert_steady_state_compiles_nothing(step, 7, 3, nonempty=True)
