@@ -196,10 +196,9 @@ def test_steady_frames_with_samplers_compile_nothing(backend, spec):
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="the ~7000-op trace kernel is recompiled (~1.5 s) every frame a light "
-                   "moves: its IR differs only in the alignment of loads from inputs (align 1 vs 4), i.e. arrays "
-                   "of the rebuilt hierarchy / emitter table uploaded from NumPy with varying alignment; the "
-                   "upload (sampling/lighttree.py, sampling/emitter_triangles.py) should copy into Dr.Jit-owned "
-                   "memory (issue 24)")
+                   "moves: its IR differs only in the alignment of some 32-bit input loads (align 1 vs 4); not "
+                   "the hierarchy's own arrays (re-allocated in Dr.Jit memory after each build: unchanged), and "
+                   "lights=power on the same scene compiles nothing; which input, to find (issue 24)")
 def test_moving_light_frames_with_lighttree_compile_nothing(backend):
     """A light hierarchy rebuilt every frame a light moves stays a kernel input: on cornell-moving-light (two
     emitter triangles: size-1 tree arrays, which Dr.Jit would otherwise bake in as literals) no frame after
