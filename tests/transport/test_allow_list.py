@@ -23,7 +23,6 @@ ALLOWED = {
     "sampling/passthrough.py": "thin-glass transmittance of shadow rays",
     # glossy-lobe-only sampling for the DDGI family's glossy probe lookups (Eq. 6), not a path walk
     "probes/glossy.py": "sample_glossy: one glossy-lobe sample (DDGI+ Eq. 6, ddgi-primary's recursion)",
-    "probes/primary.py": "one rough-glossy sample for the primary glossy probe lookup",
 }
 
 
