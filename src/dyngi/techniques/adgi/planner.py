@@ -9,11 +9,16 @@
   (0 elsewhere), ``g`` the luminance of the previous frame's cached irradiance at mip ``guide_mip``
   (:meth:`ADGIChainPlanner.guide_feedback`; Sec. 4.8 "from the previous frame and from a higher
   mip-level", the level is ours). Samples in entries with ``f_d > 0`` are snapped to the centre of
-  their irradiance texel (Sec. 4.9). Under a ray budget only the first ``n_run`` chains run.
+  their irradiance texel (Sec. 4.9). A state repeated by rejected moves is traced once with its
+  multiplicity as the plan's weight (:func:`multiplicity`). Under a ray budget ``n_run`` chains run,
+  starting where the last frame's stopped (the chains rotate, so a budget spreads over all of them),
+  and a device prefix sum caps the traced samples at what the budget pays for (ours).
 * ``stage='dynamic'`` -- ``dynamic_chains`` chains over 3x3x3 virtual proxies with 8 octant directions,
   target the max of ``f_d`` over the proxy's 27 probes; every proxy octant a chain visits traces, for
   each of its probes in ``V_in``, the centres of an equal-area ``k x k`` stratification of the octant
-  (ours: the paper's texel centres repeat directions in an 8x8 map).
+  (ours: the paper's texel centres repeat directions in an 8x8 map). Under a budget the octants with
+  the highest table value go first (:func:`budget_keep`: a counting sort by f_d's 10-bit level with
+  prefix sums, on the device).
 
 The hints: ``vin`` (per probe, 1 in V_in), ``fs`` / ``fd`` (per probe octant, from the 6-10-10 word),
 ``rays`` (the stage's ray allowance or None) and ``shadow_rate`` (measured NEE shadow rays per probe
@@ -32,6 +37,7 @@ from ...sampling.octahedral import direction_to_texel_coords, texel_directions
 from .heuristics import OCTANTS, octant_of, octant_signs, static_guide
 
 PROXY = 3                 # 3x3x3 probes per virtual proxy (Sec. 4.9)
+GUIDE_LEVELS = 1024       # f_d's levels in the 6-10-10 word (Sec. 4.3): the budget's sort keys
 STAGES = ("static", "dynamic")
 
 
@@ -53,6 +59,58 @@ def negated(plan: RayPlan) -> RayPlan:
     """The same plan along ``-w`` (the shadow rays of Sec. 4.8)."""
     return RayPlan(plan.probe, -plan.direction, plan.rays_per_probe, None, plan.probe_ids, plan.offsets,
                    plan.slot, plan.weight)
+
+
+def multiplicity(accepted, n_chains: int, samples_per_chain: int):
+    """Per sample lane (``j * n + c``: chain ``c`` after its ``j``-th kept iteration, :class:`ChainSamples
+    <dyngi.sampling.metropolis.ChainSamples>`), how many of this frame's samples are the same state:
+    a *head* (the chain's first kept sample, or an accepted move) gets ``1 +`` the number of rejected
+    moves that follow it in its chain, every other lane 0. A rejected Metropolis move repeats the
+    previous state (Algorithm 5); tracing it once with weight ``m`` equals ``m`` samples of one ray
+    (our choice: the paper traces every sample). One kernel: ``samples_per_chain - 1`` gathers per lane."""
+    S = int(samples_per_chain)
+    n = dr.opaque(mi.UInt32, int(n_chains))
+    lane = dr.arange(mi.UInt32, int(n_chains) * S)
+    j = lane // n
+    head = accepted | (j == 0)
+    run = mi.Bool(head)
+    mult = mi.UInt32(head)
+    for d in range(1, S):
+        nxt = j + d
+        inside = nxt < S
+        run &= inside & ~dr.gather(mi.Bool, accepted, lane + d * n, inside & run)
+        mult += mi.UInt32(run)
+    return dr.select(head, mult, 0)
+
+
+def guide_level(values, levels: int):
+    """``values`` (>= 0) as integer keys in ``[0, levels)``: ``round(v / max v * (levels - 1))``, the max
+    a device reduction (no host read). With ``levels`` = 1024 this recovers f_d's 10-bit level of the
+    6-10-10 word (Sec. 4.3) exactly."""
+    top = dr.max(values)
+    rel = dr.select(top > 0.0, values / dr.maximum(top, 1e-30), 0.0)
+    return mi.UInt32(dr.round(dr.clip(rel, 0.0, 1.0) * (int(levels) - 1)))
+
+
+def budget_keep(key, cost, budget, levels: int):
+    """Which items to keep so that the sum of their ``cost`` stays within ``budget``, highest ``key`` first
+    (ties in index order): a device counting sort by key with prefix sums (no host read, no sort).
+
+    ``key``: UInt32 in ``[0, levels)`` per item (higher: first); ``cost``: UInt32 per item; ``budget``:
+    UInt32 (opaque: a per-frame value). Whole key levels are kept while their total cost fits; of the
+    first level that does not fit, the items in index order while the budget lasts (an exclusive prefix
+    sum over the items of that level). Returns a Bool per item."""
+    L = int(levels)
+    rank = mi.UInt32(L - 1) - key                                  # 0: the highest key
+    hist = dr.zeros(mi.UInt32, L)
+    dr.scatter_reduce(dr.ReduceOp.Add, hist, cost, rank)
+    before = dr.prefix_sum(hist)                   # cost of all higher levels
+    lo = dr.gather(mi.UInt32, before, rank)
+    hi = lo + dr.gather(mi.UInt32, hist, rank)
+    whole = hi <= budget
+    boundary = (lo <= budget) & ~whole
+    pre = dr.prefix_sum(dr.select(boundary, cost, 0))
+    return whole | (boundary & (lo + pre + cost <= budget))
 
 
 class ADGIChainPlanner:
@@ -83,6 +141,8 @@ class ADGIChainPlanner:
         self._strata = self._octant_strata(int(round(np.sqrt(p["dynamic_rays"]))))
         self.n_run = self.static_state.n
         self.last_samples = 0
+        self._first = 0              # the first static chain to run under a budget (rotates, ours)
+        self._unique = 1.0           # traced / kept samples of the last budgeted static frame (measured)
 
     def plan(self, frame: int, seed: int, probe_ids=None, previous=None, stage: str = "static", vin=None,
              fs=None, fd=None, rays=None, shadow_rate: float = 1.0) -> RayPlan | None:
@@ -112,8 +172,10 @@ class ADGIChainPlanner:
         n = self.static_state.n
         if rays is None:
             return n
-        per_chain = self.static.samples_per_chain * (2.0 + shadow_rate)
-        return int(min(max(rays // per_chain, 1), n))
+        # 15% more chains than the last frame's share of unique samples pays for (ours): the device cap on
+        # the traced samples keeps the budget, so the margin only fills it when the share moves
+        per_chain = self.static.samples_per_chain * self._unique * (2.0 + shadow_rate)
+        return int(min(max(1.15 * rays // per_chain, 1), n))
 
     def _probe_of(self, x, counts):
         """Lattice point (probe or proxy index) nearest to continuous grid coordinates ``x``."""
@@ -191,11 +253,13 @@ class ADGIChainPlanner:
 
         n_run = self.n_run = self._chains_to_run(rays, shadow_rate)
         st = self.static_state
-        if rays is not None:     # a budget runs the first n_run chains; the others keep their
-            # states (this path even when n_run is all of them: one set of kernels whatever the budget)
-            # + an opaque 0: Dr.Jit turns a gather of all lanes by a plain arange into the source itself, which
-            # would make the n_run == n frames launch other kernels than the others
-            lane = dr.arange(mi.UInt32, n_run) + dr.opaque(mi.UInt32, 0)
+        n_all = st.n
+        if rays is not None:     # a budget runs n_run chains from a rotating first one (ours: each frame
+            # starts where the last stopped, so a budget spreads over all chains); the others keep their
+            # states. This path even when n_run is all of them: one set of kernels whatever the budget
+            # (the offset and the modulus are opaque)
+            lane = (dr.arange(mi.UInt32, n_run) + dr.opaque(mi.UInt32, self._first)) % dr.opaque(mi.UInt32, n_all)
+            self._first = (self._first + n_run) % n_all
             sub = ChainState(dr.gather(mi.Vector3f, st.position, lane), dr.gather(mi.Vector3f, st.direction, lane))
             sub, s = self.static.run(sub, target, seed, frame)
             pos, dirs = mi.Vector3f(st.position), mi.Vector3f(st.direction)
@@ -205,25 +269,37 @@ class ADGIChainPlanner:
             self.static_state = ChainState(pos, dirs)
         else:
             self.static_state, s = self.static.run(st, target, seed, frame)
-        ok = s.value > 0.0
-        n = self.last_samples = int(dr.count(ok)[0])
+        # a repeated state (rejected move) is traced once, weighted by its multiplicity
+        mult = multiplicity(s.accepted, n_run, self.static.samples_per_chain)
+        ok = (s.value > 0.0) & (mult > 0)
+        if rays is not None:     # never more samples than the budget pays for (lane order: early iterations first)
+            cap = int(max(rays // (2.0 + shadow_rate), 0))
+            ok &= dr.prefix_sum(mi.UInt32(ok)) < dr.opaque(mi.UInt32, cap)
+        n_dr, kept_dr = dr.count(ok), dr.count(s.value > 0.0)
+        dr.eval(n_dr, kept_dr)
+        n = self.last_samples = int(n_dr[0])
+        kept = int(kept_dr[0])
+        if kept and (rays is None or n < cap):       # the traced share of the samples, for the next budget
+            self._unique = min(max(n / kept, 0.05), 1.0)
         if n == 0:
             return None
         idx = dr.compress(ok)
         x = dr.gather(mi.Vector3f, s.position, idx)
         w = dr.gather(mi.Vector3f, s.direction, idx)
-        h = dr.gather(mi.Float, s.value, idx)
+        m = mi.Float(dr.gather(mi.UInt32, mult, idx))
         probe = self._probe_of(x, self.counts)
         # samples in entries with f_d > 0 go through their irradiance texel's centre (Sec. 4.9)
         snap = dr.gather(mi.Float, fd, probe * OCTANTS + octant_of(w)) > 0.0
         ti, _ = self._texel_of(w)
         w = dr.select(snap, dr.gather(mi.Vector3f, self._texel_dirs, ti), w)
-        dr.eval(probe, w, h)
-        return sorted_plan(probe, w, None, vol.n_probes)
+        dr.eval(probe, w, m)
+        return sorted_plan(probe, w, m, vol.n_probes)
 
     def _dynamic_plan(self, frame: int, seed: int, vin_dr, fd, rays, shadow_rate: float):
         """D (Sec. 4.9): run the dynamic chains on the proxy table; every proxy octant they visit traces
-        ``dynamic_rays`` strata per probe of it in V_in (under a budget: whole octants while ``rays`` last)."""
+        ``dynamic_rays`` strata per probe of it in V_in. Under a budget: whole octants, those with the highest
+        proxy-table value (the guide) first, while ``rays`` last (:func:`budget_keep`, on the device; ours:
+        the paper's chains visit proxies in proportion to the guide, a budget cut keeps the largest)."""
         vol = self.volume
         nx, ny, nz = self.counts
         px, py, pz = self.proxies
@@ -275,13 +351,14 @@ class ADGIChainPlanner:
         ok = inside & (dr.gather(mi.Float, vin_dr, probe, inside) > 0.0)
         d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(oo)
         dr.eval(probe, d, ok)
-        if rays is not None:    # budget: whole proxy octants, in order, while rays remain
+        if rays is not None:    # budget: whole proxy octants, the highest guide value first
             # lanes of one proxy octant are contiguous: a block sum, not a scatter into n_marked slots
             # (on LLVM that bakes n_marked into the kernel, a new kernel whenever it changes)
             per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27 * R)
-            cost = np.cumsum(np.asarray(per, np.float64) * (2.0 + shadow_rate))
-            n_keep = int(np.searchsorted(cost, rays, side="right"))
-            ok &= m < dr.opaque(mi.UInt32, n_keep)
+            key = guide_level(dr.gather(mi.Float, table, marked), GUIDE_LEVELS)
+            budget = dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
+            keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
+            ok &= dr.gather(mi.Bool, keep_m, m)
             dr.eval(ok)
         if int(dr.count(ok)[0]) == 0:
             return None

@@ -73,8 +73,10 @@ class RadianceCache:
         entry = plan.slot * self.n_tex + self.texel_of(plan.direction)
         L = results.radiance
         front = results.distance >= 0.0        # back faces: no radiance sample (as the estimator)
-        sums, _, cnt = fixed_point_sum([L.x, L.y, L.z], mi.Float(1.0) + dr.zeros(mi.Float, plan.n_rays), entry,
-                                       n, front)
+        wt = mi.Float(1.0) if plan.weight is None else plan.weight      # the plan's weight: a multiplicity
+        sums, sw, cnt = fixed_point_sum([L.x, L.y, L.z], wt + dr.zeros(mi.Float, plan.n_rays), entry, n, front)
+        if plan.weight is not None:      # a sample of multiplicity m counts as m samples (Algorithm 3)
+            cnt = mi.UInt32(dr.round(mi.Float(sw)))
         k = dr.arange(mi.UInt32, n)
         slot = k // self.n_tex
         t = k - slot * self.n_tex

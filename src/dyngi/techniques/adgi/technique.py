@@ -58,9 +58,12 @@ Budgets (``dyngi compare --budget equal-rays``; ours): after the primary and
 pilot rays, half of what remains is reserved for the dynamic stage when it
 is on and some octant has f_d > 0 this frame (else the static stage gets it
 all: a static scene wastes none of its budget); the static stage runs only
-its first ``n`` chains, ``n`` = its share / ((M - K) x (2 + measured NEE
-shadow rays per probe ray)); the dynamic stage
-traces whole proxy octants in order while the remainder lasts. Rays are
+``n`` chains, ``n`` = its share / ((M - K) x the last frame's share of unique samples x (2 + measured
+NEE shadow rays per probe ray)) + 15%, starting where the last frame's stopped (the chains rotate), and
+a device prefix sum caps the traced samples at the share; a state repeated by rejected moves is traced
+once with its multiplicity (the plan's weight: the radiance and distance texels count it ``m`` times);
+the dynamic stage traces whole proxy octants, the highest guide value first (a device counting sort
+by f_d's 10-bit level, :func:`.planner.budget_keep`), while the remainder lasts. Rays are
 counted exactly (probe rays, their NEE shadow rays, the ``-w`` rays).
 Equal time (``Frame.time_budget_ms``): the budget minus the last frame's time
 outside S and D, turned into rays of S and D by each stage's measured ms per
@@ -104,6 +107,8 @@ Bias: the moving average lags dynamic changes (Sec. 3.5); texels no chain
 visits keep old values; quantised irradiance storage rounds low.
 """
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 
@@ -407,6 +412,8 @@ class ADGITechnique(_ProbeTechniqueBase):
         plan = irr_res.plan
         self.radiance.merge(irr_res, n_max)
         est_d = self.est_dist.distance(vol, dist_res if dist_res is not None else irr_res)
+        if plan.weight is not None:      # the static plan's weight is a multiplicity: m samples of one ray
+            est_d = dataclasses.replace(est_d, count=mi.UInt32(dr.round(est_d.weight)))
         self.pipeline.merge(None, est_d, plan.probe_ids, plan.counts, accumulator=acc, encoding=self.encoding)
         self._updated[plan.probe_ids[plan.counts > 0]] = True
 
