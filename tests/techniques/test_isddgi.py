@@ -53,6 +53,47 @@ def test_allocation_pdf_sums_to_one_and_sampling_matches_it():
     assert not chi2_uniform(counts.reshape(P, 16, 16).sum(2), bad.reshape(P, 16, 16).sum(2) * n)[0]
 
 
+def test_device_planner_draws_the_allocation_and_caps_each_set(backend):
+    """The device path (:mod:`dyngi.techniques.isddgi.device`): the Dr.Jit pdf equals the supplement's
+    allocation (NumPy twin), 400k prefix-sum + binary-search draws match it (chi^2, 16 cells per
+    probe and every (probe, set) pair; a 5% wrong pdf is rejected), a zero-F probe gets no draw; and the
+    atomic per-set cap keeps exactly ``min(limit, uniform + draws)`` rays per set, never more than the
+    limit (4, Multi-Rays; 1, One-Ray)."""
+    from dyngi.backend import mi
+    from dyngi.techniques.isddgi.device import allocation_pdf_dr, cap_per_set_dr, sample_pairs_dr
+    rng = np.random.default_rng(3)
+    P = 6
+    f = (rng.random((P, N_SETS)) ** 4).astype(np.float32)
+    f[2] = 0.0
+    F = np.array([1.0, 0.5, 0.2, 0.0, 2.0, 0.1], np.float32)
+    pdf = allocation_pdf(F, f, eps=0.1)
+    pd = allocation_pdf_dr(mi.Float(F), mi.Float(f.ravel()), 0.1)
+    assert np.allclose(np.asarray(pd), pdf.ravel(), rtol=1e-5, atol=1e-9)
+    n = 400_000
+    idx = sample_pairs_dr(pd, n, seed=7)
+    counts = np.bincount(np.asarray(idx), minlength=P * N_SETS).reshape(P, N_SETS)
+    assert counts.sum() == n and counts[3].sum() == 0
+    ok, p = chi2_uniform(counts.reshape(P, 16, 16).sum(2), pdf.reshape(P, 16, 16).sum(2) * n)
+    assert ok, p
+    ok, p = chi2_uniform(counts, pdf * n)
+    assert ok, p
+    bad = pdf.copy()
+    bad[0] *= 1.05
+    bad /= bad.sum()
+    assert not chi2_uniform(counts.reshape(P, 16, 16).sum(2), bad.reshape(P, 16, 16).sum(2) * n)[0]
+    # per-set cap: uniform rays on every third pair, 20k draws concentrated on few sets
+    ukeys = np.arange(0, P * N_SETS, 3)
+    draws = np.asarray(sample_pairs_dr(mi.Float((pdf.ravel() ** 3).astype(np.float32)), 20_000, seed=1))
+    for limit in (RAYS_LIMIT, 1):
+        keep, cnt = cap_per_set_dr(P * N_SETS, mi.UInt32(ukeys.astype(np.uint32)), mi.UInt32(draws), limit)
+        keep, cnt = np.asarray(keep), np.asarray(cnt)
+        want = np.bincount(ukeys, minlength=P * N_SETS) + np.bincount(draws, minlength=P * N_SETS)
+        assert cnt.max() <= limit and np.array_equal(cnt, np.minimum(want, limit))
+        kept = np.bincount(draws[keep], minlength=P * N_SETS) + np.bincount(ukeys, minlength=P * N_SETS)
+        assert np.array_equal(kept, cnt)
+        assert keep.sum() < len(draws)                     # the cap did drop draws (the test has power)
+
+
 def test_allocation_is_zero_without_change():
     pdf = allocation_pdf(np.zeros(4), np.zeros((4, N_SETS)), 0.1)
     assert pdf.sum() == 0

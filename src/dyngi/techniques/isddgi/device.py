@@ -1,0 +1,96 @@
+"""IS-DDGI's importance draws and per-set caps as Dr.Jit kernels (Liu et al., I3D 2023, supplement
+Secs. 4.3-4.4 and Table 1's Multi-Rays / One-Ray limits; issue 26).
+
+The device twins of :func:`~.sets.allocation_pdf`, :func:`~.sets.sample_indices` and the cap of
+:func:`~.sets.merge_keys`, on device arrays only (no host round trip inside; the caller reads back what
+it needs):
+
+* :func:`allocation_pdf_dr`: ``p(i, j) = F_i / sum F * p_f(j | i)``, ``p_f(j | i) = (1 - eps) f_ij /
+  sum_j f_ij + eps / 256`` (uniform where a probe has no ``f``) over the *candidates* (probes with
+  ``F_i > 0``: the pdf is 0 elsewhere), one lane per (candidate, set); per-probe sums by ``dr.block_sum``.
+* :func:`sample_pairs_dr`: ``n`` i.i.d. draws by inverse CDF: the inclusive prefix sum of the pdf
+  (``dr.cumsum``) and, per draw, a binary search (``dr.binary_search``) for the first entry whose
+  cumulative sum exceeds ``u * total``; ``u`` from a hash of (draw index, seed) with the seed opaque,
+  so every frame runs the same kernels. A zero-pdf entry is never drawn (its cumulative sum equals its
+  predecessor's). Float32 sums (ours): the relative rounding of the CDF is ~1e-7 x sqrt(entries), far
+  below the chi-squared resolution of the tests.
+* :func:`cap_per_set_dr`: the per-set limit with atomic counters (``dr.scatter_inc``): the uniform rays
+  take their set's first slot, then each importance draw takes the next one; a draw whose slot is at or
+  above the limit (4, Multi-Rays; 1, One-Ray) is dropped. Which of several draws of one set are kept
+  depends on the atomics' order, but the draws are i.i.d., so the kept multiset's distribution does not
+  (ours; the host path keeps the first ones in key order). Returns the kept mask and the per-set counts
+  (``n_ij``, the denominators of the stratified weights ``Omega_j / n_ij``).
+
+The host planner (:class:`~.planner.ISDDGIPlanner`) still builds the frame's plan with the NumPy twins
+(the declared CPU fast path); these kernels are the device path's pieces (see the report of issue 26 for
+what remains to route the default plan through them).
+"""
+from __future__ import annotations
+
+from ...backend import dr, mi
+from .sets import N_SETS, _hash_u32_dr
+
+DRAW_STREAM = 0x15DD66          # hash stream of the device draws' uniform numbers (ours)
+
+
+def allocation_pdf_dr(F, f, eps: float):
+    """(S * 256,) Float allocation pdf of ``S`` candidates from ``F`` (S,) Float and ``f`` (S * 256,)
+    Float (row ``i`` = candidate ``i``'s sets); all zero if ``sum F == 0``."""
+    S = dr.width(F)
+    Fc = dr.maximum(F, 0.0)
+    fc = dr.maximum(f, 0.0)
+    tot = dr.gather(mi.Float, dr.sum(Fc), mi.UInt32(0))
+    sf = dr.block_sum(fc, N_SETS)                          # (S,) per-candidate sum of f
+    k = dr.arange(mi.UInt32, S * N_SETS)
+    slot = k // N_SETS
+    s = dr.gather(mi.Float, sf, slot)
+    base = dr.select(s > 0.0, fc / dr.select(s > 0.0, s, 1.0), 1.0 / N_SETS)
+    e = dr.opaque(mi.Float, eps)
+    cond = (1.0 - e) * base + e * (1.0 / N_SETS)
+    pdf = dr.select(tot > 0.0, dr.gather(mi.Float, Fc, slot) / dr.select(tot > 0.0, tot, 1.0) * cond, 0.0)
+    dr.eval(pdf)
+    return pdf
+
+
+def uniform_numbers_dr(n: int, seed: int):
+    """(n,) Float in [0, 1): 24 bits of a hash of (index, seed); ``seed`` is opaque (no recompiles)."""
+    i = dr.arange(mi.UInt32, n)
+    s = dr.opaque(mi.UInt32, int(seed) & 0xFFFFFFFF)
+    h = _hash_u32_dr(_hash_u32_dr(i ^ s) + s + DRAW_STREAM)
+    return mi.Float(h >> 8) * (1.0 / 16777216.0)
+
+
+def sample_pairs_dr(pdf, n: int, seed: int):
+    """(n,) UInt32 flat indices (``candidate * 256 + j``) of ``n`` i.i.d. draws from ``pdf`` (any
+    non-negative Float, normalised here): prefix sum + binary search. Empty if ``n == 0`` or the pdf is 0."""
+    size = dr.width(pdf)
+    if n <= 0 or size == 0:
+        return mi.UInt32()
+    cdf = dr.cumsum(pdf)                                  # inclusive prefix sum
+    dr.eval(cdf)
+    total = dr.gather(mi.Float, cdf, mi.UInt32(size - 1))
+    u = uniform_numbers_dr(n, seed) * total
+    idx = dr.binary_search(0, size - 1, lambda k: dr.gather(mi.Float, cdf, k) <= u)
+    idx = dr.minimum(idx, size - 1)
+    ok = total > 0.0
+    idx = dr.select(ok, idx, 0)
+    dr.eval(idx)
+    return mi.UInt32(idx)
+
+
+def cap_per_set_dr(n_pairs: int, uniform_keys, draw_keys, limit: int):
+    """Per-set cap with atomic counters over ``n_pairs`` (candidate, set) pairs: returns ``(keep, counts)``,
+    ``keep`` (len(draw_keys),) Bool, the draws kept; ``counts`` (n_pairs,) UInt32, the rays per pair after the
+    cap (uniform + kept draws, at most ``limit``). ``uniform_keys``: at most one uniform ray per pair."""
+    counts = dr.zeros(mi.UInt32, n_pairs)
+    if dr.width(uniform_keys):
+        dr.scatter_inc(counts, mi.UInt32(uniform_keys))
+        dr.eval(counts)
+    if not dr.width(draw_keys):
+        return mi.Bool(), counts
+    slot = dr.scatter_inc(counts, mi.UInt32(draw_keys))
+    keep = slot < dr.opaque(mi.UInt32, int(limit))
+    dr.eval(keep, counts)
+    capped = dr.minimum(counts, dr.opaque(mi.UInt32, int(limit)))
+    dr.eval(capped)
+    return keep, capped
