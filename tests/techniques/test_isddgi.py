@@ -314,6 +314,35 @@ def test_isddgi_static_scene_converges_to_ddgi(backend):
 
 
 @pytest.mark.slow
+def test_isddgi_update_does_less_work_than_ddgi_with_the_same_stages(backend):
+    """Static Cornell box, 4^3 probes, defaults (``ddgi``: 256 rays per probe): both report the pipeline's
+    stages (``trace probes``, ``shade probes``, ``blend``, ``states``: the stage table compares like with
+    like), and on a steady frame isddgi traces fewer probe rays and its estimator does fewer ray x texel
+    products (Algorithm 3: 256 sets per ray, both lobes, vs ddgi's rays x its interior irradiance and
+    distance texels). Counts, not timings. (The merge still touches more texels: 2 x 18^2 per traced probe
+    vs ddgi's 8^2 + 16^2 per active one; issue 26's texel-count item.)"""
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+    scene = load_scene("cornell-moving-box")
+    t = scene.frame_time(0)
+    scene.at(t)
+    stages, rays, products = {}, {}, {}
+    for name in ("isddgi", "ddgi"):
+        tech = create_technique(f"{name}:probe_counts=4:warmup=1", scene)
+        for i in range(2):
+            r = tech.step(Frame(i, t, scene.camera(t), (16, 12), seed=0))
+        stages[name] = set(r.stats["ms"]) - {"primary"}
+        rays[name] = r.stats["rays"]["trace probes"]
+        vol = tech.volume
+        per_ray = (N_SETS if name == "isddgi" else
+                   (vol.irradiance_texels - 2) ** 2 + (vol.distance_texels - 2) ** 2)
+        products[name] = rays[name] * per_ray
+    assert stages["isddgi"] == stages["ddgi"] == {"trace probes", "shade probes", "blend", "states"}, stages
+    assert 0 < rays["isddgi"] < 0.5 * rays["ddgi"], rays
+    assert products["isddgi"] < 0.5 * products["ddgi"], products
+
+
+@pytest.mark.slow
 def test_reproduce_isddgi_quick(tmp_path):
     import json
     import os

@@ -71,6 +71,7 @@ one (docs/benchmarks.md).
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -265,6 +266,7 @@ class ISDDGIPlanner:
         :data:`BUDGET_REDRAWS` times, from the sets with room). Without change anywhere the rest goes to
         uniform rays: probes in a per-frame rotating order double their count while the running total fits,
         and the last few rays are drawn uniformly over all (probe, set) pairs."""
+        t0 = time.perf_counter()
         st = self.state
         pid = np.asarray(probe_ids, np.int64)
         S = len(pid)
@@ -322,6 +324,7 @@ class ISDDGIPlanner:
         plan = RayPlan.ragged(pid.astype(np.uint32), info.total, direction, weight=weight)
         plan.info = info
         plan.shade_key = shade_key
+        info.stats["plan_ms"] = (time.perf_counter() - t0) * 1e3     # the allocation alone (stat; ours)
         return plan
 
     def _omega_dr(self):

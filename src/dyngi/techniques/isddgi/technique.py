@@ -30,11 +30,15 @@ reclassify_interval : int = 8   inactive probes trace their uniform rays every t
 Warm-up (ours, as ``ddgi``'s): ``warmup`` updates on frame 0 with one ray in every set (256 per probe)
 and no hysteresis; afterwards the change measure forgets their samples (the probes they read changed).
 
-Stages: ``plan`` (the allocation: host, sparse -- the rays' (probe, set) keys, no P x 256 tables per
-frame -- with one upload per frame, from which the device computes directions, weights and shading keys;
-the documented CPU fast path: the allocation's pdf, draws and prefix sums stay NumPy), then ``ddgi``'s
-``trace probes``, ``shade probes``, ``blend``, ``states`` (here: relocation, Algorithm 2 and the change
-measure). Stats per frame: ``uniform_rays``, ``importance_rays`` (kept after the per-set limit),
+Stages: ``ddgi``'s (the probe pipeline's), so that a stage table compares like with like: ``trace probes``,
+``shade probes``, ``blend``, ``states``. ``states`` holds relocation, Algorithm 2, the change measure *and
+the allocation* (ours: the plan turns the per-probe allocation state -- Table 1's per-probe bytes -- into
+this frame's rays; ``ddgi``'s rotation of its direction set costs nothing comparable, so there is no
+``plan`` stage that ``ddgi`` would lack); the stat ``plan_ms`` gives the allocation alone. The allocation
+runs on the host, sparse -- the rays' (probe, set) keys, no P x 256 tables per frame -- with one upload
+per frame, from which the device computes directions, weights and shading keys (the documented CPU fast
+path: pdf, draws and prefix sums in NumPy; their Dr.Jit kernels are :mod:`.device`). Stats per frame:
+``plan_ms``, ``uniform_rays``, ``importance_rays`` (kept after the per-set limit),
 ``importance_dropped``, ``probe_trace_ms`` (the ``trace probes`` stage), ``dynamic_rays``,
 ``changed_probes``, ``check_rays`` (paired visits that measured change), ``mean_uniform_per_probe``.
 
@@ -71,7 +75,7 @@ from .estimator import BACKFACE_THRESHOLD, SetBlend, probe_states_alg2
 from .planner import SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
 from .shading import KeyedHitShader
 
-UPDATE_STAGES = ("plan", "trace probes", "shade probes", "blend", "states")
+UPDATE_STAGES = ("trace probes", "shade probes", "blend", "states")     # ddgi's (the pipeline's) stages
 TEXELS = SETS_PER_SIDE + 2      # 16x16 sets + the 1-texel border the bilinear query reads
 
 
@@ -125,7 +129,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         # plan, trace and merge through the pipeline; integration (Algorithm 3) and states (Algorithm 2)
         # are this technique's update step
         self.pipeline = ProbePipeline(self.volume, self.planner, self.shader, self.blender, None, self.query,
-                                      plan_stage="plan")
+                                      plan_stage="states")
         self._warmed = False
         self.last_plan = None
         self._shadow_per_probe_ray = 1.0      # NEE shadow rays per probe ray (measured), for equal-ray budgets
