@@ -195,14 +195,10 @@ def test_steady_frames_with_samplers_compile_nothing(backend, spec):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="the ~7000-op trace kernel is recompiled (~1.5 s) every frame a light "
-                   "moves: its IR differs only in the alignment of some 32-bit input loads (align 1 vs 4); not "
-                   "the hierarchy's own arrays (re-allocated in Dr.Jit memory after each build: unchanged), and "
-                   "lights=power on the same scene compiles nothing; which input, to find (issue 24)")
 def test_moving_light_frames_with_lighttree_compile_nothing(backend):
-    """A light hierarchy rebuilt every frame a light moves stays a kernel input: on cornell-moving-light (two
-    emitter triangles: size-1 tree arrays, which Dr.Jit would otherwise bake in as literals) no frame after
-    the warm-up compiles a new kernel."""
+    """A light hierarchy rebuilt every frame a light moves changes no kernel: on cornell-moving-light (two
+    emitter triangles: a one-node tree, whose size-1 arrays a kernel reads as scalars with the alignment of
+    each upload) no frame after the warm-up compiles a new kernel (it recompiled the walk every frame)."""
     from helpers import assert_steady_state_compiles_nothing
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique

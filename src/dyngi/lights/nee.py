@@ -43,6 +43,21 @@ def shading_normal(si):
     return mi.Vector3f(dr.select(mi.Frame3f.cos_theta(si.wi) >= 0.0, si.sh_frame.n, -si.sh_frame.n))
 
 
+def _pad_single_entries(obj) -> None:
+    """Replace each size-1 Dr.Jit array attribute of ``obj`` (read by gathers only) by its entry twice.
+
+    A kernel reads a size-1 input as a scalar, and the scalar's load is emitted with the alignment of its
+    allocation, which varies from upload to upload: with a hierarchy rebuilt every frame a light moves
+    (``lights=lighttree`` on two emitter triangles: one node, one leaf), the path walk's kernel was
+    compiled anew every frame (~1.5 s; ``tests/lights/``). A size-2 array is an indexed input, whose code
+    does not depend on its address."""
+    for k, v in list(vars(obj).items()):
+        if dr.is_array_v(v) and not dr.is_tensor_v(v) and dr.width(v) == 1:
+            c = dr.gather(type(v), v, dr.zeros(mi.UInt32, 2))
+            dr.eval(c)
+            setattr(obj, k, c)
+
+
 class LightNEE:
     """The walk's light strategy for light sampler ``kind`` (module docstring)."""
 
@@ -108,6 +123,8 @@ class LightNEE:
         cam = np.asarray(frame.camera.origin, np.float64) if getattr(frame, "camera", None) is not None else None
         self.sampler.begin_frame(FrameCtx(self._ms, self.tris, frame.index, frame.time, self.octree, self.bounds,
                                           cam))
+        if "rebuild" in self.entry.options:     # a hierarchy rebuilt on the host (the light tree)
+            _pad_single_entries(self.sampler)
 
     def end_frame(self) -> None:
         """Hand the recorded NEE samples to a learning sampler; adapt the octree."""
