@@ -12,8 +12,9 @@ biased low on the Cornell box probes whose -w rays miss through the open
 front, where the guide is 0; docs/benchmarks.md).
 
 Irradiance is then a convolution pass over the radiance texels of every probe
-updated this frame (:meth:`RadianceCache.irradiance_estimate`, NumPy/BLAS over
-the updated probes): ``E(n_t) / pi = sum_r W[r, t] L_r``,
+updated this frame (:meth:`RadianceCache.irradiance_estimate`, on the device:
+one lane per irradiance texel, a symbolic loop over the radiance texels; NumPy reference
+:meth:`RadianceCache.irradiance_estimate_host`): ``E(n_t) / pi = sum_r W[r, t] L_r``,
 ``W[r, t] = max(0, n_t . w_r) Omega_r / sum_r' max(0, n_t . w_r') Omega_r'``
 with ``Omega_r`` the texel solid angles (:func:`~dyngi.sampling.octahedral.texel_solid_angles`);
 over the texels that hold a sample (texels never reached are left out and the
@@ -54,6 +55,7 @@ class RadianceCache:
         nt = texel_directions(self.Ti)[1:-1, 1:-1].reshape(-1, 3)
         W = np.maximum(wr @ nt.T, 0.0) * om[:, None]
         self.W = (W / W.sum(axis=0, keepdims=True)).astype(np.float32)     # (n_tex, (Ti-2)^2)
+        self._W_dr = upload(np.ascontiguousarray(self.W).ravel(), mi.Float)  # W[r, t] at r * (Ti-2)^2 + t
         dr.eval(self.value, self.count)
 
     def texel_of(self, w):
@@ -101,7 +103,47 @@ class RadianceCache:
         dr.eval(self.count)
 
     def irradiance_estimate(self, probe_ids: np.ndarray) -> TexelEstimate:
-        """The convolution pass for ``probe_ids``: a TexelEstimate of their interior irradiance texels (E/pi).
+        """The convolution pass for ``probe_ids`` on the device (no host read): a TexelEstimate of their
+        interior irradiance texels (E/pi), one lane per (probe, irradiance texel) summing over the radiance
+        texels that hold a sample in one symbolic loop (``W`` renormalised over them; an irradiance texel
+        with none: ``ok`` False, it keeps its value). Counts: the radiance count of the same texel when
+        ``R`` equals the irradiance resolution, else 1. :meth:`irradiance_estimate_host` is the NumPy
+        reference."""
+        pids = np.asarray(probe_ids, np.uint32)
+        nt = self.W.shape[1]
+        n = len(pids) * nt
+        lane = dr.arange(mi.UInt32, n)
+        ntt = dr.opaque(mi.UInt32, nt)
+        slot = lane // ntt
+        t = lane - slot * ntt
+        base = dr.gather(mi.UInt32, upload(pids, mi.UInt32), slot) * self.n_tex
+        n_tex = self.n_tex
+
+        def cond(r, num, den):
+            return r < n_tex
+
+        def body(r, num, den):
+            have = dr.gather(mi.UInt32, self.count, base + r) > 0
+            w = dr.select(have, dr.gather(mi.Float, self._W_dr, r * nt + t), 0.0)
+            v = dr.gather(mi.Color3f, self.value, base + r, have)
+            return r + 1, dr.fma(v, w, num), den + w
+
+        _, num, den = dr.while_loop((mi.UInt32(0), dr.zeros(mi.Color3f, n), dr.zeros(mi.Float, n)), cond, body)
+        ok = den > 1e-6
+        E = dr.select(ok, num / dr.select(ok, den, 1.0), 0.0)
+        flat = dr.empty(mi.Float, 3 * n)
+        for ci in range(3):
+            dr.scatter(flat, E[ci], lane + dr.opaque(mi.UInt32, ci * n))
+        if self.R == self.Ti:
+            cnt = dr.maximum(dr.gather(mi.UInt32, self.count, base + t), 1)
+        else:
+            cnt = mi.UInt32(1) + dr.zeros(mi.UInt32, n)
+        est = TexelEstimate(flat, cnt, ok, n, 3)
+        dr.eval(est.value, est.count, est.ok)
+        return est
+
+    def irradiance_estimate_host(self, probe_ids: np.ndarray) -> TexelEstimate:
+        """NumPy reference of :meth:`irradiance_estimate` (reads the texels back): a TexelEstimate of their interior irradiance texels (E/pi).
         Counts: the radiance count of the same texel when ``R`` equals the irradiance resolution, else 1."""
         pids = np.asarray(probe_ids, np.uint32)
         Pu = len(pids)
