@@ -20,6 +20,11 @@ it needs):
   depends on the atomics' order, but the draws are i.i.d., so the kept multiset's distribution does not
   (ours; the host path keeps the first ones in key order). Returns the kept mask and the per-set counts
   (``n_ij``, the denominators of the stratified weights ``Omega_j / n_ij``).
+* :func:`change_measure_dr`: the paired-visit change measure of :meth:`~.planner.ISDDGIPlanner.ray_change`
+  (the normalised luminance / distance difference of a check visit against its set's stored sample,
+  soft-thresholded) and the per-probe balance-heuristic estimate ``F^_i = 256 x`` the check visits' mean
+  ``g`` (Sec. 4.3, as :meth:`~.planner.ISDDGIPlanner.observe`), one lane per ray, per-probe sums by
+  ``dr.scatter_reduce``; the stored samples are device arrays indexed ``probe * 256 + j``.
 
 The host planner (:class:`~.planner.ISDDGIPlanner`) still builds the frame's plan with the NumPy twins
 (the declared CPU fast path); these kernels are the device path's pieces (see the report of issue 26 for
@@ -28,7 +33,7 @@ what remains to route the default plan through them).
 from __future__ import annotations
 
 from ...backend import dr, mi
-from .sets import N_SETS, _hash_u32_dr
+from .sets import LUMINANCE_FLOOR, N_SETS, PROBE_MEAN_SHARE, _hash_u32_dr
 
 DRAW_STREAM = 0x15DD66          # hash stream of the device draws' uniform numbers (ours)
 
@@ -94,3 +99,35 @@ def cap_per_set_dr(n_pairs: int, uniform_keys, draw_keys, limit: int):
     capped = dr.minimum(counts, dr.opaque(mi.UInt32, int(limit)))
     dr.eval(capped)
     return keep, capped
+
+
+def change_measure_dr(lum, dist, slot, pair, paired, check, sample_lum, sample_dist, has_sample, n_slots: int,
+                      max_distance: float, tau: float):
+    """Per ray ``g`` (Float, 0 where not a measured check visit) and per slot ``(F^, n_measured)`` (Float).
+
+    ``lum``, ``dist`` (R,) Float: hit luminance and signed distance; ``slot`` (R,) UInt32: the ray's probe
+    slot; ``pair`` (R,) UInt32: ``probe * 256 + j`` (the volume's probe index) into ``sample_lum``,
+    ``sample_dist`` (Float) and ``has_sample`` (Bool); ``paired``, ``check`` (R,) Bool (see
+    :class:`~.planner.ISDDGIPlanInfo`)."""
+    ones = dr.full(mi.Float, 1.0, dr.width(lum))
+    lum_sum = dr.zeros(mi.Float, n_slots)
+    cnt = dr.zeros(mi.Float, n_slots)
+    dr.scatter_reduce(dr.ReduceOp.Add, lum_sum, lum, slot)
+    dr.scatter_reduce(dr.ReduceOp.Add, cnt, ones, slot)
+    ybar = dr.gather(mi.Float, lum_sum, slot) / dr.maximum(dr.gather(mi.Float, cnt, slot), 1.0)
+    dmax = dr.opaque(mi.Float, max_distance)
+    y_old = dr.gather(mi.Float, sample_lum, pair, paired)
+    d_old = dr.gather(mi.Float, sample_dist, pair, paired)
+    measured = paired & check & dr.gather(mi.Bool, has_sample, pair, paired)
+    c_l = dr.abs(lum - y_old) / (lum + y_old + PROBE_MEAN_SHARE * ybar + LUMINANCE_FLOOR)
+    c_d = dr.abs(dr.minimum(dr.abs(dist), dmax) - d_old) / dmax
+    t = dr.opaque(mi.Float, tau)
+    g = dr.maximum(dr.maximum(c_l, c_d) - t, 0.0) / dr.maximum(1.0 - t, 1e-6)
+    g = dr.select(measured, g, 0.0)
+    g_sum = dr.zeros(mi.Float, n_slots)
+    n_meas = dr.zeros(mi.Float, n_slots)
+    dr.scatter_reduce(dr.ReduceOp.Add, g_sum, g, slot)
+    dr.scatter_reduce(dr.ReduceOp.Add, n_meas, dr.select(measured, 1.0, 0.0), slot)
+    F_est = dr.select(n_meas > 0.0, N_SETS * g_sum / dr.maximum(n_meas, 1.0), 0.0)
+    dr.eval(g, F_est, n_meas)
+    return g, F_est, n_meas
