@@ -275,25 +275,25 @@ class ADGIChainPlanner:
         if rays is not None:     # never more samples than the budget pays for (lane order: early iterations first)
             cap = int(max(rays // (2.0 + shadow_rate), 0))
             ok &= dr.prefix_sum(mi.UInt32(ok)) < dr.opaque(mi.UInt32, cap)
-        n_dr, kept_dr = dr.count(ok), dr.count(s.value > 0.0)
-        dr.eval(n_dr, kept_dr)
-        n = self.last_samples = int(n_dr[0])
-        kept = int(kept_dr[0])
-        if kept and (rays is None or n < cap):       # the traced share of the samples, for the next budget
-            self._unique = min(max(n / kept, 0.05), 1.0)
+        idx = dr.compress(ok)          # (its width is the sample count: the one sync of the stage's sizes)
+        n = self.last_samples = dr.width(idx)
         if n == 0:
             return None
-        idx = dr.compress(ok)
         x = dr.gather(mi.Vector3f, s.position, idx)
         w = dr.gather(mi.Vector3f, s.direction, idx)
         m = mi.Float(dr.gather(mi.UInt32, mult, idx))
+        kept_dr = dr.sum(m)            # = the samples with h > 0 (a state's repeats share its h), read below
         probe = self._probe_of(x, self.counts)
         # samples in entries with f_d > 0 go through their irradiance texel's centre (Sec. 4.9)
         snap = dr.gather(mi.Float, fd, probe * OCTANTS + octant_of(w)) > 0.0
         ti, _ = self._texel_of(w)
         w = dr.select(snap, dr.gather(mi.Vector3f, self._texel_dirs, ti), w)
-        dr.eval(probe, w, m)
-        return sorted_plan(probe, w, m, vol.n_probes)
+        dr.eval(probe, w, m, kept_dr)
+        plan = sorted_plan(probe, w, m, vol.n_probes)
+        kept = float(kept_dr[0])       # already computed: no further wait
+        if kept > 0 and (rays is None or n < cap):   # the traced share of the samples, for the next budget
+            self._unique = min(max(n / kept, 0.05), 1.0)
+        return plan
 
     def _dynamic_plan(self, frame: int, seed: int, vin_dr, fd, rays, shadow_rate: float):
         """D (Sec. 4.9): run the dynamic chains on the proxy table; every proxy octant they visit traces
@@ -328,11 +328,10 @@ class ADGIChainPlanner:
         mark = dr.zeros(mi.UInt32, n_entries)
         ent = self._probe_of(s.position, self.proxies) * OCTANTS + octant_of(s.direction)
         dr.scatter(mark, mi.UInt32(1), ent, s.value > 0.0)
-        dr.eval(mark)
-        n_marked = self.last_samples = int(dr.count(mark != 0)[0])
+        marked = dr.compress(mark != 0)          # its width is the count of marked octants
+        n_marked = self.last_samples = dr.width(marked)
         if n_marked == 0:
             return None
-        marked = dr.compress(mark != 0)
         # -- lanes: (marked proxy octant, sub-probe of 27, stratum) --
         R = dr.width(self._strata.x)
         lane = dr.arange(mi.UInt32, n_marked * 27 * R)
@@ -360,8 +359,8 @@ class ADGIChainPlanner:
             keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
             ok &= dr.gather(mi.Bool, keep_m, m)
             dr.eval(ok)
-        if int(dr.count(ok)[0]) == 0:
-            return None
         keep = dr.compress(ok)
+        if dr.width(keep) == 0:
+            return None
         return sorted_plan(dr.gather(mi.UInt32, probe, keep), dr.gather(mi.Vector3f, d, keep), None,
                            vol.n_probes)
