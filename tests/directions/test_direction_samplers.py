@@ -164,3 +164,30 @@ def test_lobe_directions_follow_their_pdf_chi2(backend, material):
     test = ChiSquareTest(domain=SphericalDomain(), sample_func=sample, pdf_func=pdf, sample_dim=3,
                          sample_count=200_000, res=61, ires=8, seed=5)
     assert test.run(0.01, 2), f"lobes: directions disagree with the pdf\n{test.messages}"
+
+
+@pytest.mark.slow
+def test_restir_pt_with_cdq_directions_is_unbiased(backend):
+    """restir-pt:directions=cdq (the path after ReSTIR's primary vertex with the learned CDQ/BSDF mixture)
+    against restir-pt: K independent non-progressive frames of the glossy test scene, per-pixel z-test."""
+    import os
+    import sys
+    sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "techniques"))
+    from stats import z_test_images
+    from test_path import _glossy_scene
+    from dyngi.techniques import Frame, create_technique
+    sc = _glossy_scene()
+    res, K = (16, 12), 16
+
+    def frames(extra, seed0):
+        tech = create_technique("restir-pt", sc, dict(max_depth=4, progressive=False, temporal=False, spatial=0,
+                                                      candidates=4, **extra))
+        imgs = np.stack([tech.step(Frame(i, 0.0, sc.camera(0.0), res, seed=seed0 + i)).image for i in range(K)])
+        return imgs, tech
+
+    a, tech = frames({"directions": "cdq"}, 100)
+    b, _ = frames({}, 500)
+    assert tech.directions.stats()["cdq_migrations_total"] > 0          # it learned something
+    assert np.all(np.isfinite(a)) and a.mean() > 0
+    ok, info = z_test_images(a, b)
+    assert ok, f"restir-pt:directions=cdq disagrees with restir-pt: {info}"

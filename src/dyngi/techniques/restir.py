@@ -44,6 +44,9 @@ rr_depth : int = 5        Russian roulette start depth
 progressive : bool = True accumulate frames while the scene is static (like ``path``)
 lights : str = 'scene'    light sampler of the candidates and of the path's NEE: Mitsuba's emitter
                           sampling, or a :mod:`dyngi.lights` sampler (:mod:`dyngi.lights.candidates`)
+directions : str = 'bsdf' indirect directions of the path after the primary vertex: the BSDF, or 'cdq'
+                          (:class:`dyngi.directions.walk.WalkDirections`; ReSTIR DI at the primary vertex
+                          is unchanged)
 
 Bias: none with ``combine='mis'`` or ``'1/z'`` (tested by a per-pixel z-test
 against Mitsuba's ``path``), except for two documented approximations on
@@ -67,7 +70,9 @@ The candidates per pixel are the cost on a CPU; the 1.5x target is not met (2.9x
 """
 from __future__ import annotations
 
+from .. import directions as direction_samplers
 from ..backend import mi
+from ..directions.walk import WalkDirections
 from ..errors import DyngiError
 from ..transport.accumulate import ProgressiveMean
 from ..transport.restir_di import PARAM_SPECS, ReSTIRDI
@@ -86,6 +91,9 @@ class ReSTIRPTTechnique(Technique):
         "max_depth": Param(12, "maximum path depth (-1: unbounded; 1 emission, 2 direct light)", min=-1),
         "rr_depth": Param(5, "Russian roulette start depth", min=1),
         "progressive": Param(True, "accumulate over frames while the scene is static"),
+        "directions": Param("bsdf", "indirect directions of the path after the primary vertex (dyngi.directions): "
+                            "the BSDF's own sampling, or 'cdq' (CDQ/BSDF one-sample MIS mixture, learned per "
+                            "octree leaf)", choices=direction_samplers.names()),
     }
 
     def __init__(self, scene, params=None):
@@ -95,12 +103,18 @@ class ReSTIRPTTechnique(Technique):
         # the light sampler of the candidates and the rest of the path (the component's ``lights``)
         self.restir = ReSTIRDI.from_params(scene, self.params)
         self.lights = self.restir.lights
+        # the BSDF's own sampling is the walk's default (None): bit-identical to before
+        self.directions = None if self.params["directions"] == "bsdf" else WalkDirections(scene,
+                                                                                          self.params["directions"])
         self.accum = ProgressiveMean()
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
         self.restir.lights_begin(frame, t)     # the light sampler's per-frame hook (rebuild, caches)
+        if self.directions is not None:
+            with t.stage("directions"):
+                self.directions.begin_frame(self.scene, frame, 2 * frame.res[0] * frame.res[1])
         # -- G-buffer and reprojection --
         pv = self.restir.begin(frame, t)
         # -- ReSTIR DI: candidates, temporal, spatial, one shadow ray --
@@ -108,8 +122,12 @@ class ReSTIRPTTechnique(Technique):
         if (p["max_depth"] < 0 or p["max_depth"] >= 2) and self.restir.cand.count > 0:
             direct = self.restir.direct(pv, t)
         # -- emission at the primary vertex (and the environment where the ray escapes); the rest of the path --
-        Le0, L_d, L_ind = self.restir.path_after(pv, frame, self.lights, p["max_depth"], p["rr_depth"], t)
+        Le0, L_d, L_ind = self.restir.path_after(pv, frame, self.lights, p["max_depth"], p["rr_depth"], t,
+                                                 self.directions)
         self.restir.lights_end(t)
+        if self.directions is not None:
+            with t.stage("directions adapt"):
+                self.directions.end_frame()
         # -- accumulation --
         with t.stage("accumulate"):
             self.accum.add(mi.Color3f(Le0 + direct + L_d + L_ind), mi.Color3f(L_ind),

@@ -145,14 +145,16 @@ def _after_restir_nee(depth):
     return depth >= 1
 
 
-def continue_paths(scene, sampler, ray, si, active, max_depth: int, rr_depth: int, lights):
+def continue_paths(scene, sampler, ray, si, active, max_depth: int, rr_depth: int, lights, directions=None):
     """Path tracing from the primary vertex ``si`` on (BSDF + NEE with power-heuristic MIS, RR): the
     path walk (:func:`dyngi.transport.path_walk.walk`) from a given surface, with ReSTIR DI's share left
     out. Returns (light through a delta lobe of the primary vertex straight from an emitter [vertex 2],
     light from vertices >= 3 [the indirect part], rays traced per lane). The primary vertex's own
-    emission and its direct light through smooth lobes are ReSTIR's (not counted here)."""
+    emission and its direct light through smooth lobes are ReSTIR's (not counted here). ``directions``: a
+    direction strategy of the walk (:class:`dyngi.directions.walk.WalkDirections`), else the BSDF's."""
     r = walk(scene, sampler, ray, active, max_depth, rr_depth, lights, True, si=si,
-             emission=_after_restir_emission, nee=_after_restir_nee, total=False, split=True, near=True)
+             emission=_after_restir_emission, nee=_after_restir_nee, total=directions is not None, split=True,
+             near=True, directions=directions)      # a learning strategy reads the total (its record)
     return r.L_near, r.L_ind, r.n_rays
 
 
@@ -253,7 +255,7 @@ class ReSTIRDI:
         smooth = gb.valid & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         return PrimaryVertex(sampler, time, gb, reproj, bsdf, smooth)
 
-    def path_after(self, pv: PrimaryVertex, frame, lights, max_depth: int, rr_depth: int, timer):
+    def path_after(self, pv: PrimaryVertex, frame, lights, max_depth: int, rr_depth: int, timer, directions=None):
         """What ReSTIR DI does not deliver at the primary vertex (stage ``path``): returns (its emission,
         the light behind its delta lobes straight from an emitter, light from vertices >= 3), the path
         walk's :func:`continue_paths` on stream :data:`PATH_STREAM`. ``max_depth`` as Mitsuba's (2: direct
@@ -270,7 +272,7 @@ class ReSTIRDI:
                 if max_depth == 2:    # direct light only: just the primary vertex's delta lobes
                     cont = valid & mi.has_flag(pv.bsdf.flags(), mi.BSDFFlags.Delta)
                 L_d, L_ind, rays = continue_paths(self.scene.mi_scene, ps, pv.gb.ray, si, cont, max_depth, rr_depth,
-                                                  lights)
+                                                  lights, directions)
                 dr.eval(L_d, L_ind, rays)
             timer.add_rays("path", dr.sum(rays))
         return Le0, L_d, L_ind
