@@ -436,7 +436,9 @@ def leaf_bounds(words, node):
     ox = dr.zeros(mi.Float, dr.width(k))
     oy = dr.zeros(mi.Float, dr.width(k))
     s = dr.ones(mi.Float, dr.width(k))
-    while k != 0:
+    it = dr.zeros(mi.UInt32, dr.width(k))
+    while (k != 0) & (it < 40):     # a valid tree needs <= MAX_DEPTH steps; the cap ends a corrupt field's walk
+        it += 1
         c = (k - 1) & 3
         ox = (ox + mi.Float(c & 1)) * 0.5
         oy = (oy + mi.Float(c >> 1)) * 0.5

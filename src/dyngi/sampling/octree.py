@@ -366,7 +366,6 @@ class AdaptiveOctree:
     def _derive(self, expected) -> None:
         """Augment (neighbours, leaf boxes) + allocate for the device tree; counts reset."""
         N = self._N
-        i = dr.arange(mi.UInt32, N)
         leaf = self._alive & ((self._nodes & LEAF_BIT) != 0)
         # -- leaf boxes (world) --
         ext = self.bounds_max.astype(np.float64) - self.bounds_min.astype(np.float64)
@@ -400,7 +399,6 @@ class AdaptiveOctree:
         self.counts = dr.zeros(mi.UInt32, N)
         dr.eval(self.leaf_size, self.leaf_lo, self.leaf_depth, self.neighbours, self.sample_offset,
                 self.sample_capacity, self.sample_size, self.counts)
-        del i
 
     def _descend(self, c, d, active):
         """Device: slot of the leaf containing integer cell ``c`` of depth ``d`` if it is at depth <= d, else INVALID."""
