@@ -115,16 +115,14 @@ def _texel_dirs_dr():
 
 
 def _planar(channels, n: int):
-    """Channel-planar flat Float (channel ``c`` of entry ``e`` at ``c * n + e``) of evaluated channels."""
-    for ch in channels:
-        dr.eval(ch)
-    idx = dr.arange(mi.UInt32, len(channels) * n)
+    """Channel-planar flat Float (channel ``c`` of entry ``e`` at ``c * n + e``): one plain scatter per
+    channel into one array, all in one kernel with the channels' own computation (an earlier gather/select
+    form evaluated each channel first and cost ~40% of the estimate)."""
+    out = dr.zeros(mi.Float, len(channels) * n)
+    e = dr.arange(mi.UInt32, n)
     nn = dr.opaque(mi.UInt32, n)
-    c = idx // nn
-    e = idx - c * nn
-    out = dr.gather(mi.Float, channels[-1], e, c == len(channels) - 1)
-    for i in range(len(channels) - 1):
-        out = dr.select(c == i, dr.gather(mi.Float, channels[i], e, c == i), out)
+    for c, ch in enumerate(channels):
+        dr.scatter(out, ch, e + nn * c)
     return out
 
 
