@@ -207,10 +207,11 @@ def test_fields_follow_octree_correspondence(adapt):
 
 def test_device_migration_matches_numpy_reference():
     """migrate_dr (the default device path) makes the same migrations, bit for bit, as migrate_np on
-    random trees of every bit count (integer statistics: the float32 and float64 sums are exact)."""
+    random trees of 32 and 128 bits (one kernel each; integer statistics: the float32 and float64 sums are
+    exact)."""
     rng = np.random.default_rng(5)
     L = 64
-    for bits in BITS:
+    for bits in (32, 128):
         B = np.stack([cdq.random_tree_np(bits, rng, int(rng.integers(5, 17))) for _ in range(L)])
         S = np.floor(rng.exponential(size=(L, bits + 1)) ** 3 * 100)
         S[::3] = 1.0                                   # flat statistics: these rows must not migrate
