@@ -45,7 +45,9 @@ image: an iteration (also each warm-up one) reads nothing back and a steady fram
 different random numbers (the host one from NumPy generators), so their VPL sets differ; the radiosity
 of a VPL of a given seed is bit-identical in both (:func:`dyngi.vpl.radiosity.estimate_radiosity` is
 the host form of the device estimate). Random validation on the device draws its points of X with
-replacement (uniform among the valid x; our choice), the host one without.
+replacement (uniform among the valid x; our choice), the host one without; after the first fill the
+device fills at most ``max(M_max, 16)`` free slots per iteration (our choice: a fixed width for line 18's
+new-VPL estimate; it differs from the host only when an earlier iteration left slots empty).
 
 Initialisation: the first I candidates, then ``warmup`` (100) iterations before the first
 frame (Sec. 3.2). Radiosity paths have ``max_depth - 1`` vertices from the VPL: with the
@@ -161,6 +163,7 @@ class SMCIR(VPLTechnique):
         self._dev = DeviceVPLStore(self.budget) if self.params["impl"] == "device" else None
         self._light_sig = None
         self._initialised = False
+        self._filled = False      # the device store's first fill (INITIALIZEVPLs) is done
         self.last_stats: dict = {}
 
     @property
@@ -388,10 +391,17 @@ class SMCIR(VPLTechnique):
         t.add_rays("visibility", rays)
         return st.used & ~valid
 
-    def _reestimate_device(self, frame: Frame, t: StageTimer, new):
-        """Lines 18-19 on the device (as :meth:`_reestimate`; ``new``: the slots filled this iteration).
-        While the lighting signature is unchanged only the new VPLs' rendering stream is traced (I lanes,
-        the others masked); when it changes, both streams of every VPL (2 I lanes)."""
+    def _new_width(self) -> int:
+        """Slots filled per iteration at most: I for the first fill, then ``max(M_max, 16)`` (our choice:
+        after the fill at most M_max slots are freed per iteration, so this only delays refilling slots
+        that an earlier iteration found no valid candidate for; it bounds line 18's width)."""
+        return self.budget if not self._filled else min(self.budget, max(int(self.params["max_moves"]), 16))
+
+    def _reestimate_device(self, frame: Frame, t: StageTimer, new, rank_new):
+        """Lines 18-19 on the device (as :meth:`_reestimate`; ``new``: the slots filled this iteration,
+        ``rank_new`` their order). While the lighting signature is unchanged only the new VPLs' rendering
+        stream is traced (gathered into :meth:`_new_width` lanes); when it changes, both streams of every
+        VPL (2 I lanes)."""
         st, I = self._dev, self.budget
         sig = lighting_signature(self.scene, frame.time)
         changed = sig != self._light_sig
@@ -413,8 +423,16 @@ class SMCIR(VPLTechnique):
                 st.radiosity = dr.select(redo | new, dr.gather(mi.Color3f, L, i + I), st.radiosity)
                 t.add_rays("radiosity", r)
             elif indep:
-                L, r = self._radiosity_device(st.pos, st.nrm, stream_seeds_device(st.seed, RENDER_STREAM), new)
-                st.radiosity = dr.select(new, L, st.radiosity)
+                W = self._new_width()
+                slot = dr.zeros(mi.UInt32, W)
+                take = dr.zeros(mi.Bool, W)
+                dr.scatter(slot, dr.arange(mi.UInt32, I), rank_new, new)
+                dr.scatter(take, mi.Bool(True), rank_new, new)
+                L, r = self._radiosity_device(dr.gather(mi.Point3f, st.pos, slot), dr.gather(mi.Vector3f, st.nrm, slot),
+                                              stream_seeds_device(dr.gather(mi.UInt64, st.seed, slot), RENDER_STREAM),
+                                              take)
+                back = dr.gather(mi.Color3f, L, rank_new, new)
+                st.radiosity = dr.select(new, back, st.radiosity)
                 t.add_rays("radiosity", r)
             else:
                 if changed:
@@ -466,7 +484,7 @@ class SMCIR(VPLTechnique):
             free = ~st.used
             rf = dr.prefix_sum(mi.UInt32(free))
             corder = dr.argsort(dr.select(cand["ok"], c_int, -dr.inf), descending=True)
-            new = free & (rf < n_cand)
+            new = free & (rf < n_cand) & (rf < self._new_width())
             src = dr.gather(mi.UInt32, corder, rf, new)
             for k in ("pos", "nrm", "albedo", "mailbox", "mailbox_n"):
                 setattr(st, k, dr.select(new, dr.gather(type(cand[k]), cand[k], src, new), getattr(st, k)))
@@ -477,7 +495,8 @@ class SMCIR(VPLTechnique):
             st.used |= new
             replaced = dr.count(new)
             st.eval()
-        self._reestimate_device(frame, t, new)
+        self._reestimate_device(frame, t, new, rf)
+        self._filled = True
         st.eval()
         return {"invalid": n_invalid, "m_min": mm, "replaced": replaced, "candidates": n_cand}
 

@@ -61,6 +61,8 @@ def estimate_radiosity_device(mscene, pos, nrm, seeds, spp: int, max_depth: int,
 
     n = dr.width(pos)
     spp = int(spp)
+    if max_depth < 2:                  # no vertex beyond y: no light reaches it
+        return dr.zeros(mi.Color3f, n), mi.UInt32(0)
     idx = dr.arange(mi.UInt32, n * spp)
     v = idx // spp
     act = dr.gather(mi.Bool, mi.Bool(active) if not isinstance(active, bool) else dr.full(mi.Bool, active, n), v)
