@@ -187,7 +187,7 @@ def test_device_convolution_equals_the_numpy_reference(adgi):
         cnt[rc.n_tex * 2: rc.n_tex * 3] = 0                     # probe 2: never sampled
         rc.value, rc.count = mi.Float(val), mi.UInt32(cnt.astype(np.uint32))
         ids = np.array([5, 2, 0, 3], np.uint32)
-        a, b = rc.irradiance_estimate(ids), rc.irradiance_estimate_host(ids)
+        a, b = rc.irradiance_estimate_device(ids), rc.irradiance_estimate_host(ids)
         ok_a, ok_b = np.asarray(a.ok), np.asarray(b.ok)
         assert np.array_equal(ok_a, ok_b) and not ok_a.reshape(4, -1)[1].any() and ok_a.sum() > 0
         assert np.allclose(np.asarray(a.value), np.asarray(b.value), rtol=2e-5, atol=1e-6)

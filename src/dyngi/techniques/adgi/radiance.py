@@ -12,9 +12,9 @@ biased low on the Cornell box probes whose -w rays miss through the open
 front, where the guide is 0; docs/benchmarks.md).
 
 Irradiance is then a convolution pass over the radiance texels of every probe
-updated this frame (:meth:`RadianceCache.irradiance_estimate`, on the device:
-one lane per irradiance texel, a symbolic loop over the radiance texels; NumPy reference
-:meth:`RadianceCache.irradiance_estimate_host`): ``E(n_t) / pi = sum_r W[r, t] L_r``,
+updated this frame (:meth:`RadianceCache.irradiance_estimate`: on a GPU on the device, one lane per
+irradiance texel and a symbolic loop over the radiance texels, no host read; on the LLVM backend the
+NumPy/BLAS pass :meth:`RadianceCache.irradiance_estimate_host`, the CPU fast path): ``E(n_t) / pi = sum_r W[r, t] L_r``,
 ``W[r, t] = max(0, n_t . w_r) Omega_r / sum_r' max(0, n_t . w_r') Omega_r'``
 with ``Omega_r`` the texel solid angles (:func:`~dyngi.sampling.octahedral.texel_solid_angles`);
 over the texels that hold a sample (texels never reached are left out and the
@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...backend import dr, mi
-from ...probes.estimator import TexelEstimate, fixed_point_sum
+from ...probes.estimator import TexelEstimate, fixed_point_sum, is_cpu_backend
 from ...probes.trace import vector_to_numpy
 from ...probes.volume import upload
 from ...sampling.octahedral import direction_to_texel_coords, texel_directions, texel_solid_angles
@@ -103,6 +103,14 @@ class RadianceCache:
         dr.eval(self.count)
 
     def irradiance_estimate(self, probe_ids: np.ndarray) -> TexelEstimate:
+        """The convolution pass for ``probe_ids``: :meth:`irradiance_estimate_device` on a GPU backend,
+        :meth:`irradiance_estimate_host` (the CPU fast path: the texels are already in host memory, and
+        BLAS is about 3x the symbolic loop there; docs/benchmarks.md) on the LLVM backend."""
+        if is_cpu_backend():
+            return self.irradiance_estimate_host(probe_ids)
+        return self.irradiance_estimate_device(probe_ids)
+
+    def irradiance_estimate_device(self, probe_ids: np.ndarray) -> TexelEstimate:
         """The convolution pass for ``probe_ids`` on the device (no host read): a TexelEstimate of their
         interior irradiance texels (E/pi), one lane per (probe, irradiance texel) summing over the radiance
         texels that hold a sample in one symbolic loop (``W`` renormalised over them; an irradiance texel

@@ -72,8 +72,10 @@ the time; the first frame, with nothing measured, runs the defaults); the
 spend is recorded (``stats['static_chains_run']``), not guaranteed.
 
 Speed: an ``adgi`` frame launches several times the kernels of a ``qddgi`` frame and syncs with the
-host for the ragged plans (host sort), the chain/proxy counts and the radiance convolution (NumPy);
-that fixed cost, not the rays, makes it slower than ``qddgi`` at small grids, and it is why an
+host for the ragged plans (the sample counts, from ``dr.compress``, and a host sort of the traced
+probe ids: one read per stage and plan; a ``RayPlan`` holds its probe ids and offsets on the host) and,
+under a budget, the f_d scale; the radiance convolution runs on the device on a GPU and as NumPy/BLAS
+(the CPU fast path) on the LLVM backend. That fixed cost, not the rays, makes it slower than ``qddgi`` at small grids, and it is why an
 equal-time budget below it cannot be met (the chains shrink to 1 and the frame overspends; recorded,
 not hidden). The two trigger convolutions (Eqs. 15, 18) share one launch per axis. Figures:
 docs/benchmarks.md, "Figures moved out of the probe docstrings".
