@@ -54,8 +54,8 @@ previous leaves of its six neighbours), and (d) the bucket count: per slot the 3
 ``id mod 32`` (popcounts over the words), merged pairwise down to B = 1 (the paper's bottom-up merge of
 a modulo table) and the smallest power of two B whose fullest bucket fits the capacity, with the same
 hysteresis. Bucket ``b`` of a slot is then the lights whose bit is set and ``id mod B == b``, walked in
-increasing id by both traversals of Algorithm 1 (``_bucket_walk``: a loop over the words and, in each,
-over the set bits under a precomputed residue mask), which is the order of the host tables, so the two
+increasing id by both traversals of Algorithm 1 (``_bucket_walk``: a loop over the slot's nonempty words
+(a per-slot word mask) and, in each, over the set bits under a precomputed residue mask), which is the order of the host tables, so the two
 paths give the same pmfs and bit-identical images. It needs ``L <= 1024`` (B <= 32 then always fits
 a capacity >= L / 32) and ``memory = 1``; otherwise the host pass below is used (``adapt`` reports
 which). ``stats()`` reads a few device counters back (``report_stats``, inspection only).
@@ -334,6 +334,7 @@ class VLCSelector:
         self._bits = dr.zeros(mi.UInt32, NW)            # the caches of the current tree
         self.leaf_bcnt = dr.zeros(mi.UInt32, max(self._N, 2))
         self._bold = dr.zeros(mi.UInt32, max(self._N, 2))
+        self._wmask = dr.zeros(mi.UInt32, max(self._N, 2))
         self._rec_cnt = dr.zeros(mi.UInt32, 2)          # records, visible records (device counters)
         self._dev_stats = None
         masks = np.zeros(64, np.uint32)                 # masks[B + b]: bits j of a word with j mod B == b
@@ -370,8 +371,10 @@ class VLCSelector:
         dr.eval(bits)
         # (d) bucket counts: 32 residue counters per leaf, merged pairwise down to B = 1 (Sec. 4.2)
         cnt = [dr.zeros(mi.UInt32, N) for _ in range(32)]
+        wmask = dr.zeros(mi.UInt32, N)      # bit w: word w of the slot's set is not empty (traversals skip the rest)
         for w in range(W):      # W <= 32 words, unrolled (the light count is fixed per selector)
             x = dr.gather(mi.UInt32, bits, c * W + w)
+            wmask |= dr.select(x != 0, mi.UInt32(1 << w), 0)
             for b in range(32):
                 cnt[b] += (x >> b) & 1
         occ = {32: cnt}
@@ -400,11 +403,11 @@ class VLCSelector:
                            dr.block_reduce(dr.ReduceOp.Add, dr.select(nonempty, one, 0), N),
                            dr.block_reduce(dr.ReduceOp.Max, total, N),
                            dr.block_reduce(dr.ReduceOp.Add, bcnt, N), self._rec_cnt]
-        self._bits, self.leaf_bcnt, self._bold = bits, bcnt, bcnt
+        self._bits, self.leaf_bcnt, self._bold, self._wmask = bits, bcnt, bcnt, wmask
         self._vis = dr.zeros(mi.UInt32, max(N * W, 2))
         self._rec_cnt = dr.zeros(mi.UInt32, 2)
         self._rec_prev_obj = pl
-        dr.eval(self._bits, self.leaf_bcnt, self._vis, self._rec_cnt, *self._dev_stats[:4])
+        dr.eval(self._bits, self.leaf_bcnt, self._wmask, self._vis, self._rec_cnt, *self._dev_stats[:4])
 
     @dr.syntax
     def _bucket_walk(self, p, n, leaf, bidx, B, target, target_acc, active, select: bool):
@@ -414,6 +417,7 @@ class VLCSelector:
         sum exceeds ``target_acc``, or the last light with nonzero importance; its importance)."""
         W = self._W
         mask = dr.gather(mi.UInt32, self._masks, B + bidx, active)
+        rem = dr.gather(mi.UInt32, self._wmask, leaf, active)     # the slot's nonempty words still to visit
         base = leaf * W
         acc = mi.Float(0.0)
         w = mi.Float(0.0)
@@ -425,11 +429,13 @@ class VLCSelector:
         wi = mi.UInt32(0)
         act = mi.Bool(active)
         sel = mi.Bool(select)
-        while act & ((cur != 0) | (wi < W)) & ~found:
+        while act & ((cur != 0) | (rem != 0)) & ~found:
             load = cur == 0
-            word = dr.gather(mi.UInt32, self._bits, base + wi, act & load)
+            nw = dr.tzcnt(rem)
+            word = dr.gather(mi.UInt32, self._bits, base + nw, act & load)
             cur = dr.select(load, word & mask, cur)
-            wi = dr.select(load, wi + 1, wi)
+            wi = dr.select(load, nw + 1, wi)
+            rem = dr.select(load, rem & (rem - 1), rem)
             has = act & (cur != 0)
             k = (wi - 1) * 32 + dr.tzcnt(cur)
             wk = dr.select(has, self._importance(p, n, k, has), 0.0)
