@@ -3,9 +3,7 @@ the CDQ (:mod:`dyngi.directions.cdq`) and their one-sample MIS mixture (:mod:`dy
 Each registered sampler is one module of this package, found by :func:`discover`."""
 from __future__ import annotations
 
-import importlib
-import pkgutil
-
+from ..registry import discover_modules
 from .base import REGISTRY, DirectionSampler, DirSample, Vertex, make, names, register
 
 _INFRA = {"base", "walk", "lobes"}
@@ -18,9 +16,7 @@ def discover() -> None:
     if _found:
         return
     _found = True
-    for m in pkgutil.iter_modules(__path__):
-        if m.name not in _INFRA and not m.name.startswith("_"):
-            importlib.import_module(f"{__name__}.{m.name}")
+    discover_modules(__name__, __path__, skip=_INFRA)
 
 
 __all__ = ["REGISTRY", "DirectionSampler", "DirSample", "Vertex", "discover", "make", "names", "register"]

@@ -4,9 +4,7 @@ one emitter classification; each sampler is one module of this package that regi
 into the path walk's next-event estimation."""
 from __future__ import annotations
 
-import importlib
-import pkgutil
-
+from ..registry import discover_modules
 from .base import (INVALID, REGISTRY, EmitterTable, FrameCtx, LightSampler, describe, emitter_kind, entry, make,
                    names, options, register)
 
@@ -22,12 +20,7 @@ def discover() -> None:
     if _found:
         return
     _found = True
-    for m in pkgutil.iter_modules(__path__):
-        if m.name not in _INFRA and not m.name.startswith("_"):
-            try:
-                importlib.import_module(f"{__name__}.{m.name}")
-            except ImportError as e:     # an optional dependency missing: the others stay usable
-                UNAVAILABLE[m.name] = str(e)
+    discover_modules(__name__, __path__, skip=_INFRA, optional=UNAVAILABLE)
 
 
 __all__ = ["INVALID", "REGISTRY", "EmitterTable", "FrameCtx", "LightSampler", "describe", "discover",

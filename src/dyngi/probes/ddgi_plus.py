@@ -215,10 +215,9 @@ def plus_params():
     """The probe parameters :class:`DDGIPlusVolume` takes (``Param`` entries; techniques merge them).
 
     ``ddgi``'s probe parameters (:mod:`dyngi.probes.params`, one table for every probe technique) less
-    the primary-shading ones, and the DDGI+ ones below. ``Param`` is the technique layer's type; it is
-    imported when called (it lives in :mod:`dyngi.techniques.base`, a layer above).
+    the primary-shading ones, and the DDGI+ ones below (:class:`~dyngi.registry.Param` entries).
     """
-    from ..techniques.base import Param
+    from ..registry import Param
     skip = ("jitter", "direct_samples", "encoding", "glossy")
     out = {k: Param(**v) for k, v in {**COMMON_SPECS, **DDGI_SPECS}.items() if k not in skip}
     out.update({

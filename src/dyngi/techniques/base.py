@@ -23,40 +23,8 @@ import numpy as np
 
 from ..backend import dr
 from ..errors import DyngiError, unknown_choice
+from ..registry import Param, discover_modules  # noqa: F401  (Param re-exported)
 from ..timing import StageTimer, maybe_stage  # noqa: F401  (re-exported)
-
-
-@dataclass(frozen=True)
-class Param:
-    default: Any
-    doc: str = ""
-    choices: tuple | None = None
-    min: float | None = None
-    max: float | None = None
-
-    def parse(self, name: str, value):
-        typ = type(self.default)
-        try:
-            if typ is bool and isinstance(value, str):
-                if value.lower() not in ("1", "0", "true", "false", "yes", "no", "on", "off"):
-                    raise ValueError
-                v = value.lower() in ("1", "true", "yes", "on")
-            elif typ is int and isinstance(value, float) and not value.is_integer():
-                raise ValueError
-            else:
-                v = typ(value)
-        except (TypeError, ValueError):
-            raise DyngiError(f"parameter '{name}' must be of type {typ.__name__}, got '{value}'") from None
-        if isinstance(v, float) and not np.isfinite(v):
-            raise DyngiError(f"parameter '{name}' must be finite, got {value}")
-        if self.choices is not None and v not in self.choices:
-            raise DyngiError(f"parameter '{name}' = '{v}' is invalid; valid values: "
-                             + ", ".join(map(str, self.choices)))
-        if self.min is not None and v < self.min:
-            raise DyngiError(f"parameter '{name}' = {v} is below its minimum {self.min}")
-        if self.max is not None and v > self.max:
-            raise DyngiError(f"parameter '{name}' = {v} is above its maximum {self.max}")
-        return v
 
 
 def resolve_params(cls, params: dict | None) -> dict:
@@ -212,12 +180,8 @@ def _discover() -> None:
     if _DISCOVERED:
         return
     import importlib
-    import pkgutil
 
-    package = importlib.import_module(__package__)
-    for m in sorted(pkgutil.walk_packages(package.__path__, prefix=f"{__package__}."), key=lambda m: m.name):
-        if not m.name.rsplit(".", 1)[-1].startswith("_"):
-            importlib.import_module(m.name)
+    discover_modules(__package__, importlib.import_module(__package__).__path__, recursive=True)
     _DISCOVERED = True
 
 
