@@ -59,14 +59,7 @@ bias is measured in ``tests/techniques/test_restir.py`` (Cornell box, direct lig
 30 of 432 pixels rejected by the per-pixel test). Shadow rays do not pass through
 glass (unlike the DDGI family's NEE), so the reference is Mitsuba's ``path``.
 
-Measured (2-core box shared with other jobs, load 5-7, 2026-12-01; issue 14's targets):
-equal time vs ``path``, direct light (``max_depth=2``, ``--ref-depth 2``), 160x120, 10 frames:
-warehouse-lights MSE 0.0035 vs 0.094 (27x lower; relMSE 0.19 vs 5.0), corridor-rooms MSE 0.055 vs
-0.061 (relMSE 0.058 vs 0.61: its MSE is dominated by the visible lights' edge pixels). Frame time at
-640x360: 468 ms vs 162 ms for a 1-spp ``path`` frame on the warehouse (2.9x; candidates 200, spatial 91,
-shadow 52, G-buffer 46, temporal 41 ms), 440 vs 164 ms on cornell-static at full depth (path 188 ms).
-At load ~3: 311 ms (M = 32; candidates 132, spatial 59) and 200 ms (``candidates=8``) vs 106 ms.
-The candidates per pixel are the cost on a CPU; the 1.5x target is not met (2.9x; 1.9x with M = 8).
+Measured frame times and errors against ``path``: docs/benchmarks.md ("restir-pt").
 """
 from __future__ import annotations
 

@@ -31,16 +31,7 @@ exact_radiance, exact_depth    the test hook (:mod:`.shading`)
 probe parameters               those of :func:`dyngi.probes.ddgi_plus.plus_params` (DDGI's, the
                                emission heuristic, ...); ``normal_bias``/``view_bias`` default 0
 
-Measured (2-core box shared with other jobs, load 10-15, 2026-12-02; /tmp/figs/resampling.md):
-640x360 cornell-static frame (load 7): ddgi-resampling 898 ms (1365 with ``reuse_visibility``),
-ddgi-secondary 597 ms, restir-pt 576 ms: 1.56x (2.4x) and 1.04x. MAPE after 8 accumulated frames,
-cornell-static 96x54: restir-pt 0.174,
-ddgi-secondary 0.148, ddgi-resampling 0.159. atrium-sun 64x36, 30 animated frames: MAPE 0.951 / 0.651 /
-0.818 (restir-pt / secondary / resampling); ddgi-resampling shares its one shadow ray between the sun
-and the probe light, so it is noisier than ddgi-secondary there (the paper's ordering is not
-reproduced on that scene). The DDGI+ default emission heuristic ('ratio') makes cornell-static 6.6 %
-dark (``emission_attenuation='none'``: +2.5 %; the exact-radiance hook: -0.5 %). living-room leaks:
-+74 % / +78 % image mean (secondary / resampling).
+Measured frame times, errors and leaks: docs/benchmarks.md ("DDGI Resampling family").
 
 Bias: the probes' (blur at the probe spacing, leaks through thin walls, hysteresis lag), hidden behind
 one diffuse bounce (or a footprint-limited glossy chain); temporal reuse of part-1 samples keeps the
