@@ -88,5 +88,5 @@ def test_reproduce_adgi_micro_run(rep, tmp_path, monkeypatch):
     assert os.path.exists(os.path.join(out, "plots", "tunnel_error.png"))
     assert "glossy-floor/adgi" in sj["techniques"]
     rec = pj["tunnel"]["figures"]
-    assert set(rec) == {"adgi", "adgi@equal-rays", "qddgi", "probes-reference"}
+    assert set(rec) == {"adgi", "adgi@equal-rays", "qddgi", "qddgi+drop", "probes-reference"}
     assert all(np.isfinite(v["steady_relmse"]) for v in rec.values())
