@@ -1,13 +1,23 @@
-"""Does a refactoring change what techniques render? Snapshot, then compare (issue 24, item 4).
+"""Does a refactoring change what techniques render? Snapshot, then compare (issues 23 and 24).
 
-``snapshot OUT.npz``: render each technique spec for a few frames on each scene (fixed seeds, small
-resolution) and store every frame's image and indirect image, plus the VPL radiosity estimator's output
-on fixed points. Run it once on the tree before the change (``PYTHONPATH=/path/to/old/src``) and once
-after. ``compare A.npz B.npz``: per entry, bit-identical or the largest difference; where not identical,
-a per-pixel two-sample z-test over the ``--seeds`` independent renders (Sidak-corrected over pixels,
-alpha 0.01) decides whether the two agree in distribution.
+``snapshot OUT.npz --suite S``: render each technique spec of suite ``S`` for a few frames on each of its
+scenes (fixed seeds, small resolution) and store every frame's image and indirect image, plus the suite's
+extras. Run it once on the tree before the change (``PYTHONPATH=/path/to/old/src``, e.g. from
+``git archive <rev> src | tar -x -C /tmp/before``) and once after. ``compare A.npz B.npz``: per entry,
+bit-identical or the largest difference; where not identical, a per-pixel two-sample z-test over the
+``--seeds`` independent renders of the last frame (Sidak-corrected over pixels, alpha 0.01) decides whether
+the two agree in distribution.
 
-    .venv/bin/python benchmarks/before_after.py snapshot /tmp/before.npz
+Suites:
+
+* ``techniques`` (default): the transport users on three scenes, plus the VPL radiosity estimator on fixed
+  surface points (``vpl/radiosity.py``);
+* ``transport``: the techniques moved onto the one path walk (the DDGI Resampling family's glossy
+  recursions, ``nee-pt``), 12 seeds each (the walk draws its random numbers in its own order);
+* ``probes``: every probe technique of the DDGI family on one dynamic scene, plus the DDGI+ volume's
+  atlases after each update (the one probe pipeline).
+
+    .venv/bin/python benchmarks/before_after.py snapshot /tmp/before.npz --suite probes
     .venv/bin/python benchmarks/before_after.py compare /tmp/before.npz /tmp/after.npz
 """
 from __future__ import annotations
@@ -18,14 +28,35 @@ import sys
 import numpy as np
 
 SCENES = ("cornell-static", "glossy-floor", "light-behind-glass")
-TECHNIQUES = ("path", "path:max_depth=3", "restir-pt:candidates=4:spatial=2",
-              "restir-pt:candidates=4:max_depth=2", "ddgi-primary:candidates=4:probe_counts=3:rays_per_probe=16:warmup=1",
-              "ddgi-secondary:candidates=4:probe_counts=4:rays_per_probe=32:warmup=1:max_glossy=2",
-              "ddgi-resampling:candidates=4:probe_counts=4:rays_per_probe=32:warmup=1:max_glossy=1",
-              "nee-pt", "ir")
+SUITES = {
+    "techniques": {
+        "scenes": SCENES, "res": "48x32", "frames": 3, "seeds": 1, "extras": ("radiosity",),
+        "techniques": ("path", "path:max_depth=3", "restir-pt:candidates=4:spatial=2",
+                       "restir-pt:candidates=4:max_depth=2",
+                       "ddgi-primary:candidates=4:probe_counts=3:rays_per_probe=16:warmup=1",
+                       "ddgi-secondary:candidates=4:probe_counts=4:rays_per_probe=32:warmup=1:max_glossy=2",
+                       "ddgi-resampling:candidates=4:probe_counts=4:rays_per_probe=32:warmup=1:max_glossy=1",
+                       "nee-pt", "ir")},
+    "transport": {
+        "scenes": SCENES, "res": "32x18", "frames": 2, "seeds": 12, "extras": (),
+        "techniques": ("ddgi-primary:candidates=4:probe_counts=3:rays_per_probe=16:warmup=1",
+                       "ddgi-secondary:candidates=4:probe_counts=3:rays_per_probe=16:warmup=1:progressive=false",
+                       "ddgi-resampling:candidates=4:probe_counts=3:rays_per_probe=16:warmup=1:progressive=false",
+                       "nee-pt:lights=power")},
+    "probes": {
+        "scenes": ("cornell-moving-box",), "res": "32x18", "frames": 4, "seeds": 1, "extras": ("ddgi-plus-volume",),
+        "techniques": ("ddgi:probe_counts=4:rays_per_probe=32:warmup=2",
+                       "qddgi:probe_counts=4:warmup=2:update_offscreen=true",
+                       "probes-reference:probe_counts=3:texels=8:rays_per_texel=4",
+                       "adgi:probe_counts=4:static_chains=256:dynamic_chains=64:warmup=2:warmup_rays=32:"
+                       "reclassify_interval=2",
+                       "isddgi:probe_counts=4:warmup=1:reclassify_interval=2")},
+}
+PLUS = {"probe_counts": "4", "rays_per_probe": 32, "warmup": 2}
+"""The DDGI+ volume's settings in the ``probes`` suite."""
 
 
-def snapshot(out, res, frames, seeds, techniques, scenes):
+def snapshot(out, res, frames, seeds, techniques, scenes, extras=("radiosity",)):
     from dyngi import backend
     backend.set_device("cpu")
     from dyngi.experiments.runner import run_sequence
@@ -45,8 +76,17 @@ def snapshot(out, res, frames, seeds, techniques, scenes):
                     if r.indirect[i] is not None:
                         data[f"{sc_name}|{spec_text}|{s}|{i}|indirect"] = r.indirect[i]
             print(sc_name, spec_text, flush=True)
-    # the VPL radiosity estimator on fixed surface points of each scene (vpl/radiosity.py)
+    if "radiosity" in extras:
+        _radiosity(data, scenes)
+    if "ddgi-plus-volume" in extras:
+        _ddgi_plus(data, scenes, res, frames, seeds)
+    np.savez_compressed(out, **data)
+
+
+def _radiosity(data, scenes):
+    """The VPL radiosity estimator on fixed surface points of each scene (vpl/radiosity.py)."""
     from dyngi.backend import dr, mi
+    from dyngi.scene import load_scene
     from dyngi.vpl.radiosity import estimate_radiosity
     for sc_name in scenes:
         sc = load_scene(sc_name)
@@ -62,7 +102,25 @@ def snapshot(out, res, frames, seeds, techniques, scenes):
         nn = np.stack([np.asarray(si.n[k]) for k in range(3)], 1)[ok]
         L, rays = estimate_radiosity(sc.mi_scene, p, nn, np.arange(len(p), dtype=np.uint64) * 7919, 16, 4)
         data[f"{sc_name}|radiosity|0|0|L"] = L
-    np.savez_compressed(out, **data)
+
+
+def _ddgi_plus(data, scenes, res, frames, seeds):
+    """The DDGI+ volume (probes/ddgi_plus.py): its atlases after each update."""
+    from dyngi.probes.ddgi_plus import DDGIPlusVolume
+    from dyngi.scene import load_scene
+    from dyngi.techniques.base import Frame
+    for scene in scenes:
+        for s in range(seeds):
+            sc = load_scene(scene)
+            vol = DDGIPlusVolume(sc, PLUS)
+            for i in range(frames):
+                t = i / 30.0
+                sc.at(t)
+                vol.update(Frame(i, t, sc.camera(t), res, seed=s * 1000 + i))
+                st = vol.volume.state
+                data[f"{scene}|ddgi-plus-volume|{s}|{i}|irradiance"] = np.asarray(st.irradiance).copy()
+                data[f"{scene}|ddgi-plus-volume|{s}|{i}|distance"] = np.asarray(st.distance).copy()
+    print("ddgi-plus-volume", flush=True)
 
 
 def compare(a_path, b_path):
@@ -112,19 +170,23 @@ def main():
     sub = ap.add_subparsers(dest="cmd", required=True)
     s = sub.add_parser("snapshot")
     s.add_argument("out")
-    s.add_argument("--res", default="48x32")
-    s.add_argument("--frames", type=int, default=3)
-    s.add_argument("--seeds", type=int, default=1)
-    s.add_argument("--techniques", default=";".join(TECHNIQUES), help="';'-separated specs")
-    s.add_argument("--scenes", default=",".join(SCENES))
+    s.add_argument("--suite", default="techniques", choices=sorted(SUITES))
+    s.add_argument("--res", help="WxH (default: the suite's)")
+    s.add_argument("--frames", type=int, help="default: the suite's")
+    s.add_argument("--seeds", type=int, help="default: the suite's")
+    s.add_argument("--techniques", help="';'-separated specs (default: the suite's)")
+    s.add_argument("--scenes", help="','-separated (default: the suite's)")
     c = sub.add_parser("compare")
     c.add_argument("a")
     c.add_argument("b")
     args = ap.parse_args()
     if args.cmd == "snapshot":
-        w, h = (int(x) for x in args.res.split("x"))
-        techs = [t for t in args.techniques.split(";") if t]
-        snapshot(args.out, (w, h), args.frames, args.seeds, techs, args.scenes.split(","))
+        su = SUITES[args.suite]
+        w, h = (int(x) for x in (args.res or su["res"]).split("x"))
+        techs = [t for t in args.techniques.split(";") if t] if args.techniques else list(su["techniques"])
+        scenes = args.scenes.split(",") if args.scenes else list(su["scenes"])
+        snapshot(args.out, (w, h), args.frames or su["frames"], args.seeds or su["seeds"], techs, scenes,
+                 su["extras"])
         return 0
     return compare(args.a, args.b)
 
