@@ -37,14 +37,6 @@ at 2048 samples at 1080p, Sec. 7) are stated beside each CDQ figure; ours are th
 
 ``--quick``: small images and few frames (about a minute on the 2-core box). Measured figures are
 recorded in the summary this writes (and by the lead in docs/benchmarks.md).
-
-Measured 2026-12-02 (full run, 3 min 44 s at load 5-8): (a) mean MSE over 80 frames at 160x90,
-BSDF / CDQ: 0.5-degree sun 4356 / 1536 (2.8x) over all pixels, 672 / 19.3 (35x) in the indirectly
-lit ones; 2-degree sun 681 / 32.9 (21x), 61.6 / 12.6 (4.9x); the per-frame medians favour BSDF in the
-indirect region (a typical BSDF frame misses the sun's bounce entirely). memory=0.8 did not help the
-means. (b) not resolved: per-frame MSE fluctuates by +-100 % at 64x64 even over 3 runs; CDQ settles at
-0.55-1.05x BSDF's MSE and the recovery criterion gives BSDF itself 32 / 14 "recovery" frames. (c) CDQ
-frame 38.8 vs 36.4 ms (trace 28.4 vs 27.4, migration 2.1 ms).
 """
 from __future__ import annotations
 
