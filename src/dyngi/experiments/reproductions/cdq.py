@@ -35,7 +35,7 @@ Samples per octree leaf per frame (placed vertices / leaves; paper: leaves split
 at 2048 samples at 1080p, Sec. 7) are stated beside each CDQ figure; ours are the scaled thresholds
 (``octree.scaled_thresholds``, floored at 512 / 256), see ``reproduce vlc``.
 
-``--quick``: small images and few frames (about a minute on the 2-core box). Measured figures are
+``--quick``: small images and few frames (minutes on the 2-core box). Measured figures are
 recorded in the summary this writes (and by the lead in docs/benchmarks.md).
 """
 from __future__ import annotations
