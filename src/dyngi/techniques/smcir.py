@@ -188,8 +188,8 @@ class SMCIR(VPLTechnique):
             c = raw_candidates_device(self.scene, frame.camera, frame.res, n, frame.seed, key, _S_CAND)
             dr.eval(c)
         with t.stage("resampling"):
-            # line 6's density of the raw hits among themselves, k = 1: on the device (fixed width n) on
-            # the GPU; on the CPU the host k-d tree (the declared CPU fast path: ~2x faster there, measured)
+            # line 6's density of the raw hits among themselves, k = 1 (impl='host'): the device grid on the
+            # GPU; on the CPU the host k-d tree (faster there; docs/benchmarks.md)
             if mi.variant().startswith("cuda"):
                 dens = knn_density_device(c["pos"], k=CANDIDATE_K, valid=c["ok"])
                 dr.eval(dens)

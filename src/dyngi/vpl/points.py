@@ -1,8 +1,8 @@
 """Points that VPL techniques trace: camera-visible points, candidate hits, photon paths, visibility.
 
-All per-ray work is one Dr.Jit kernel per call; results come back to the host as
-NumPy arrays of the valid lanes (a few ten thousand points: the host-side
-selection of :mod:`dyngi.techniques.smcir` works on them).
+All per-ray work is one Dr.Jit kernel per call. The ``*_device`` functions keep their results as
+Dr.Jit arrays over every lane (``smcir``'s default device path, ``mir``, ``tcas``); the others bring
+the valid lanes back to the host as NumPy arrays (``smcir:impl=host``'s selection works on them).
 
 * :func:`raw_candidates` -- Algorithm 1 lines 3 and 5 (Sec. 3.2.1): camera rays
   through random pixel positions find directly visible points ``x``; one
