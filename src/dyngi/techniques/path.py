@@ -29,12 +29,14 @@ indirect : bool = True  also return ``FrameResult.indirect``: the same paths
                         unclamped; costs < 1% (measured, cornell-static 160x120)
 lights : str = 'scene'  NEE light sampler (``dyngi techniques`` lists the registered ones)
 directions : str = 'bsdf'  indirect directions: the BSDF, or 'cdq' (:class:`dyngi.directions.walk.WalkDirections`)
-freeze : bool = True    replay the trace of a static frame with ``dr.freeze`` (Dr.Jit's frozen functions: the
+freeze : bool = False   replay the trace of a static frame with ``dr.freeze`` (Dr.Jit's frozen functions: the
                         kernels recorded once, no Python tracing per frame; bit-identical, ``tests/techniques/
                         test_path.py``); only with ``lights=scene``, ``directions=bsdf`` and no budget (our
                         choice: learning samplers change their state between frames). The recording is keyed
                         by the camera (a PyTree of its parameters), resolution, spp and a motion epoch that
-                        advances on every non-static frame; at most two recordings are kept
+                        advances on every non-static frame; at most two recordings are kept. Off by default
+                        (our choice): Dr.Jit 1.5 aborted the process once while recording (a garbage
+                        collection inside the frozen call, fresh clone, cold kernel cache; docs/benchmarks.md)
 
 Budgets: with ``Frame.ray_budget`` the frame's spp is the budget divided by
 the rays per sample measured on the previous frame; with
@@ -86,7 +88,7 @@ class PathTechnique(Technique):
         "directions": Param("bsdf", "indirect directions (dyngi.directions): the BSDF's own sampling, or 'cdq' "
                             "(CDQ/BSDF one-sample MIS mixture, learned per octree leaf)",
                             choices=direction_samplers.names()),
-        "freeze": Param(True, "replay static frames' trace with dr.freeze (lights=scene, directions=bsdf, no budget)"),
+        "freeze": Param(False, "replay static frames' trace with dr.freeze (lights=scene, directions=bsdf, no budget)"),
     }
 
     def __init__(self, scene, params=None):
