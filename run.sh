@@ -54,7 +54,7 @@ case "$cmd" in
     xd=()
     case " $* " in *" -n "*|*" -n="*|*"no:xdist"*) workers=0 ;; esac
     if [ "$workers" != 0 ] && .venv/bin/python -c "import xdist" 2>/dev/null; then
-      xd=(-n "$workers" --dist loadfile)
+      xd=(-n "$workers" --dist loadfile --max-worker-restart 0)   # a crashed worker ends the run (no hang)
     fi
     exec .venv/bin/python -m pytest -q "${xd[@]}" "$@" ;;
   dyngi) exec .venv/bin/dyngi "$@" ;;
