@@ -97,6 +97,7 @@ def test_unknown_direction_sampler_raises(backend):
         directions.make("cdq")          # the mixture needs a learned CDQ
 
 
+@pytest.mark.slow   # CI budget (10-30 s on a cold cache); runs in CI's slow subset
 def test_path_with_cdq_directions_is_unbiased(backend):
     """path:directions=cdq (the walk with the CDQ/BSDF mixture, learning over the frames) against path."""
     import os

@@ -37,6 +37,7 @@ def test_equal_time_check_points(rep):
         [None, "a", "a", "b", "c", "c"]
 
 
+@pytest.mark.slow   # CI budget (10-30 s on a cold cache); runs in CI's slow subset
 def test_equal_rays_protocol_follows_qddgi(rep):
     """``adgi@equal-rays``: each frame's budget is Q-DDGI's rays on that frame (less ADGI's over-spend on
     earlier steady frames): the steady total is within 5 % of Q-DDGI's, and no steady frame exceeds its

@@ -19,6 +19,7 @@ def _need_oidn():
         pytest.skip("pyoidn not installed")
 
 
+@pytest.mark.slow   # CI budget (10-30 s on a cold cache); runs in CI's slow subset
 def test_compare_reports_raw_and_denoised_side_by_side(cache):
     _need_oidn()
     from dyngi.experiments.compare import run_compare

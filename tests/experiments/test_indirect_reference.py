@@ -45,7 +45,7 @@ def test_single_plane_has_no_indirect_light(backend, light):
     assert _mitsuba(sc, (24, 18), 16, 1, 8).mean() > 0.05      # the plane is lit (directly)
 
 
-@pytest.mark.parametrize("name", ["cornell-static", "sky-pit"])
+@pytest.mark.parametrize("name", ["cornell-static", pytest.param("sky-pit", marks=pytest.mark.slow)])  # CI budget
 def test_indirect_plus_direct_is_full(backend, name):
     """ours(indirect) + Mitsuba(max_depth=2), independent, estimates Mitsuba(max_depth=8): per-pixel z-test."""
     from dyngi.experiments.indirect_reference import indirect_reference_image

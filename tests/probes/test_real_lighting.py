@@ -108,6 +108,7 @@ def _nee_only_mean(sc, direct, frames=16):
     return float(np.mean(means))
 
 
+@pytest.mark.slow   # CI budget (10-30 s on a cold cache); runs in CI's slow subset
 def test_nee_carries_the_sun_and_nothing_of_the_sky():
     """NEE-only direct light vs Mitsuba's direct light (max_depth 2) on the sun-only room: equal within 3%;
     on the sky-only room NEE adds nothing (the sky belongs to the probes); with both, NEE carries the sun."""
@@ -141,7 +142,7 @@ ANALOGS = {
     "light-behind-glass": lambda: load_scene("light-behind-glass"),
     "room-metal-furniture": lambda: load_scene("room-metal-furniture"),
 }
-SLOW_ANALOGS = ("sun-only", "sky-only", "light-behind-glass", "room-sun-blinds")   # the longest: slow (CI budget)
+SLOW_ANALOGS = ("sun-only", "sky-only", "light-behind-glass", "room-sun-blinds", "room-metal-furniture")   # the longest: slow (CI budget)
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in SLOW_ANALOGS else n
@@ -157,6 +158,7 @@ def test_ddgi_matches_mitsuba_on_the_analog_scenes(name):
     assert change.max() < 0.01, (name, change)
 
 
+@pytest.mark.slow   # CI budget (10-30 s on a cold cache); runs in CI's slow subset
 def test_the_old_sky_split_misses_the_sun():
     """The failure the default fixes: under direct='sky' the sun of a sunsky is left to the probes, whose
     blurred, under-sampled sun patch comes out far too dark (issue 11: -10% on a real dining room)."""
@@ -248,6 +250,7 @@ def test_ddgi_on_the_shared_cornell_box():
     assert abs(m.mean() / ref - 1.0) < 0.10, (m.mean(), ref)
 
 
+@pytest.mark.slow   # CI budget (10-30 s on a cold cache); runs in CI's slow subset
 @pytest.mark.parametrize("name", ["room-sun-blinds", "light-behind-glass"])
 def test_sun_split_and_glass_loops_compile_nothing_in_steady_frames(name):
     sc = load_scene(name)

@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from dyngi.backend import mi
 from dyngi.sampling.gbuffer import render_gbuffer
@@ -66,6 +67,7 @@ def _leak(tech, sc, ref, near, far, frames=12, res=(64, 36)):
     return e[near].mean() / r[near].mean(), e[far].mean() / r[far].mean()
 
 
+@pytest.mark.slow   # CI budget (10-30 s on a cold cache); runs in CI's slow subset
 def test_ddgi_leak_near_the_walls_stays_small():
     sc = load_scene("living-room")
     res = (64, 36)

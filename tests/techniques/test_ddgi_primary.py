@@ -76,6 +76,7 @@ def test_distance_clamp_is_at_least_the_cell_diagonal(factor):
     assert tech.volume.max_distance == pytest.approx(want, rel=1e-9)
 
 
+@pytest.mark.slow   # CI budget (10-30 s on a cold cache); runs in CI's slow subset
 def test_see_through_and_fallback_compile_no_new_kernels_in_steady_frames():
     """hall-top-light (glass, so the pass-through loop runs): frames after the third compile nothing new,
     also across a change of probe states (the fallback table is a buffer, not a literal)."""

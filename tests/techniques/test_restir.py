@@ -42,7 +42,7 @@ def _stacks(name, max_depth, K=12, frames=16, ref_factor=16, **params):
 
 
 @pytest.mark.parametrize("name,max_depth,combine,K,frames", [
-    ("cornell-static", 5, "mis", 16, 32),
+    pytest.param("cornell-static", 5, "mis", 16, 32, marks=pytest.mark.slow),   # CI budget: ~20 s cold
     pytest.param("cornell-static", 2, "1/z", 16, 32, marks=pytest.mark.slow),
     pytest.param("warehouse-lights", 2, "mis", 12, 16, marks=pytest.mark.slow),
     # area + point lights (delta positions enter the reservoirs as point masses)

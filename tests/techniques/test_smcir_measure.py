@@ -93,6 +93,7 @@ def test_reproduce_smcir_quick(backend, tmp_path):
     assert "flicker.png" in open(f"{out}/report.html").read()
 
 
+@pytest.mark.slow   # CI budget (10-30 s on a cold cache); runs in CI's slow subset
 def test_clamped_path_tracing_reference(backend):
     """Sec. 5.4: unclamped, the clamped estimator equals the indirect-only path tracer (same three
     bounces; means within 4%); clamped, it loses energy; exhaustive VPLs approach it (Fig. 8/10)."""
