@@ -65,6 +65,7 @@ from ..backend import dr, mi
 from ..probes.ddgi_plus import DDGIPlusVolume, plus_params
 from ..directions.lobes import LobeDirections
 from ..probes.glossy import GLOSSY_LOBES
+from ..probes.lookup import diffuse_radiance
 from ..probes.trace import shading_side
 from ..sampling.diffuse import diffuse_albedo
 from ..sampling.rng import make_sampler
@@ -110,7 +111,7 @@ def glossy_recursion(scene, volume, lights, si, ray, front, sampler, depth_max: 
         alb = diffuse_albedo(v.bsdf, v.si, fr)
         dif = fr & dr.any(alb > 0.0) & (v.depth >= 1)
         E = volume.query.irradiance(v.si.p, nn, -v.ray.d, active=dif)
-        L = dr.select(dif, alb * dr.inv_pi * E, 0.0)
+        L = diffuse_radiance(alb, E, dif)
         return L, (v.depth >= depth_u) | ~fr, v.state
 
     r = walk(scene, sampler, ray, mi.Bool(front), depth_max + 2, -1, lights, si=si, emission=emission, nee=nee,
@@ -166,7 +167,7 @@ class DDGIPrimaryTechnique(Technique):
         with t.stage("probe query"):
             alb = diffuse_albedo(bsdf, si, front)
             E = self.probes.query.irradiance(si.p, n, -ray.d, active=front & dr.any(alb > 0.0))
-            ind = dr.select(front, alb * dr.inv_pi * E, 0.0)
+            ind = diffuse_radiance(alb, E, front)
             dr.eval(ind)
         gl = mi.Color3f(0.0)
         if p["glossy_depth"] > 0:

@@ -58,6 +58,7 @@ Temporal reuse (``ddgi-resampling``): the M cap defaults to 1 (:data:`M_CAP`, me
 from __future__ import annotations
 
 from ...backend import dr, mi
+from ...probes.lookup import diffuse_radiance
 from ...sampling.diffuse import diffuse_albedo
 from ...sampling.reservoir import Reservoir
 from ...sampling.rng import make_sampler
@@ -200,7 +201,7 @@ class DDGIResamplingTechnique(SecondaryShading):
         albedo1 = diffuse_albedo(bsdf, gb.si, gb.valid)
         if self.cvnr is not None:   # nearest-ray: g is looked up per direction; first value the probe
             probe = self.cvnr.nearest_probe(gb.pos)
-            return probe, dr.select(gb.valid, albedo1 * dr.inv_pi * self.cvnr.integral(probe, n, gb.valid), 0.0)
+            return probe, diffuse_radiance(albedo1, self.cvnr.integral(probe, n, gb.valid), gb.valid)
         E1 = self.query.irradiance(gb.pos + n * (0.05 * self.s_min) - gb.ray.d * (0.2 * self.s_min),
                                    n, -gb.ray.d, active=gb.valid)
         g_col = mi.Color3f(E1 * dr.inv_pi)

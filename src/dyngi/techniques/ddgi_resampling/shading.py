@@ -54,6 +54,7 @@ from ...directions.base import Vertex
 from ...directions.bsdf import BSDFDirections
 from ...directions.lobes import LobeDirections
 from ...probes.glossy import GLOSSY_LOBES, GLOSSY_NORMALISATION, sample_glossy
+from ...probes.lookup import diffuse_radiance
 from ...probes.trace import shading_side
 from ...sampling.diffuse import diffuse_albedo
 from ...transport.accumulate import ProgressiveMean
@@ -191,7 +192,7 @@ class SecondaryShading(Technique):
             albedo = diffuse_albedo(bsdf, si, front)
             diff = front & dr.any(albedo > 0.0)
             E = query.irradiance(q, n, wo, active=diff)
-            L_v = dr.select(diff, albedo * dr.inv_pi * E, 0.0)
+            L_v = diffuse_radiance(albedo, E, diff)
             # -- Eq. 6's estimate where the footprint is large (one glossy sample) --
             d_g, w_g, g_end = sample_glossy(bsdf, si, v.sampler.next_1d(), v.sampler.next_2d(), front & stop)
             g_end &= mi.Frame3f.cos_theta(si.to_local(d_g)) * mi.Frame3f.cos_theta(si.wi) > 0.0   # reflection only
