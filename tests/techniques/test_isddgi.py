@@ -13,6 +13,19 @@ from dyngi.techniques.isddgi.sets import (N_SETS, RAYS_LIMIT, allocation_pdf, ji
                                          probe_shift, sample_allocation, set_solid_angles, uniform_mask)
 
 
+def _assert_draws_follow(counts, pdf, n, P):
+    """``counts`` of ``n`` draws follow ``pdf`` (chi^2 at 16 cells per probe -- odd grids are pooled by
+    chi2_uniform's low-cell rule -- and per (probe, set)), and the test can fail: a 5% wrong pdf is rejected."""
+    ok, p = chi2_uniform(counts.reshape(P, 16, 16).sum(2), pdf.reshape(P, 16, 16).sum(2) * n)
+    assert ok, p
+    ok, p = chi2_uniform(counts, pdf * n)
+    assert ok, p
+    bad = pdf.copy()
+    bad[0] *= 1.05
+    bad /= bad.sum()
+    assert not chi2_uniform(counts.reshape(P, 16, 16).sum(2), bad.reshape(P, 16, 16).sum(2) * n)[0]
+
+
 def test_set_solid_angles_sum_to_4pi_and_differ():
     om = set_solid_angles()
     assert om.shape == (N_SETS,)
@@ -41,16 +54,7 @@ def test_allocation_pdf_sums_to_one_and_sampling_matches_it():
     n = 400_000
     counts = sample_allocation(pdf, n, np.random.default_rng(11))
     assert counts.sum() == n
-    # coarsen to 16 cells per probe (odd grids are pooled by chi2_uniform's low-cell rule)
-    ok, p = chi2_uniform(counts.reshape(P, 16, 16).sum(2), pdf.reshape(P, 16, 16).sum(2) * n)
-    assert ok, p
-    ok, p = chi2_uniform(counts, pdf * n)
-    assert ok, p
-    # and the test can fail: a wrong pdf is rejected
-    bad = pdf.copy()
-    bad[0] *= 1.05
-    bad /= bad.sum()
-    assert not chi2_uniform(counts.reshape(P, 16, 16).sum(2), bad.reshape(P, 16, 16).sum(2) * n)[0]
+    _assert_draws_follow(counts, pdf, n, P)
 
 
 def test_device_planner_draws_the_allocation_and_caps_each_set(backend):
@@ -73,14 +77,7 @@ def test_device_planner_draws_the_allocation_and_caps_each_set(backend):
     idx = sample_pairs_dr(pd, n, seed=7)
     counts = np.bincount(np.asarray(idx), minlength=P * N_SETS).reshape(P, N_SETS)
     assert counts.sum() == n and counts[3].sum() == 0
-    ok, p = chi2_uniform(counts.reshape(P, 16, 16).sum(2), pdf.reshape(P, 16, 16).sum(2) * n)
-    assert ok, p
-    ok, p = chi2_uniform(counts, pdf * n)
-    assert ok, p
-    bad = pdf.copy()
-    bad[0] *= 1.05
-    bad /= bad.sum()
-    assert not chi2_uniform(counts.reshape(P, 16, 16).sum(2), bad.reshape(P, 16, 16).sum(2) * n)[0]
+    _assert_draws_follow(counts, pdf, n, P)
     # per-set cap: uniform rays on every third pair, 20k draws concentrated on few sets
     ukeys = np.arange(0, P * N_SETS, 3)
     draws = np.asarray(sample_pairs_dr(mi.Float((pdf.ravel() ** 3).astype(np.float32)), 20_000, seed=1))

@@ -67,10 +67,11 @@ import numpy as np
 
 from ...probes import ProbeStates
 from ...probes.grid import PROBE_ACTIVE, PROBE_INACTIVE
+from ...probes.params import DDGI_SPECS
 from ...probes.pipeline import ProbePipeline
 from ...probes.trace import HIT_LOOKUPS
 from ..base import Frame, FrameResult, Param, StageTimer, register
-from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase
+from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase, params_from
 from .estimator import BACKFACE_THRESHOLD, SetBlend, probe_states_alg2
 from .planner import SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
 from .shading import KeyedHitShader
@@ -103,10 +104,8 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         "dynamic_threshold": Param(0.8, "change above which a ray counts as dynamic (ours)", min=0.0, max=0.99),
         "decay": Param(0.9, "per-frame decay of the smoothed change (ours)", min=0.0, max=1.0),
         "warmup": Param(8, "extra updates on frame 0 (one ray per set, no hysteresis)", min=0, max=256),
-        "hysteresis": Param(0.97, "weight of the old texel value in the blend", min=0.0, max=1.0),
-        "distance_power": Param(50.0, "cosine power of the distance blend", min=1.0),
-        "irradiance_gamma": Param(5.0, "perceptual blending exponent (1: linear blend)", min=1.0),
-        "change_threshold": Param(0.25, "per-texel change that lowers the hysteresis (perceptual space)", min=0.0),
+        **params_from({k: DDGI_SPECS[k] for k in ("hysteresis", "distance_power", "irradiance_gamma",
+                                                  "change_threshold")}),     # as ddgi's
         "hit_lookup": Param("stochastic", "how probe-ray hits read the previous probes", choices=HIT_LOOKUPS),
         "relocate": Param(True, "move probes out of geometry (Majercik et al. 2021)"),
         "classify": Param(True, "probe states by Algorithm 2"),
