@@ -39,7 +39,7 @@ def _fake_run(sec, frames=4, better=None):
         for i in range(frames):
             rows.append({"technique": lb, "frame": i, "time": times[i], "mse": err[i], "relmse": err[i],
                          "mape": err[i], "flip": err[i], "ssim": 1 - err[i] / 4})
-        stage = {"trace probes": 10.0 * f, "plan": 1.0, "blend": 2.0 * f}
+        stage = {"trace probes": 10.0 * f, "states": 1.0, "blend": 2.0 * f}
         summary[lb] = {"mean": {m: float(np.mean(err)) for m in ("mse", "relmse", "mape", "flip")} |
                                {"ssim": 1 - float(np.mean(err)) / 4},
                        "E": 0.1 * f, "E_prime": 0.05 * f, "ms_per_frame": 20.0 * f, "rays_per_frame": 1e5,

@@ -130,14 +130,13 @@ def measure_adgi(rs, sec) -> dict:
     return {"text": text, "agrees": bool(e["adgi"] < e["qddgi"]), "values": {"relmse": e, "ssim": q, "ms": ms}}
 
 
-IS_UPDATE_STAGES = ("plan", "trace probes", "shade probes", "blend", "states")
-
-
 def measure_isddgi(rs, sec) -> dict:
     """Probe-trace and probe-update ms ratios (ddgi / isddgi), probe rays, MSE ratio (steady frames)."""
+    from .reproductions.isddgi import UPDATE_STAGES
+
     s = rs["summary"]
     trace = {lb: s[lb]["stage_ms"].get("trace probes", 0.0) for lb in ("isddgi", "ddgi")}
-    update = {lb: sum(s[lb]["stage_ms"].get(k, 0.0) for k in IS_UPDATE_STAGES) for lb in ("isddgi", "ddgi")}
+    update = {lb: sum(s[lb]["stage_ms"].get(k, 0.0) for k in UPDATE_STAGES) for lb in ("isddgi", "ddgi")}
     rays = {}
     for lb in ("isddgi", "ddgi"):
         st = rs["results"][lb].steady()[0]

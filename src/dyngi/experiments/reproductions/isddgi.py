@@ -32,7 +32,8 @@ ISDDGI_FULL = {"scenes": SCENES, "res": (96, 72), "frames": 30, "ref_spp": 512,
                "scene_frames": {"corridor-rooms": 45}}
 """``scene_frames``: corridor-rooms' first light switch is at t = 1 s (frame 30); 45 frames include it and
 the 14 frames after it (30 frames would show no switch at all: the best case would not be exercised)."""
-UPDATE_STAGES = ("plan", "trace probes", "shade probes", "blend", "states")   # "plan": isddgi only
+UPDATE_STAGES = ("trace probes", "shade probes", "blend", "states")
+"""The probe update's stages, the same for ddgi and isddgi (isddgi's planning is timed inside "states")."""
 ABSTRACT = {"trace_speedup": "3.29x-6.64x", "total_speedup": "1.27x-2.47x", "quality": "similar to DDGI"}
 
 
