@@ -1,6 +1,6 @@
 """Imports go one way, down DESIGN.md's list of layers (issue 23, item 2):
 
-    errors, backend, timing -> metrics, sampling -> scene -> lights, directions -> transport
+    errors, backend, timing, registry, color -> metrics, sampling -> scene -> lights, directions -> transport
     -> probes, vpl -> techniques -> experiments -> viewer -> cli
 
 Read statically from the source (every ``import`` and ``from ... import``, also inside functions,
@@ -23,7 +23,7 @@ SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 
 
 # layer of each top-level module/package of dyngi, lowest first (DESIGN.md, "Layout by concept")
 LAYERS = {
-    "errors": 0, "backend": 0, "timing": 0, "registry": 0, "__init__": 0,
+    "errors": 0, "backend": 0, "timing": 0, "registry": 0, "color": 0, "__init__": 0,
     "metrics": 1, "sampling": 1,
     "scene": 2,
     "lights": 3, "directions": 3,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..color import luminance  # noqa: F401  (dyngi.metrics.luminance: the one luminance, dyngi.color)
 from ..errors import DyngiError
 
 
@@ -42,7 +43,3 @@ def as_pair(img, ref, nonnegative: bool = False, ref_nonnegative: bool = False):
     return a, b
 
 
-def luminance(img: np.ndarray) -> np.ndarray:
-    """Relative luminance Y of linear sRGB / Rec. 709 primaries: 0.2126 R + 0.7152 G + 0.0722 B."""
-    a = np.asarray(img, dtype=np.float64)
-    return a[..., 0] * 0.2126 + a[..., 1] * 0.7152 + a[..., 2] * 0.0722

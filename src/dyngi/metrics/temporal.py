@@ -11,7 +11,7 @@ Reinhard tone mapping, and reports
 
 Our conventions (the paper leaves them open):
 
-* value tracked: luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` of linear
+* value tracked: luminance ``Y`` (:func:`dyngi.color.luminance`, Rec. 709) of linear
   RGB, tone-mapped by Reinhard's global operator with a fixed scale,
   ``T(Y) = k Y / (1 + k Y)``, ``k = exposure`` (:func:`~dyngi.metrics.image.reinhard`);
   the same ``k`` for estimate, reference and all frames. ``exposure='auto'``

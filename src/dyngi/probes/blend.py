@@ -46,8 +46,6 @@ from .trace import ProbeRayResults
 from .volume import ProbeVolume
 from ..errors import unknown_choice
 
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722], np.float32)
-
 __all__ = ["ProbeBlend", "HysteresisBlend", "CappedMeanBlend", "TrueAverage", "blend_matrix", "MatrixEstimator",
            "interior_source_index", "ESTIMATORS", "CHANGE_HYSTERESIS_DROP", "BRIGHTNESS_DAMPING",
            "MIN_BLEND_WEIGHT"]

@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from ..color import luminance
 
 INVALID = 0xFFFFFFFF
 
@@ -131,7 +132,7 @@ class EmitterTriangles:
             else:
                 self._rad_host = np.zeros((0, 3))
         rad = self._rad_host
-        lum = rad @ np.array([0.212671, 0.715160, 0.072169])
+        lum = luminance(rad)
         power = np.pi * area * lum
         self._host = dict(p0=p0, e1=e1, e2=e2, normal=n, area=area, radiance=rad, power=power, centroid=cen)
         # padded to >= 2 entries: a 1-element array may enter a kernel as a literal (then another kernel)

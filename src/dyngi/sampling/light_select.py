@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from ..backend import dr, mi
+from ..color import luminance
 from .emitter_triangles import INVALID, EmitterTriangles  # noqa: F401  (re-exported)
 
 
@@ -63,8 +64,7 @@ class LightSelector(Protocol):
 def _luminance(c):
     if isinstance(c, (mi.Float, float, int)):
         return mi.Float(c)
-    c = mi.Color3f(c)
-    return c.x * 0.212671 + c.y * 0.715160 + c.z * 0.072169
+    return luminance(mi.Color3f(c))
 
 
 def _edge(u, v, n):

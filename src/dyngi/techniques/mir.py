@@ -38,13 +38,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from ..color import luminance
 from ..sampling.rng import make_sampler
 from ..transport.path_walk import trace_paths_split
 from ..vpl.density import MIN_RADIUS, KNNGrid, knn_k
 from ..vpl.points import raw_candidates_device
 from ..vpl.radiosity import RAY_OFFSET
 from ..vpl.smc import resample_with_replacement_device
-from ..vpl.store import LUMINANCE
 from .base import Frame, Param, StageTimer, register
 from .vpl_base import COMMON_PARAMS, VPLTechnique
 
@@ -87,8 +87,7 @@ class MetropolisIR(VPLTechnique):
             sampler = make_sampler(n, frame.seed, frame.index, 0x31C)
             L, n_rays = path_radiance_device(self.scene.mi_scene, cand["pos"], cand["nrm"], sampler, ok,
                                              int(p["max_depth"]) - 1, self.lights)
-            c = dr.select(ok, mi.Float(dr.dot(mi.Vector3f(cand["mailbox_albedo"] * L),
-                                              mi.Vector3f(*(float(v) for v in LUMINANCE)))), 0.0)
+            c = dr.select(ok, luminance(cand["mailbox_albedo"] * L), 0.0)
             rays = dr.sum(n_rays) + dr.count(cand["okx"]) + n
             dr.eval(cand, L, c, rays)      # cand too: a lazy hit would be re-traced in every later kernel
         t.add_rays("paths", rays)

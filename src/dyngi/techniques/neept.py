@@ -98,7 +98,7 @@ from ..sampling.light_select import FrameCtx
 from ..sampling.lights import EmitterSubsetSampling
 from ..sampling.rng import make_sampler, mix_seed
 from ..transport.accumulate import ProgressiveMean
-from ..transport.color import luminance
+from ..color import luminance
 from ..transport.mis import mis_weight
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 

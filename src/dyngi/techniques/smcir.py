@@ -106,14 +106,15 @@ import numpy as np
 
 from ..sampling.rng import make_sampler, mix_seed
 from ..backend import dr, mi
+from ..color import luminance
 from ..vpl.density import MIN_RADIUS, KNNGrid, knn_density, knn_density_device, knn_k
 from ..vpl.points import camera_sees, candidates_to_host, raw_candidates_device, segment_clear
 from ..vpl.radiosity import RENDER_STREAM, estimate_radiosity, stream_seeds
 from ..vpl.smc import clamp_size, grow_invalid, m_min, resample_with_replacement_device, resample_without_replacement
-from ..vpl.smc_device import (DeviceVPLStore, camera_sees_device, estimate_radiosity_device, luminance,
+from ..vpl.smc_device import (DeviceVPLStore, camera_sees_device, estimate_radiosity_device,
                               quantile_device, ranks, sample_without_replacement_device, segment_clear_device,
                               stream_seeds_device)
-from ..vpl.store import LUMINANCE, VPLStore
+from ..vpl.store import VPLStore
 from .base import Frame, Param, StageTimer, register
 from .vpl_base import COMMON_PARAMS, VPLTechnique
 
@@ -301,7 +302,7 @@ class SMCIR(VPLTechnique):
             n_c = len(cand["pos"])
             dens = knn_density(st.pos[used], cand["pos"], k=CANDIDATE_K, n_total=max(len(used), 1)) if len(used) else \
                 np.zeros(n_c)
-            lum = cand["radiosity"].astype(np.float64) @ LUMINANCE
+            lum = luminance(cand["radiosity"])
             with np.errstate(divide="ignore", invalid="ignore"):
                 c_int = np.where(dens > 0, lum / np.maximum(dens, 1e-300), np.where(lum > 0, np.inf, 0.0))
             cur_int = st.intensity()

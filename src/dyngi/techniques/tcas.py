@@ -31,9 +31,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from ..color import luminance
 from ..sampling.rng import make_sampler, mix_seed
 from ..vpl.points import photon_first_hits_device, raw_candidates_device
-from ..vpl.store import LUMINANCE
 from .base import Frame, Param, StageTimer, register
 from .vpl_base import COMMON_PARAMS, VPLTechnique
 
@@ -87,7 +87,7 @@ class TCAS(VPLTechnique):
 
     def _target(self, hits, view):
         """f = lum(L) * sum_x cos cos / max(d^2, d_min^2) (no visibility), per chain on the device."""
-        lum = dr.dot(mi.Vector3f(hits["radiosity"]), mi.Vector3f(*(float(v) for v in LUMINANCE)))
+        lum = luminance(hits["radiosity"])
         dmin2 = dr.opaque(mi.Float, 1.0 / self.gmax if np.isfinite(self.gmax) else 0.0)
         imp = _view_importance(hits["pos"], hits["nrm"], hits["ok"], view["x"], view["n"], view["ok"],
                                dr.opaque(mi.UInt32, view["count"]), dmin2)

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..color import luminance
+
 OVERLAYS = ("none", "probes", "vpls", "octree", "guide")
 
 
@@ -134,7 +136,7 @@ def _draw_vpls(tech, scene, camera, res, frame_u8):
         return frame_u8
     pos, nrm, flux = data
     pos, nrm, flux = pos.reshape(-1, 3), nrm.reshape(-1, 3), flux.reshape(-1, 3)
-    lum = flux @ np.array([0.2126, 0.7152, 0.0722])
+    lum = luminance(flux)
     keep = np.isfinite(lum) & (lum > 0) & np.all(np.isfinite(pos), axis=1)
     pos, nrm, flux = pos[keep], nrm[keep], flux[keep]
     out = frame_u8.copy()

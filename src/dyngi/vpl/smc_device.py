@@ -26,14 +26,9 @@ import numpy as np
 from ..backend import dr, mi
 from .points import RAY_EPS
 from .radiosity import RAY_OFFSET, PCGSampler
-from .store import LUMINANCE, VPLStore
+from .store import VPLStore
 
 _GOLDEN = 0x9E3779B97F4A7C15
-
-
-def luminance(c):
-    """Rec. 709 luminance of a Color3f (:data:`dyngi.vpl.store.LUMINANCE`)."""
-    return c[0] * float(LUMINANCE[0]) + c[1] * float(LUMINANCE[1]) + c[2] * float(LUMINANCE[2])
 
 
 def stream_seeds_device(seeds, stream: int):

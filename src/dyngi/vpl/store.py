@@ -10,7 +10,8 @@ radiosity estimate (Sec. 3.2.3). ``sel_radiosity`` is the estimate the selection
 steps see (Algorithm 1, lines 7, 9-16: stream 0 of the seed); ``radiosity`` the
 one shading uses (line 18: ``smcir`` traces it with an independent stream,
 :func:`dyngi.vpl.radiosity.stream_seeds`, so that the selection does not bias it).
-Its *intensity* is I(y) = lum(L_sel(y)) / p(y) (Eq. 6).
+Its *intensity* is I(y) = lum(L_sel(y)) / p(y) (Eq. 6), lum the Rec. 709 luminance
+(:func:`dyngi.color.luminance`; the paper names no weighting: our choice).
 
 Shading sums ``flux_i * G * V`` with ``flux_i = L_i / (I p_i)`` (Eq. 5 with the
 camera path fixed at the primary hit; :mod:`dyngi.vpl.shading`). Techniques that
@@ -23,8 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-"""Rec. 709 luminance weights: the scalar of a VPL's RGB radiosity for intensities (our choice)."""
+from ..color import luminance
 
 
 @dataclass
@@ -63,7 +63,7 @@ class VPLStore:
 
     def intensity(self) -> np.ndarray:
         """I(y) = lum(L_sel(y)) / p(y) (Eq. 6) with the selection estimate; 0 for empty slots."""
-        lum = self.sel_radiosity.astype(np.float64) @ LUMINANCE
+        lum = luminance(self.sel_radiosity)
         return np.where(self.used, lum / np.maximum(self.density, 1e-30), 0.0)
 
     def flux(self, budget: int | None = None) -> np.ndarray:

@@ -58,7 +58,7 @@ CDQ_FULL = {"scenes_a": ("sky-pit-sun-disc", "sky-pit-sun-disc-2deg", "sky-pit")
             "warmup_a": 40, "res_b": (64, 64), "pre_b": 60, "post_b": 40, "runs_b": 3, "ref_spp": 512,
             "bits": (32, 64, 96, 128)}
 BASE = "nee-pt"
-from ...transport.color import LUMINANCE as _LUM  # noqa: E402
+from ...color import LUMINANCE as _LUM  # noqa: E402
 _NONFINITE: dict = {}   # NaN/Inf pixels per technique spec over the run (summary.json "failed")
 
 

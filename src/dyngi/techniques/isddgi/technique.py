@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...color import luminance
 from ...probes import ProbeStates
 from ...probes.grid import PROBE_ACTIVE, PROBE_INACTIVE
 from ...probes.params import DDGI_SPECS
@@ -178,7 +179,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
                 st.updates[pid[(old == PROBE_INACTIVE) & (new == PROBE_ACTIVE)]] = 0
                 if np.any(old != new):
                     vol.sync(("positions", "states"))
-            lum = 0.2126 * L[0] + 0.7152 * L[1] + 0.0722 * L[2]
+            lum = luminance(L.T)                         # L: (3, n) channel-planar
             info.update(self.planner.observe(plan, lum, d, adapt=adapt))
         return info
 
