@@ -1,6 +1,7 @@
-"""``lights=`` on the VPL techniques (issue 29, item 3): the radiosity of ``smcir``'s and ``mir``'s VPLs
-is estimated by the path walk, whose NEE goes through a light sampler (:class:`dyngi.lights.nee.LightNEE`);
-``ir`` and ``tcas`` carry radiosity on photons (no NEE) and accept only 'scene'."""
+"""``lights=`` on the VPL techniques (issue 29 item 3, issue 24 item 3): the radiosity of ``smcir``'s and
+``mir``'s VPLs is estimated by the path walk, whose NEE goes through a light sampler
+(:class:`dyngi.lights.nee.LightNEE`); ``ir`` and ``tcas`` carry radiosity on photons, whose lights the
+sampler chooses (:mod:`dyngi.vpl.emission`: 'uniform' and 'power', samplers without a shading point)."""
 from __future__ import annotations
 
 import numpy as np
@@ -12,13 +13,57 @@ from dyngi.techniques import Frame, create_technique
 from dyngi.color import luminance
 
 
-def test_photon_techniques_reject_a_light_sampler_and_unknown_names_list_the_choices(backend):
+def test_photon_techniques_take_point_free_samplers_and_unknown_names_list_the_choices(backend):
     sc = load_scene("cornell-static")
     for spec in ("ir", "tcas"):
-        with pytest.raises(DyngiError, match="photons"):
-            create_technique(spec, sc, {"lights": "power"})
+        assert create_technique(spec, sc, {"lights": "power"}).lights.kind == "power"
+        with pytest.raises(DyngiError, match="power"):      # a point-dependent sampler: the valid ones named
+            create_technique(spec, sc, {"lights": "lighttree"})
     with pytest.raises(DyngiError, match="power"):
         create_technique("smcir", sc, {"lights": "brightest"})
+
+
+@pytest.mark.slow
+def test_photons_through_a_light_sampler_carry_the_same_power(backend):
+    """maze (11 area lights of unequal power + 2 point lights: both branches of the emission), 16384
+    photons: the first-bounce radiosity per photon (emitted power / pdf x albedo / pi) with the lights
+    chosen by ``lights=power`` and ``lights=uniform`` has the mean of Mitsuba's ``sample_emitter_ray``
+    (two-sample z-test, |z| < 4, independent seeds); the same seeds give other photons (the sampler is in
+    use); ``tcas``'s photon hits (:func:`photon_first_hits_device`) agree the same way; then one frame of
+    ``ir:lights=power`` and ``tcas:lights=uniform`` is finite and lit."""
+    from dyngi.lights.nee import LightNEE
+    from dyngi.vpl.points import photon_first_hits, trace_photons
+
+    sc = load_scene("maze")
+    sc.at(0.0)
+    cam = sc.camera(0.0)
+    n = 16384
+
+    def first_bounce(lights, seed):
+        v, _ = trace_photons(sc, n, 1, seed, lights=lights)
+        return luminance(v["radiosity"][:n])
+
+    def z(a, b):
+        return (a.mean() - b.mean()) / np.sqrt((a.var() + b.var()) / len(a))
+
+    base = first_bounce(None, 11)
+    assert base.mean() > 0 and base.std() > 0
+    u = np.random.default_rng(3).random((n, 5))
+    hits_base = luminance(photon_first_hits(sc, u)[0]["radiosity"])
+    u2 = np.random.default_rng(4).random((n, 5))
+    for kind in ("power", "uniform"):
+        nee = LightNEE(sc, kind)
+        assert 0.0 < nee.p_tri < 1.0 and nee.others is not None       # triangles and point lights
+        nee.begin_frame(sc, Frame(0, 0.0, cam, (32, 18), seed=0), 0)
+        got = first_bounce(nee, 12)
+        assert not np.array_equal(first_bounce(nee, 11), base)
+        assert abs(z(got, base)) < 4.0, (kind, z(got, base), got.mean(), base.mean())
+        hits = luminance(photon_first_hits(sc, u2, nee)[0]["radiosity"])
+        assert abs(z(hits, hits_base)) < 4.0, (kind, "tcas hits", z(hits, hits_base))
+    for spec, params in (("ir", {"vpls": 64, "lights": "power"}),
+                         ("tcas", {"vpls": 64, "iterations": 2, "view_samples": 8, "lights": "uniform"})):
+        r = create_technique(spec, sc, params).step(Frame(0, 0.0, cam, (32, 18), seed=0))
+        assert np.all(np.isfinite(r.indirect)) and r.indirect.mean() > 0, spec
 
 
 @pytest.mark.slow

@@ -1,7 +1,8 @@
 """Instant radiosity (Keller 1997), the baseline of Hedman et al. 2017 (Sec. 5.1): technique ``ir``.
 
 Photons leave the lights (``scene.sample_emitter_ray`` over every emitter: area,
-point, spot, directional, environment); each diffuse hit of the first
+point, spot, directional, environment; with ``lights=uniform|power`` the light sampler
+chooses the emitter, :mod:`dyngi.vpl.emission`); each diffuse hit of the first
 ``max_depth - 2`` bounces leaves a VPL (:func:`dyngi.vpl.points.trace_photons`).
 ``N = floor(I / bounces)`` photons fill at most ``I`` slots; photons that leave
 the scene or hit a non-diffuse surface leave fewer VPLs, so IR may not use its
@@ -28,7 +29,7 @@ import numpy as np
 from ..sampling.rng import mix_seed
 from ..vpl.points import trace_photons
 from .base import Frame, Param, StageTimer, register
-from .vpl_base import COMMON_PARAMS, VPLTechnique
+from .vpl_base import COMMON_PARAMS, EMISSION_LIGHTS, VPLTechnique
 
 PHOTON_MODES = ("per-frame", "fixed")
 
@@ -37,7 +38,7 @@ PHOTON_MODES = ("per-frame", "fixed")
 class InstantRadiosity(VPLTechnique):
     name = "ir"
     description = "instant radiosity (Keller 1997): photons from the lights, a VPL at each diffuse bounce"
-    PARAMS = {**COMMON_PARAMS,
+    PARAMS = {**COMMON_PARAMS, "lights": EMISSION_LIGHTS,
               "photons": Param("per-frame", "photon set: 'per-frame' (new random numbers each frame, the paper's "
                                "IR) or 'fixed' (one set for the sequence)", choices=PHOTON_MODES)}
 
@@ -49,7 +50,8 @@ class InstantRadiosity(VPLTechnique):
         n_ph = max(1, self.budget // b)
         with t.stage("photons"):
             key = frame.index if self.params["photons"] == "per-frame" else 0
-            v, rays = trace_photons(self.scene, n_ph, b, mix_seed(frame.seed, 0, 0x1A), frame=key)
+            v, rays = trace_photons(self.scene, n_ph, b, mix_seed(frame.seed, 0, 0x1A), frame=key,
+                                     lights=self.lights)
         t.add_rays("photons", rays)
         flux = np.where(v["used"][:, None], v["radiosity"] / n_ph, 0.0).astype(np.float32)
         return v["pos"], v["nrm"], flux, {"vpls_used": int(v["used"].sum()), "vpl_budget": self.budget}

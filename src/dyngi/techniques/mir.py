@@ -70,7 +70,6 @@ class MetropolisIR(VPLTechnique):
     PARAMS = {**COMMON_PARAMS,
               "resampling_rate": Param(256, "camera paths per VPL, resampled by image contribution", min=1,
                                        max=4096)}
-    NEE_RADIOSITY = True
 
     def walk_lanes(self) -> int:
         return int(self.params["resampling_rate"]) * self.budget

@@ -156,7 +156,6 @@ class SMCIR(VPLTechnique):
                           min=0.0, max=1.0),
     }
 
-    NEE_RADIOSITY = True
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)

@@ -7,7 +7,7 @@ shadow map: first diffuse hits of photons, :func:`dyngi.vpl.points.photon_first_
 (the VPLs carry direct light only, whatever ``max_depth``, as the paper's TCAS):
 
 * one chain per VPL, its state a primary sample ``u`` in [0,1)^5 (emitter, position,
-  direction); chains persist across frames (the temporal coherence);
+  direction; the emitter chosen by ``lights``, :mod:`dyngi.vpl.emission`); chains persist across frames (the temporal coherence);
 * target ``f(u) = lum(L(y(u))) * sum_x max(0, cos_x) max(0, cos_y) / max(d^2, d_min^2)`` over
   ``view_samples`` (64) camera-visible points x -- view-adaptive but blind to the
   visibility between y and x (TCAS does not account for indirect visibility); the x come
@@ -24,7 +24,8 @@ All on the device (issue 29): chain states, targets and the per-chain hits are D
 across frames; the target's sum over view samples is one symbolic loop per chain; random numbers come
 from a per-chain PCG32 seeded by (seed, frame). The ``iterations`` MH steps are one symbolic loop (one
 kernel); a frame reads nothing back before the image.
-Extra parameters: ``iterations`` (16), ``view_samples`` (64).
+Extra parameters: ``iterations`` (16), ``view_samples`` (64); ``lights`` ('scene', 'uniform', 'power')
+chooses the photons' lights.
 """
 from __future__ import annotations
 
@@ -35,7 +36,7 @@ from ..color import luminance
 from ..sampling.rng import make_sampler, mix_seed
 from ..vpl.points import photon_first_hits_device, raw_candidates_device
 from .base import Frame, Param, StageTimer, register
-from .vpl_base import COMMON_PARAMS, VPLTechnique
+from .vpl_base import COMMON_PARAMS, EMISSION_LIGHTS, VPLTechnique
 
 PERTURB_SIGMA = 0.02
 """Standard deviation of the small-step proposal in primary sample space (our choice)."""
@@ -72,7 +73,7 @@ def _view_importance(p, n, ok, xs, ns, okx, count, dmin2):
 class TCAS(VPLTechnique):
     name = "tcas"
     description = "temporally coherent adaptive sampling (Barak et al. 2013): MH over RSM samples, single bounce"
-    PARAMS = {**COMMON_PARAMS,
+    PARAMS = {**COMMON_PARAMS, "lights": EMISSION_LIGHTS,
               "iterations": Param(16, "Metropolis-Hastings iterations per frame", min=1, max=1024),
               "view_samples": Param(64, "camera-visible points of the view importance", min=1, max=4096)}
     FURNACE = False
@@ -111,7 +112,7 @@ class TCAS(VPLTechnique):
             for i in range(5):       # static: the five primary-sample dimensions
                 small = u[i] + sigma * gauss[i]
                 prop.append(dr.select(indep, rng.next_float32(), small - dr.floor(small)))
-            h2 = photon_first_hits_device(self.scene, prop)
+            h2 = photon_first_hits_device(self.scene, prop, self.lights)
             f2 = self._target(h2, view)
             b_sum += dr.select(indep, f2, 0.0)
             b_n += dr.select(indep, 1.0, 0.0)
@@ -139,7 +140,7 @@ class TCAS(VPLTechnique):
                 s0 = make_sampler(I, frame.seed, 0, _S_INIT)
                 self.u = [s0.next_1d() for _ in range(5)]
                 dr.eval(self.u)
-            hits = photon_first_hits_device(self.scene, self.u)
+            hits = photon_first_hits_device(self.scene, self.u, self.lights)
             f = self._target(hits, view)
             dr.eval(hits, f)
             rng = mi.PCG32(size=I, initstate=mi.UInt64(dr.opaque(mi.UInt32, mix_seed(frame.seed, frame.index,

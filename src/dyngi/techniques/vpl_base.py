@@ -18,12 +18,13 @@ shading : str = 'interleaved'  'interleaved' (4x4 tiles + cross-bilateral filter
 clamp_distance : float = 0.05  geometry-term clamp G_max = 1 / (c * diagonal)^2 (0: no clamp), the same
                                for every budget (the rule: :mod:`dyngi.vpl.shading`)
 direct_samples : int = 1       NEE samples per pixel for the direct light
-lights : str = 'scene'          light sampler of the VPL radiosity's NEE (:mod:`dyngi.lights` through
+lights : str = 'scene'          light sampler of the VPLs' light (:mod:`dyngi.lights` through
                                :class:`~dyngi.lights.nee.LightNEE`; 'scene': Mitsuba's emitter sampling).
-                               ``smcir`` and ``mir`` estimate radiosity with the path walk, so it applies;
-                               ``ir`` and ``tcas`` take their VPLs' radiosity from photons leaving the lights
-                               (no NEE: nothing to sample), so they accept 'scene' only. The direct light at
-                               the camera's hit stays Mitsuba's (the shared primary shading).
+                               ``smcir`` and ``mir`` estimate radiosity with the path walk: it is the walk's
+                               NEE (every sampler). ``ir`` and ``tcas`` carry radiosity on photons leaving the
+                               lights: it chooses the photons' lights (:mod:`dyngi.vpl.emission`; 'scene',
+                               'uniform', 'power': a photon has no shading point). The direct light at the
+                               camera's hit stays Mitsuba's (the shared primary shading).
 """
 from __future__ import annotations
 
@@ -31,9 +32,9 @@ import numpy as np
 
 from .. import lights as light_samplers
 from ..backend import dr
-from ..errors import DyngiError
 from ..lights.nee import LightNEE
 from ..probes.primary import shade_primary
+from ..vpl.emission import EMISSION_SAMPLERS
 from ..vpl.shading import MODES, VPLShader, clamp_value
 from .base import Frame, FrameResult, Param, StageTimer, Technique, to_image
 
@@ -50,9 +51,12 @@ COMMON_PARAMS = {
     "direct_samples": Param(1, "NEE samples per pixel for direct light", min=1, max=64),
     "filter_sigma_px": Param(2.0, "bilateral filter: position sigma in pixel footprints", min=0.01),
     "filter_normal_power": Param(16.0, "bilateral filter: exponent of the normals' dot product", min=0.0),
-    "lights": Param("scene", "light sampler of the VPL radiosity's NEE ('scene': Mitsuba's emitter sampling; "
-                    "smcir and mir only)", choices=("scene",) + light_samplers.names()),
+    "lights": Param("scene", "light sampler of the VPL radiosity's NEE ('scene': Mitsuba's emitter sampling)",
+                    choices=("scene",) + light_samplers.names()),
 }
+EMISSION_LIGHTS = Param("scene", "light sampler choosing the photons' lights ('scene': Mitsuba's emitter "
+                        "sampling)", choices=("scene",) + EMISSION_SAMPLERS)
+"""``lights=`` of the photon techniques (``ir``, ``tcas``): :mod:`dyngi.vpl.emission`."""
 
 
 def scene_vpl_budget(scene) -> int:
@@ -68,18 +72,12 @@ class VPLTechnique(Technique):
 
     HAS_INDIRECT = True
     PARAMS = dict(COMMON_PARAMS)
-    NEE_RADIOSITY = False
-    """Whether the VPL radiosity is estimated by the path walk with NEE (``lights=`` applies)."""
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
         self.budget = int(self.params["vpls"]) or scene_vpl_budget(scene)
         self.gmax = clamp_value(scene, self.params["clamp_distance"])
         kind = self.params["lights"]
-        if kind != "scene" and not self.NEE_RADIOSITY:
-            raise DyngiError(f"{self.name}: lights={kind!r} does not apply: its VPL radiosity is carried by "
-                             f"photons leaving the lights (no next-event estimation); valid: lights='scene' "
-                             f"(a light sampler applies to smcir and mir)")
         self.lights = LightNEE(scene, kind) if kind != "scene" else None
 
     def walk_lanes(self) -> int:

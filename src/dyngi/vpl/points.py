@@ -13,8 +13,9 @@ the valid lanes back to the host as NumPy arrays (``smcir:impl=host``'s selectio
   both cosines > 0): the mailbox test of Sec. 3.2.2.
 * :func:`camera_sees` -- a point lies in the view frustum and the camera ray to it is unoccluded.
 * :func:`trace_photons` -- Keller's instant radiosity (1997): photons from the
-  lights (``scene.sample_emitter_ray``: area, point, spot, directional, environment),
-  a VPL at each diffuse bounce; the photon set is drawn per ``frame`` key.
+  lights (``scene.sample_emitter_ray``: area, point, spot, directional, environment;
+  or a light sampler, :mod:`dyngi.vpl.emission`), a VPL at each diffuse bounce; the
+  photon set is drawn per ``frame`` key.
 """
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from ..backend import dr, mi
 from ..probes.trace import shading_side
 from ..sampling.diffuse import diffuse_albedo
 from ..sampling.rng import make_sampler
+from .emission import sample_photon_ray
 
 RAY_EPS = 1e-4
 """Shadow-ray shortening at both ends, relative to 1 + max|p| (our choice; Mitsuba's own offset is ~1e-6)."""
@@ -194,12 +196,14 @@ def camera_sees(scene, camera, res, pts: np.ndarray, nrm: np.ndarray | None = No
     return out, int(inside.sum())
 
 
-def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 0x1A, frame: int = 0):
+def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 0x1A, frame: int = 0,
+                  lights=None):
     """Keller's instant radiosity: ``n_photons`` light paths, a VPL at each of the first ``bounces``
     diffuse hits. Slot ``b * n_photons + j`` is bounce ``b + 1`` of photon ``j``.
 
-    A photon ``j`` leaves a light with weight ``w_j`` (Mitsuba's ``sample_emitter_ray``: power / pdf, so
-    ``mean(w)`` is the scene's emitted power); at its b-th diffuse hit y (albedo rho) it leaves a VPL of
+    A photon ``j`` leaves a light with weight ``w_j`` (:func:`dyngi.vpl.emission.sample_photon_ray` through
+    ``lights``, by default Mitsuba's ``sample_emitter_ray``: power / pdf, so ``mean(w)`` is the scene's
+    emitted power); at its b-th diffuse hit y (albedo rho) it leaves a VPL of
     radiance-like value ``L = beta rho / pi`` (beta: w_j times the albedos before y), to be weighted by
     ``1 / n_photons`` in shading. It continues by cosine sampling (weight rho). Returns dict of NumPy
     arrays (``pos``, ``nrm``, ``albedo``, ``radiosity``, ``used``) and the rays traced.
@@ -210,9 +214,7 @@ def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 
     """
     mscene = _mscene(scene)
     sampler = make_sampler(n_photons, seed, frame, stream)
-    ray, w, _ = mscene.sample_emitter_ray(0.0, sampler.next_1d(), sampler.next_2d(), sampler.next_2d(),
-                                          mi.Bool(True))
-    beta = mi.Color3f(w)
+    ray, beta = sample_photon_ray(mscene, lights, sampler.next_1d(), sampler.next_2d(), sampler.next_2d())
     alive = dr.isfinite(dr.max(beta)) & (dr.max(beta) > 0.0)
     cols = {k: [] for k in ("pos", "nrm", "albedo", "radiosity", "used")}
     rays = 0
@@ -235,15 +237,14 @@ def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 
     return out, rays
 
 
-def photon_first_hits_device(scene, U):
-    """Photons from primary samples ``U`` (five Dr.Jit Floats: emitter choice, 2D position, 2D direction)
-    to their first hit, on the device: dict of ``pos``, ``nrm``, ``albedo``, ``radiosity`` (= w rho / pi,
+def photon_first_hits_device(scene, U, lights=None):
+    """Photons from primary samples ``U`` (five Dr.Jit Floats: emitter choice, 2D position, 2D direction;
+    the light chosen by ``lights``, :func:`dyngi.vpl.emission.sample_photon_ray`) to their first hit, on
+    the device: dict of ``pos``, ``nrm``, ``albedo``, ``radiosity`` (= w rho / pi,
     as :func:`trace_photons`'s first bounce; 0 where invalid) and ``ok`` (a front-facing diffuse hit
     with a finite, positive radiosity)."""
     mscene = _mscene(scene)
-    ray, w, _ = mscene.sample_emitter_ray(0.0, U[0], mi.Point2f(U[1], U[2]), mi.Point2f(U[3], U[4]),
-                                          mi.Bool(True))
-    beta = mi.Color3f(w)
+    ray, beta = sample_photon_ray(mscene, lights, U[0], mi.Point2f(U[1], U[2]), mi.Point2f(U[3], U[4]))
     alive = dr.isfinite(dr.max(beta)) & (dr.max(beta) > 0.0)
     si, ok, n, alb = _surface(mscene, ray, alive)
     ok &= alive
@@ -254,7 +255,7 @@ def photon_first_hits_device(scene, U):
             "ok": ok}
 
 
-def photon_first_hits(scene, u: np.ndarray):
+def photon_first_hits(scene, u: np.ndarray, lights=None):
     """Photons from primary samples ``u`` (n x 5: emitter choice, 2D position, 2D direction) to their first
     hit: NumPy ``pos``, ``nrm``, ``albedo``, ``radiosity`` (= w rho / pi, as :func:`trace_photons`'s first
     bounce) and ``ok`` (a front-facing diffuse hit). The light-visible surface samples of a reflective
@@ -262,7 +263,7 @@ def photon_first_hits(scene, u: np.ndarray):
     of :func:`photon_first_hits_device`)."""
     n_in = len(u)
     u = padded(np.asarray(u, np.float32))
-    h = photon_first_hits_device(scene, [mi.Float(aligned(u[:, i])) for i in range(5)])
+    h = photon_first_hits_device(scene, [mi.Float(aligned(u[:, i])) for i in range(5)], lights)
     dr.eval(h)
     out = {"pos": to_numpy3(h["pos"]), "nrm": to_numpy3(h["nrm"]), "albedo": to_numpy3(h["albedo"]),
            "radiosity": to_numpy3(h["radiosity"]), "ok": np.asarray(h["ok"], bool)}
