@@ -5,18 +5,25 @@ state reach their steady state), the median wall time of the frames after the fi
 compilation, probe warm-up); Mitsuba's ``path`` integrator (``max_depth`` 12, 1 spp, same resolution)
 is timed right before and after each technique and its median is the denominator, so a change of the
 machine's load between techniques shows in the reference too. Prints one Markdown row per technique
-and the machine load (``os.getloadavg``).
+(a technique that fails prints its error in the row and the run goes on) and the machine load
+(``os.getloadavg``) before and after. ``--techniques all``: every registered technique at its defaults.
+The scene: ``--scene`` (or the first argument), a built-in name or a Mitsuba XML file; by default the
+real Cornell box of ``../shared/scenes`` (issue 24 item 5: 320x180 on a real scene).
 
-    .venv/bin/python benchmarks/frame_time.py ../shared/scenes/cornell-box/scene_mi3.xml \\
-        --techniques "path;restir-pt" --res 320x180
+    .venv/bin/python benchmarks/frame_time.py --scene ../shared/scenes/cornell-box/scene_mi3.xml \\
+        --techniques all --res 320x180 --frames 12 --skip 4
 """
 from __future__ import annotations
 
 import argparse
 import os
 import time
+import traceback
 
 import numpy as np
+
+DEFAULT_SCENE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "scenes",
+                             "cornell-box", "scene_mi3.xml")
 
 
 def mitsuba_ms(scene, res, repeats=5):
@@ -52,25 +59,45 @@ def technique_ms(scene, spec_text, res, frames, skip):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("scene", help="built-in scene name or a Mitsuba XML / OBJ / PLY file")
-    ap.add_argument("--techniques", default="path;restir-pt", help="';'-separated technique specs")
+    ap.add_argument("scene_arg", nargs="?", metavar="scene", help="the scene (as --scene)")
+    ap.add_argument("--scene", default=None,
+                    help="built-in scene name or a Mitsuba XML / OBJ / PLY file (default: ../shared's Cornell box)")
+    ap.add_argument("--techniques", default="path;restir-pt",
+                    help="';'-separated technique specs, or 'all' (every registered technique, defaults)")
     ap.add_argument("--res", default="320x180")
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--skip", type=int, default=4)
     args = ap.parse_args()
     from dyngi import backend
     backend.set_device("cpu")
+    from dyngi.errors import DyngiError
     from dyngi.scene import load_scene
+    from dyngi.techniques.base import technique_names
 
+    if args.scene and args.scene_arg and args.scene != args.scene_arg:
+        ap.error("give the scene once (--scene or the first argument)")
+    scene_name = args.scene or args.scene_arg or os.path.normpath(DEFAULT_SCENE)
+    if args.skip >= args.frames:
+        ap.error(f"--skip ({args.skip}) must be below --frames ({args.frames})")
     res = tuple(int(x) for x in args.res.split("x"))
-    scene = load_scene(args.scene)
+    specs = (technique_names() if args.techniques.strip() == "all"
+             else [s for s in args.techniques.split(";") if s])
+    scene = load_scene(scene_name)
     scene.at(0.0)
-    print(f"load {os.getloadavg()[0]:.1f}; {args.scene} at {res[0]}x{res[1]}")
+    print(f"load {os.getloadavg()[0]:.1f}; {scene_name} at {res[0]}x{res[1]}; median of frames "
+          f"{args.skip + 1}-{args.frames}")
     print("| technique | steady frame ms | Mitsuba path 1 spp ms | ratio |")
     print("|---|---|---|---|")
-    for spec in [s for s in args.techniques.split(";") if s]:
+    for spec in specs:
         m0 = mitsuba_ms(scene, res)
-        ms = technique_ms(scene, spec, res, args.frames, args.skip)
+        try:
+            ms = technique_ms(scene, spec, res, args.frames, args.skip)
+        except Exception as e:      # one technique's failure is a row, not the end of the run
+            if not isinstance(e, DyngiError):
+                traceback.print_exc()
+            print(f"| {spec} | failed: {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''} | | |",
+                  flush=True)
+            continue
         m1 = mitsuba_ms(scene, res)
         ref = float(np.median([m0, m1]))
         print(f"| {spec} | {ms:.1f} | {ref:.1f} | {ms / ref:.2f} |", flush=True)
