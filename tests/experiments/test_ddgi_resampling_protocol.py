@@ -1,0 +1,78 @@
+"""The pure pieces of ``dyngi reproduce ddgi-resampling``'s Table 1 protocol (NumPy only, no rendering):
+the MAPE(N) = a/sqrt(N) + b fit and its extrapolation, the target selection, the reference's noise
+estimate from its halves, the emission-scale secant step, frames to target (measured or fitted)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dyngi.experiments.reproductions.ddgi_resampling import (TARGET_TOL, accumulated_mapes, calibrated_scale,
+                                                             fit_inverse_sqrt, frames_from_fit, frames_needed,
+                                                             reference_noise_mape, select_target)
+from dyngi.metrics.image import mape
+
+
+def test_fit_recovers_a_and_b_and_extrapolates():
+    rng = np.random.default_rng(1)
+    n = np.arange(4, 257)
+    a, b = 1.3, 0.04
+    m = a / np.sqrt(n) + b + rng.normal(0.0, 0.002, n.size)
+    fa, fb = fit_inverse_sqrt(n, m)
+    assert abs(fa - a) < 0.03 and abs(fb - b) < 0.003, (fa, fb)
+    # (a / (target - b))^2 inverts the curve; a target at or below the floor is never reached
+    N = frames_from_fit(a, b, a / np.sqrt(4000.0) + b)
+    assert N == pytest.approx(4000.0, rel=1e-9)
+    assert frames_from_fit(a, b, b) is None and frames_from_fit(a, b, 0.5 * b) is None
+    assert frames_from_fit(-1.0, b, 1.0) is None and frames_from_fit(float("nan"), b, 1.0) is None
+
+
+def test_frames_needed_measured_first_then_fitted():
+    acc = [0.5, 0.3, 0.2, 0.15, 0.12]
+    assert frames_needed(acc, 0.2) == {"frames": 3.0, "measured": True, "fit": None}
+    assert frames_needed(acc, 0.2 * (1 + TARGET_TOL) ** 2)["frames"] == 3.0   # within the tolerance
+    n = np.arange(1, 65)
+    curve = list(0.8 / np.sqrt(n) + 0.05)
+    out = frames_needed(curve, 0.06, fit_from=4)
+    assert not out["measured"] and out["fit"]["a"] == pytest.approx(0.8, rel=1e-6)
+    assert out["frames"] == pytest.approx((0.8 / (0.06 * (1 + TARGET_TOL) - 0.05)) ** 2, rel=1e-6)
+    assert frames_needed(curve, 0.04, fit_from=4)["frames"] is None        # below the floor b: never
+
+
+def test_target_is_the_best_mean_one_frame_mape():
+    assert select_target({"restir-pt": [0.9, 1.1], "ddgi-secondary": [0.3, 0.34], "ddgi-resampling": [0.33, 0.29]}) \
+        == ("ddgi-resampling", pytest.approx(0.31))
+    assert select_target({"restir-pt": 0.2, "ddgi-secondary": [float("nan")], "ddgi-resampling": 0.4})[0] == "restir-pt"
+    with pytest.raises(ValueError):
+        select_target({"restir-pt": [float("nan")]})
+
+
+def test_reference_noise_estimate_matches_the_true_error():
+    rng = np.random.default_rng(2)
+    truth = rng.uniform(0.05, 2.0, (90, 160, 3))
+    sigma = 0.5 * truth          # per-sample std
+    n1, n2 = 512, 512
+    a = truth + rng.normal(0.0, 1.0, truth.shape) * sigma / np.sqrt(n1)
+    b = truth + rng.normal(0.0, 1.0, truth.shape) * sigma / np.sqrt(n2)
+    r = (n1 * a + n2 * b) / (n1 + n2)
+    est = reference_noise_mape(a, b, n1, n2)
+    true = mape(r.astype(np.float32), truth.astype(np.float32))
+    assert est == pytest.approx(true, rel=0.05), (est, true)
+
+
+def test_calibrated_scale_secant():
+    # image mean linear in the scale: m(s) = 0.1 + 0.05 s; the reference mean 0.2 needs s = 2
+    m = lambda s: 0.1 + 0.05 * s  # noqa: E731
+    assert calibrated_scale(1.0, m(1.0), 2.0, m(2.0), 0.2, 16.0) == pytest.approx(2.0)
+    assert calibrated_scale(1.0, m(1.0), 2.0, m(2.0), 10.0, 16.0) == 16.0       # clamped
+    assert calibrated_scale(1.0, m(1.0), 0.5, m(0.5), 0.0, 16.0) == 0.0
+    assert calibrated_scale(1.0, 0.3, 2.0, 0.3, 0.2, 16.0) == 1.0                # emission has no effect
+
+
+def test_accumulated_mapes_is_the_running_mean():
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(0.1, 1.0, (9, 16, 3)).astype(np.float32)
+    imgs = [ref + rng.normal(0, 0.2, ref.shape).astype(np.float32) for _ in range(4)]
+    acc = accumulated_mapes(imgs, ref)
+    assert acc[0] == pytest.approx(mape(imgs[0], ref))
+    assert acc[3] == pytest.approx(mape(np.mean(imgs, axis=0).astype(np.float32), ref), rel=1e-5)
+    assert acc[3] < acc[0]
