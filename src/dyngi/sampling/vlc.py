@@ -118,6 +118,7 @@ import time
 import numpy as np
 
 from ..backend import dr, mi
+from ..color import luminance
 from ..errors import DyngiError
 from .emitter_triangles import INVALID, EmitterTriangles
 from .light_select import FrameCtx, triangle_irradiance
@@ -306,7 +307,7 @@ class VLCSelector:
         self.preprocess_ms = 0.0
         self.explore_ms = 0.0
         self._b_old = np.zeros(0, np.int64)       # bucket count per leaf of the tree the records are keyed in
-        lum = tris.host_arrays()["radiance"] @ np.array([0.212671, 0.715160, 0.072169]) if self.L else np.zeros(0)
+        lum = luminance(tris.host_arrays()["radiance"]) if self.L else np.zeros(0)
         self._lum = mi.Float(np.concatenate([lum, np.zeros(max(0, 2 - lum.size))]).astype(np.float32))
         self._build_exploration(None)
         self._upload_empty(self._n_leaves())
