@@ -51,7 +51,8 @@ def test_drjit_update_matches_sequential_reference(backend):
 
 @pytest.mark.parametrize("n0,m", [(0, 1), (0, 64), (5, 40), (30, 34), (63, 1), (10, 1)])
 def test_batch_equals_sequential_while_count_fits(backend, n0, m):
-    """Many same-frame hits on one texel: the batch rule equals m sequential updates iff n + m <= N_max + 1."""
+    """Many same-frame hits on one texel: while n + m <= N_max + 1 the batch rule is the exact running mean
+    (n o + sum v) / (n + m) and equals m sequential updates whatever the samples."""
     rng = np.random.default_rng(n0 * 100 + m)
     n_max = N_MAX_STATIC
     o0 = 0.7
@@ -59,18 +60,28 @@ def test_batch_equals_sequential_while_count_fits(backend, n0, m):
     V, N = batch_update(mi.Float(o0), mi.UInt32(n0), mi.Float(v.sum()), mi.UInt32(m), n_max)
     Vs, Ns = algorithm3(v, n_max, o0, n0)
     assert int(N[0]) == Ns == min(n0 + m, n_max)
-    assert np.isclose(V[0], (n0 * o0 + v.sum()) / (n0 + m), rtol=1e-6)
     if n0 + m <= n_max + 1:
+        assert np.isclose(V[0], (n0 * o0 + v.sum()) / (n0 + m), rtol=1e-6)
         assert np.isclose(V[0], Vs, rtol=1e-5)
 
 
-def test_batch_differs_from_sequential_once_saturated(backend):
-    """Documented difference: n = 63, m = 64 samples of 1 over a texel of 0 -- batch 64/127, sequential
-    1 - (63/64)^64."""
-    V, N = batch_update(mi.Float(0.0), mi.UInt32(63), mi.Float(64.0), mi.UInt32(64), N_MAX_STATIC)
-    Vs, _ = algorithm3(np.ones(64), N_MAX_STATIC, 0.0, 63)
-    assert np.isclose(V[0], 64 / 127, rtol=1e-6) and np.isclose(Vs, 1 - (63 / 64) ** 64)
-    assert abs(V[0] - Vs) > 0.1 and int(N[0]) == 63
+@pytest.mark.parametrize("n_max", [N_MAX_STATIC, N_MAX_DYNAMIC])
+def test_batch_equals_sequential_by_the_mean_once_saturated(backend, n_max):
+    """Past saturation the batch equals m sequential Algorithm-3 updates by samples equal to their mean,
+    also for a stored count above this N_max (a static 63 met by a dynamic update, N_max = 10): e.g.
+    n = 63, m = 64 samples of 1 over a texel of 0 gives 1 - (63/64)^64 (the old running-mean rule: 64/127)."""
+    n0s = np.array([0, 3, 9, 10, 11, 40, 62, 63], np.uint32)
+    ms = np.array([1, 2, 7, 64, 130], np.uint32)
+    n0, m = (x.ravel() for x in np.meshgrid(n0s, ms, indexing="ij"))
+    rng = np.random.default_rng(n_max)
+    o = rng.uniform(0, 2, n0.size)
+    vbar = rng.uniform(0, 2, n0.size)
+    V, N = batch_update(mi.Float(o), mi.UInt32(n0), mi.Float(vbar * m), mi.UInt32(m), n_max)
+    ref = [algorithm3(np.full(int(mm), vb), n_max, oo, int(nn)) for oo, nn, mm, vb in zip(o, n0, m, vbar)]
+    assert np.allclose(np.asarray(V), [r[0] for r in ref], rtol=2e-5, atol=1e-6)
+    assert np.array_equal(np.asarray(N), [r[1] for r in ref])
+    V1, _ = batch_update(mi.Float(0.0), mi.UInt32(63), mi.Float(64.0), mi.UInt32(64), N_MAX_STATIC)
+    assert np.isclose(V1[0], 1 - (63 / 64) ** 64, rtol=1e-5)
     # m = 0 keeps the texel
     V0, N0 = batch_update(mi.Float(0.3), mi.UInt32(7), mi.Float(0.0), mi.UInt32(0), 63)
     assert V0[0] == pytest.approx(0.3) and int(N0[0]) == 7
@@ -82,8 +93,10 @@ def test_accumulator_interface_and_fresh_probes(backend):
     new = mi.Color3f(3.0, 0.0, 1.0)
     val, cnt = acc.irradiance(old, new, mi.UInt32([4, 4, 9]), mi.UInt32([2, 2, 5]), mi.Bool([False, True, False]),
                               63)
-    # lane 0: (4*old + 2*new)/6; lane 1 fresh: new; lane 2: (9*old + 5*new)/14, count capped at N_max = 10
-    assert np.allclose(np.asarray(val.x), [(4 + 6) / 6, 3.0, (9 + 15) / 14])
+    # lane 0: (4*old + 2*new)/6; lane 1 fresh: new; lane 2: 9 -> 10 keeps 9/10, then 4 updates at the cap
+    # N_max = 10 keep 10/11 each (Algorithm 3 by equal samples), count capped at 10
+    r = 0.9 * (10 / 11) ** 4
+    assert np.allclose(np.asarray(val.x), [(4 + 6) / 6, 3.0, r * 1.0 + (1 - r) * 3.0])
     assert np.array_equal(np.asarray(cnt), [6, 2, 10])
     with pytest.raises(DyngiError, match="N_max"):
         Algorithm3Accumulator(0)

@@ -16,17 +16,31 @@ paper wavers between 63 and 64 (Algorithm 4 calls ``MovingAvgUpdate(x, v,
 Table 3's hysteresis gives -- Algorithm 4's 64 would store a count of 64 in
 6 bits.
 
-Batch rule (ours, the issue's): when ``m`` samples ``v_j`` hit one texel in
-one frame they are merged at once, deterministically (no atomics, no order)::
+Batch rule (ours; Algorithm 4 applies Algorithm 3 once per sample with a compare-and-swap loop, in
+whatever order the GPU's threads arrive): when ``m`` samples ``v_j`` hit one texel in one frame they are
+merged at once, deterministically (no atomics, no order), as ``m`` sequential Algorithm-3 updates by
+samples equal to their mean ``vbar = sum_j v_j / m``::
 
-    V = (n o + sum_j v_j) / (n + m)        N = min(n + m, N_max)
+    V = r o + (1 - r) vbar        N = min(n + m, N_max)
 
-It equals ``m`` sequential Algorithm-3 updates exactly while ``n + m <=
-N_max + 1`` (the count does not saturate within the batch). Once it does, it
-differs: the batch gives the ``m`` new samples the weight ``m / (n + m)`` in
-total and equal shares, while sequential updates would give later samples more
-weight (``1 / (N_max + 1)`` each, compounding) -- e.g. ``n = 63, m = 64``:
-batch 0.504, sequential ``1 - (63/64)^64 = 0.635``.
+with ``r`` the weight the old value keeps after those ``m`` updates (:func:`retention`): while the count
+is below ``N_max`` each update keeps ``c / (c + 1)`` (the product telescopes to ``n / (n + j)`` over the
+first ``j = min(m, N_max - n)`` updates), afterwards ``N_max / (N_max + 1)`` each; a stored count above
+this ``N_max`` (a static count of 63 met by a dynamic update with ``N_max`` = 10) keeps ``n / (n + 1)``
+on the first update and ``N_max / (N_max + 1)`` on the others::
+
+    n < N_max:   r = n / (n + j) * (N_max / (N_max + 1))^(m - j)
+    n >= N_max:  r = n / (n + 1) * (N_max / (N_max + 1))^(m - 1)
+
+So the batch equals Algorithm 3 exactly whenever the ``m`` samples are equal, and whenever the count does
+not saturate within the batch (then ``r = n / (n + m)``: the exact running mean, whatever the samples);
+with unequal samples and a saturating count it gives them equal shares of the weight ``1 - r`` that
+sequential updates would give them in total (sequential updates weigh later samples more, by an order the
+GPU does not fix either). An earlier rule of ours, ``V = (n o + sum v) / (n + m)`` throughout, kept the
+running-mean weights past saturation: at ``n = 63, m = 64`` it gave the new samples 0.504 where Algorithm
+3 gives ``1 - (63/64)^64 = 0.635``, and a dynamic batch (``N_max`` = 10) over a static count of 63 only
+``m / (63 + m)`` where Algorithm 3 gives ``1 - 63/64 (10/11)^(m-1)`` -- it made the dynamic stage's
+updates (Sec. 4.9) several times slower than the paper's (docs/benchmarks.md, issue 25).
 
 :class:`Algorithm3Accumulator` is the same rule behind the temporal
 accumulator interface of :mod:`dyngi.probes.accumulator` (``new`` is the
@@ -52,12 +66,28 @@ def moving_average_update(o, n, v, n_max: int):
     return V, N
 
 
-def batch_update(o, n, sum_v, m, n_max: int):
-    """The batch rule: ``(V, N)`` after ``m`` samples summing to ``sum_v`` (``m = 0`` keeps ``o, n``)."""
+def retention(n, m, n_max: int):
+    """Weight the old value keeps after ``m`` Algorithm-3 updates from count ``n`` (module docstring; Float,
+    1 where ``m = 0``, 0 where ``n = 0 < m``). ``n``, ``m``: UInt32 (Dr.Jit); ``n_max``: a Python int."""
+    n, m = mi.UInt32(n), mi.UInt32(m)
+    N = int(n_max)
     nf, mf = mi.Float(n), mi.Float(m)
-    den = nf + mf
-    V = dr.select(den > 0.0, (nf * o + sum_v) / dr.maximum(den, 1.0), o)
-    return V, dr.minimum(mi.UInt32(n) + mi.UInt32(m), n_max)
+    below = n < N
+    j = dr.select(below, dr.minimum(m, mi.UInt32(N) - dr.minimum(n, N)), dr.minimum(m, 1))
+    jf = mi.Float(j)
+    rest = dr.power(mi.Float(N / (N + 1.0)), mf - jf)
+    r = dr.select(jf > 0.0, nf / dr.maximum(nf + jf, 1.0), 1.0) * rest
+    return dr.select(m > 0, r, 1.0)
+
+
+def batch_update(o, n, sum_v, m, n_max: int):
+    """The batch rule (module docstring): ``(V, N)`` after ``m`` samples summing to ``sum_v`` (``m = 0``
+    keeps ``o, n``); equals ``m`` sequential :func:`moving_average_update` calls by equal samples."""
+    mf = mi.Float(m)
+    r = retention(n, m, n_max)
+    vbar = sum_v / dr.maximum(mf, 1.0)
+    V = dr.select(mf > 0.0, r * o + (1.0 - r) * vbar, o)
+    return V, dr.select(mi.UInt32(m) > 0, dr.minimum(mi.UInt32(n) + mi.UInt32(m), int(n_max)), mi.UInt32(n))
 
 
 class Algorithm3Accumulator:
@@ -76,12 +106,10 @@ class Algorithm3Accumulator:
 
     def _blend(self, old, new, n_old, m, fresh, cap: int):
         cap = min(int(cap), self.n_max)
-        n0 = dr.select(fresh, 0, dr.minimum(n_old, cap))
-        mf = mi.Float(m)
-        nf = mi.Float(n0)
-        den = nf + mf
-        val = dr.select(den > 0.0, (nf * old + mf * new) / dr.maximum(den, 1.0), old)
-        return val, dr.minimum(n0 + m, cap)
+        n0 = dr.select(fresh, 0, mi.UInt32(n_old))
+        r = retention(n0, m, cap)
+        val = dr.select(mi.UInt32(m) > 0, r * old + (1.0 - r) * new, old)
+        return val, dr.select(mi.UInt32(m) > 0, dr.minimum(n0 + mi.UInt32(m), cap), dr.minimum(n0, cap))
 
     irradiance = _blend
     distance = _blend
