@@ -110,3 +110,41 @@ def test_emission_and_nee_hooks_partition_the_estimate(backend, name):
                              lambda d: ((d % 2) == 1) & (d > 1)) for k in range(K)])
     ok_bad, _ = z_test_images(full, a + b_bad)
     assert not ok_bad
+
+
+def test_unrolled_walk_and_diffuse_stand_in(backend):
+    """``unroll=True`` (a Python loop over the vertices) is the symbolic loop bit for bit (same random numbers
+    in the same order, Russian roulette included); a ``vertex`` hook's diffuse stand-in is what NEE evaluates:
+    with albedo 0.5 x the diffuse reflectance (on the all-diffuse Cornell box) the NEE part of a depth-2 walk
+    (emission counted at vertex 0 only) is half the real BSDF's, sample for sample."""
+    from dyngi.backend import dr, mi
+    from dyngi.directions.base import Vertex
+    from dyngi.sampling.diffuse import diffuse_albedo
+    from dyngi.transport.path_walk import walk
+
+    sc = _scene("cornell-static")
+    res = (24, 16)
+    runs = []
+    for unroll in (False, True):
+        s, ray = _rays(sc, res, 5)
+        runs.append(walk(sc.mi_scene, s, ray, mi.Bool(True), 3, 1, split=True, unroll=unroll))
+    assert np.array_equal(_np(runs[0].L), _np(runs[1].L)) and _np(runs[0].L).max() > 0.0
+    assert np.array_equal(_np(runs[0].L_ind), _np(runs[1].L_ind))
+    assert np.array_equal(np.asarray(runs[0].n_rays), np.asarray(runs[1].n_rays))
+
+    def stand_in(scale):
+        def hook(c):
+            n = mi.Vector3f(dr.select(mi.Frame3f.cos_theta(c.si.wi) >= 0.0, c.si.sh_frame.n, -c.si.sh_frame.n))
+            return Vertex(c.si, n, None, scale * diffuse_albedo(c.bsdf, c.si, c.active), None, c.active)
+        return hook
+
+    def first(depth, prev_delta):
+        return depth == 0
+
+    out = []
+    for kw in ({}, {"vertex": stand_in(dr.opaque(mi.Float, 0.5))}, {"vertex": stand_in(dr.opaque(mi.Float, 0.0))}):
+        s, ray = _rays(sc, res, 9)
+        out.append(_np(walk(sc.mi_scene, s, ray, mi.Bool(True), 2, -1, emission=first, **kw).L))
+    real, half, emitted = out    # albedo 0: only vertex 0's emission is left
+    assert (real - emitted).max() > 0.0
+    assert np.allclose(half, emitted + 0.5 * (real - emitted), rtol=1e-4, atol=1e-6)

@@ -12,6 +12,12 @@ by plain area sampling (Sec. 7); the primary hit keeps its real BSDF (its
 emission is Mitsuba's own). Every NEE sample and every BSDF-sampled emission are
 combined by the balance heuristic with the light selector's exact ``pmf``.
 
+The path is the one path walk (:func:`dyngi.transport.path_walk.walk`, unrolled over its three vertices,
+no Russian roulette) composed with :class:`NeePTWalk`: its vertex hook (real BSDF or diffuse stand-in,
+octree leaves), its light strategy (the NEE and emission estimators above) and its direction strategy. A
+sampled direction of zero weight ends the path there (the walk's rule; e.g. a CDQ sample below the surface),
+so no ray is traced for it.
+
 Lights
 ------
 A light is an emitter triangle (:mod:`dyngi.sampling.emitter_triangles`). The
@@ -90,6 +96,7 @@ from .. import directions as direction_samplers
 from .. import lights as light_samplers
 from ..directions.base import Vertex
 from ..directions.mixture import CDQ_FRACTION  # noqa: F401  (re-exported: Sec. 7's "brdf fraction of 50%")
+from ..lights.nee import shading_normal
 from ..backend import dr, mi
 from ..errors import DyngiError
 from ..sampling.diffuse import diffuse_albedo
@@ -100,6 +107,7 @@ from ..sampling.rng import make_sampler, mix_seed
 from ..transport.accumulate import ProgressiveMean
 from ..color import luminance
 from ..transport.mis import mis_weight
+from ..transport.path_walk import walk
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
 MAX_DEPTH = 3
@@ -133,6 +141,185 @@ def _make_selector(kind: str, tris, mi_scene, bounds, octree, params, dynamic_sh
     accepted = light_samplers.options(kind)
     return light_samplers.make(kind, tris, mi_scene=mi_scene, bounds=bounds,
                                **{k: v for k, v in opts.items() if k in accepted})
+
+
+def _diffuse_stand_in(si, bsdf, active):
+    """(albedo, side-corrected shading normal) of the diffuse stand-in after the primary hit (Sec. 7)."""
+    cos_wi = mi.Frame3f.cos_theta(si.wi)
+    back_ok = mi.has_flag(bsdf.flags(), mi.BSDFFlags.BackSide)
+    a = diffuse_albedo(bsdf, si, active)
+    a = dr.select((cos_wi > 0.0) | back_ok, a, 0.0)
+    return a, shading_normal(si)
+
+
+class NeePTWalk:
+    """nee-pt's part of the one path walk (:func:`dyngi.transport.path_walk.walk`, unrolled over the three
+    vertices of Sec. 7): its vertex hook, its light strategy (own NEE and emission estimators) and its
+    direction strategy, over the technique's selector, emitter table, octree and CDQ. One per frame: it keeps
+    each vertex's values (normal, leaves, NEE mask and estimate, sampled direction, environment radiance) for
+    the next vertex's MIS weight and for the CDQ record at the end of the walk.
+
+    * vertex 0 (primary hit): its real BSDF; the octree leaf pair of Sec. 6.3 (sampling: the previous
+      position's leaf, placing: the current one); vertex 1: the diffuse stand-in, its leaf; vertex 2:
+      emission only, placed in the octree.
+    * NEE (:meth:`estimate`): one triangle light by the selector (``pmf``), a point on it by area sampling,
+      f-gated shadow ray, recorded in the selector's placing leaf; plus one Mitsuba sample of the other
+      emitters; both weighted by the balance heuristic against the direction sampler's pdf.
+    * emission (:meth:`emitted`): Mitsuba's emitter at vertex 0; after it the table's radiance of a triangle
+      hit (or Mitsuba's emitter of another), balance-weighted against the light pdf of the previous vertex's
+      NEE (weight 1 where it did none).
+    """
+
+    def __init__(self, tech):
+        self.t = tech
+        self.vx: dict = {}
+        self.env: dict = {}
+
+    def begin_walk(self, n: int) -> None:
+        self.vx, self.env = {}, {}
+
+    def _lk(self, leaf):
+        """``leaf=`` keyword for selectors that accept an already looked-up octree leaf (the VLC)."""
+        sel = self.t.selector
+        return {"leaf": leaf} if (leaf is not None and getattr(sel, "accepts_leaf", False)) else {}
+
+    # -- the vertex hook -------------------------------------------------------------------------
+    def vertex(self, c):
+        t, oc, si, valid = self.t, self.t.octree, c.si, c.active
+        if c.depth >= MAX_DEPTH - 1:              # the tertiary hit: emission only
+            if oc is not None:
+                oc.place(si.p, valid)
+            return None
+        if c.depth == 0:                          # the primary hit keeps its real BSDF
+            n, albedo, bsdf, on = shading_normal(si), None, c.bsdf, valid
+        else:                                     # after it: the diffuse stand-in
+            albedo, n = _diffuse_stand_in(si, c.bsdf, valid)
+            bsdf, on = None, valid & (dr.max(albedo) > 0.0)
+        leaf = leaf_s = None
+        if oc is not None:
+            if c.depth == 0 and t.motion is not None and t.motion.active:   # Sec. 6.3: previous / current
+                leaf_s, leaf = oc.lookup_pair(t.motion.previous(si, valid), si.p, valid)
+            else:
+                leaf = leaf_s = oc.lookup(si.p, valid)
+            oc.place_leaf(leaf, valid)
+        v = Vertex(si, n, bsdf, albedo, leaf_s, on)
+        self.vx[c.depth] = {"v": v, "leaf": leaf, "nee_on": mi.Bool(False), "L_nee": mi.Color3f(0.0)}
+        return v
+
+    # -- the light strategy ----------------------------------------------------------------------
+    def estimate(self, scene, v, sampler, active, depth, dir_pdf):
+        """NEE at a vertex: (radiance estimate without beta, rays traced); class docstring."""
+        u1, u2, u_o = sampler.next_1d(), sampler.next_2d(), sampler.next_2d()
+        active = mi.Bool(active) & v.active
+        t = self.t
+        tris, sel = t.tris, t.selector
+        ctx = mi.BSDFContext()
+        L = mi.Color3f(0.0)
+        rays = mi.UInt32(0)
+        si, n, real_bsdf, albedo, p = v.si, v.n, v.bsdf, v.albedo, v.si.p
+        if tris.count:
+            k, pmf = sel.sample(p, n, u1, active, p_prev=p, **self._lk(v.leaf))
+            ok = active & (k != INVALID) & (pmf > 0.0)
+            pl, nl, pdf_a = tris.sample_point(k, u2, ok)
+            d = pl - p
+            dist2 = dr.squared_norm(d)
+            wi = d * dr.rsqrt(dist2)
+            cos_l = -dr.dot(nl, wi)
+            cos_r = dr.dot(n, wi)
+            ok &= (cos_l > 0.0) & (dist2 > 0.0) & (pdf_a > 0.0)
+            pdf_l = pmf * pdf_a * dist2 / cos_l
+            if real_bsdf is not None:
+                f, _ = real_bsdf.eval_pdf(ctx, si, si.to_local(wi), ok)
+                f = mi.Color3f(f)
+            else:
+                f = albedo * dr.maximum(cos_r, 0.0) * dr.inv_pi
+                ok &= cos_r > 0.0
+            ok &= dr.max(f) > 0.0
+            pdf_b = dir_pdf(wi, ok)
+            vis = ok & ~scene.ray_test(si.spawn_ray_to(pl), ok)
+            rays += mi.UInt32(ok)
+            Le = tris.gather_radiance(k, vis)
+            w = _balance(pdf_l, pdf_b)
+            L += dr.select(vis, f * Le * (w / pdf_l), 0.0)
+            sel.record(p, n, k, vis, active & (k != INVALID), **self._lk(self.vx[depth]["leaf"]))
+        if t.others is not None and t.others.count:
+            ds, em_w, traced = t.others.sample_traced(scene, si, u_o, active, receiver=None)
+            if real_bsdf is not None:
+                f, _ = real_bsdf.eval_pdf(ctx, si, si.to_local(ds.d), traced)
+                f = mi.Color3f(f)
+            else:
+                f = albedo * dr.maximum(dr.dot(n, ds.d), 0.0) * dr.inv_pi
+            pdf_b = dir_pdf(ds.d, traced)
+            w = dr.select(ds.delta, 1.0, _balance(ds.pdf, pdf_b))
+            L += dr.select(traced, f * em_w * w, 0.0)
+            rays += mi.UInt32(traced)
+        self.vx[depth].update(nee_on=active, L_nee=L)
+        return L, rays
+
+    def emitted(self, scene, si, ray, prev_si, prev_pdf, prev_delta, depth, active):
+        """MIS-weighted emission at vertex ``depth`` reached from the previous vertex (class docstring); records
+        the environment's part (the CDQ learns it, NEE does not sample it)."""
+        if depth == 0:
+            return mi.Color3f(si.emitter(scene).eval(si))     # seen directly: Mitsuba's own emitter
+        prev = self.vx[depth - 1]
+        prev_n, prev_leaf = prev["v"].n, prev["v"].leaf
+        prev_delta = mi.Bool(prev_delta) | ~prev["nee_on"]    # no NEE there: the light pdf is 0, weight 1
+        t, tris = self.t, self.t.tris
+        k = tris.light_id(si, active) if tris.count else mi.UInt32(INVALID)
+        is_tri = active & (k != INVALID)
+        Le = mi.Color3f(0.0)
+        if tris.count:
+            nl = dr.gather(mi.Normal3f, tris.normal, k, is_tri)
+            cos_l = -dr.dot(nl, ray.d)
+            front = is_tri & (cos_l > 0.0)
+            area = dr.gather(mi.Float, tris.area, k, front)
+            pmf = t.selector.pmf(prev_si.p, prev_n, k, front & ~prev_delta, p_prev=prev_si.p, **self._lk(prev_leaf))
+            pdf_l = pmf * dr.square(si.t) / (area * cos_l)
+            w = dr.select(prev_delta, 1.0, _balance(prev_pdf, pdf_l))
+            Le += dr.select(front, tris.gather_radiance(k, front) * w, 0.0)
+            if t._record_hits:   # a BSDF-sampled ray that reached a light's front: a visible light sample
+                t.selector.record(prev_si.p, prev_n, k, front, front & ~prev_delta, **self._lk(prev_leaf))
+        other = active & ~is_tri
+        em = si.emitter(scene, other)
+        ds = mi.DirectionSample3f(scene, si, prev_si)
+        pdf_o = mi.Float(0.0)
+        if t.others is not None and t.others.count:
+            pdf_o = t.others.pdf(scene, prev_si, ds, other & ~prev_delta)
+        w_o = dr.select(prev_delta, 1.0, _balance(prev_pdf, pdf_o))
+        Le_o = dr.select(other, mi.Color3f(em.eval(si, other)) * w_o, 0.0)
+        self.env[depth] = dr.select(~si.is_valid(), Le_o, 0.0)
+        return Le + Le_o
+
+    # -- the direction strategy ------------------------------------------------------------------
+    def sample(self, v, sampler, active):
+        u_sel = sampler.next_1d()
+        u1 = sampler.next_1d()
+        u2 = sampler.next_2d()
+        return self.t.directions.sample(v, u_sel, u1, u2, mi.Bool(active) & v.active)
+
+    def pdf(self, v, wo, active):
+        return self.t.directions.pdf(v, wo, active)
+
+    def record(self, v, d, L, beta, depth) -> None:
+        self.vx[depth]["d"] = d
+
+    def end_walk(self, L) -> None:
+        """CDQ record (directions=cdq): at vertices 0 and 1, the luminance of the indirect sample
+        ``f cos L_i / p_mix`` without the camera-path prefix, ``L_i`` without the emission of lights (NEE's
+        job, Sec. 5.1) but with the environment (module docstring)."""
+        cdq = self.t.cdq
+        if cdq is None:
+            return
+        inner = self.env[MAX_DEPTH - 1]      # radiance arriving along vertex d's sample, from the far end back
+        recs = []
+        for d in range(MAX_DEPTH - 2, -1, -1):
+            x = self.vx[d]
+            val = x["d"].weight * inner
+            recs.append((x["leaf"], x["d"].wo, luminance(val), x["d"].ok))
+            if d > 0:
+                inner = self.env[d] + x["L_nee"] + val
+        for leaf, wo, lum, ok in reversed(recs):
+            cdq.record(leaf, wo, lum, ok)
 
 
 @register
@@ -229,116 +416,7 @@ class NeePT(Technique):
         self._record_hits = p["record_hits"] and p["lights"] == "vlc"
         self._res = (tuple(res), spp)
 
-    # -- one vertex ------------------------------------------------------------------------------
-    def _lk(self, leaf):
-        """``leaf=`` keyword for selectors that accept an already looked-up octree leaf (the VLC)."""
-        return {"leaf": leaf} if (leaf is not None and getattr(self.selector, "accepts_leaf", False)) else {}
-
-    def _nee(self, scene, si, n, real_bsdf, albedo, u1, u2, u_o, active, dir_pdf, leaf=None, leaf_rec=None):
-        """NEE at a vertex: (radiance estimate without beta, rays traced). ``dir_pdf(wo_world)``: the BSDF-side pdf.
-        ``leaf``: the sampling leaf; ``leaf_rec``: the placing leaf the sample is recorded in (default ``leaf``)."""
-        tris, sel = self.tris, self.selector
-        ctx = mi.BSDFContext()
-        L = mi.Color3f(0.0)
-        rays = mi.UInt32(0)
-        p = si.p
-        if tris.count:
-            k, pmf = sel.sample(p, n, u1, active, p_prev=p, **self._lk(leaf))
-            ok = active & (k != INVALID) & (pmf > 0.0)
-            pl, nl, pdf_a = tris.sample_point(k, u2, ok)
-            d = pl - p
-            dist2 = dr.squared_norm(d)
-            wi = d * dr.rsqrt(dist2)
-            cos_l = -dr.dot(nl, wi)
-            cos_r = dr.dot(n, wi)
-            ok &= (cos_l > 0.0) & (dist2 > 0.0) & (pdf_a > 0.0)
-            pdf_l = pmf * pdf_a * dist2 / cos_l
-            if real_bsdf is not None:
-                f, _ = real_bsdf.eval_pdf(ctx, si, si.to_local(wi), ok)
-                f = mi.Color3f(f)
-            else:
-                f = albedo * dr.maximum(cos_r, 0.0) * dr.inv_pi
-            if real_bsdf is None:
-                ok &= cos_r > 0.0
-            ok &= dr.max(f) > 0.0
-            pdf_b = dir_pdf(wi, ok)
-            shadow = si.spawn_ray_to(pl)
-            vis = ok & ~scene.ray_test(shadow, ok)
-            rays += mi.UInt32(ok)
-            Le = tris.gather_radiance(k, vis)
-            w = _balance(pdf_l, pdf_b)
-            L += dr.select(vis, f * Le * (w / pdf_l), 0.0)
-            sel.record(p, n, k, vis, active & (k != INVALID), **self._lk(leaf if leaf_rec is None else leaf_rec))
-        if self.others is not None and self.others.count:
-            ds, em_w, traced = self.others.sample_traced(scene, si, u_o, active, receiver=None)
-            if real_bsdf is not None:
-                f, _ = real_bsdf.eval_pdf(ctx, si, si.to_local(ds.d), traced)
-                f = mi.Color3f(f)
-            else:
-                f = albedo * dr.maximum(dr.dot(n, ds.d), 0.0) * dr.inv_pi
-            pdf_b = dir_pdf(ds.d, traced)
-            w = dr.select(ds.delta, 1.0, _balance(ds.pdf, pdf_b))
-            L += dr.select(traced, f * em_w * w, 0.0)
-            rays += mi.UInt32(traced)
-        return L, rays
-
-    def _emission(self, scene, si, ray_d, prev_si, prev_p, prev_n, pdf_b, prev_delta, active, prev_nee,
-                  prev_leaf=None):
-        """MIS-weighted emission found by the indirect ray from (prev_p, prev_n) at ``si`` (or the environment).
-
-        ``prev_nee``: lanes whose previous vertex did NEE (elsewhere the light pdf is 0: weight 1)."""
-        prev_delta = mi.Bool(prev_delta) | ~mi.Bool(prev_nee)
-        tris = self.tris
-        k = tris.light_id(si, active) if tris.count else mi.UInt32(INVALID)
-        is_tri = active & (k != INVALID)
-        Le = mi.Color3f(0.0)
-        if tris.count:
-            nl = dr.gather(mi.Normal3f, tris.normal, k, is_tri)
-            cos_l = -dr.dot(nl, ray_d)
-            front = is_tri & (cos_l > 0.0)
-            area = dr.gather(mi.Float, tris.area, k, front)
-            pmf = self.selector.pmf(prev_p, prev_n, k, front & ~prev_delta, p_prev=prev_p, **self._lk(prev_leaf))
-            pdf_l = pmf * dr.square(si.t) / (area * cos_l)
-            w = dr.select(prev_delta, 1.0, _balance(pdf_b, pdf_l))
-            Le += dr.select(front, tris.gather_radiance(k, front) * w, 0.0)
-            if self._record_hits:   # a BSDF-sampled ray that reached a light's front: a visible light sample
-                self.selector.record(prev_p, prev_n, k, front, front & ~prev_delta, **self._lk(prev_leaf))
-        other = active & ~is_tri
-        em = si.emitter(scene, other)
-        ds = mi.DirectionSample3f(scene, si, prev_si)
-        pdf_o = mi.Float(0.0)
-        if self.others is not None and self.others.count:
-            pdf_o = self.others.pdf(scene, prev_si, ds, other & ~prev_delta)
-        w_o = dr.select(prev_delta, 1.0, _balance(pdf_b, pdf_o))
-        Le_o = dr.select(other, mi.Color3f(em.eval(si, other)) * w_o, 0.0)
-        Le_env = dr.select(~si.is_valid(), Le_o, 0.0)     # the environment (not NEE'd: the CDQ learns it)
-        return Le + Le_o, Le_env
-
-    def _diffuse_albedo(self, si, bsdf, active):
-        """(albedo, side-corrected shading normal) of the diffuse stand-in after the primary hit."""
-        cos_wi = mi.Frame3f.cos_theta(si.wi)
-        back_ok = mi.has_flag(bsdf.flags(), mi.BSDFFlags.BackSide)
-        a = diffuse_albedo(bsdf, si, active)
-        a = dr.select((cos_wi > 0.0) | back_ok, a, 0.0)
-        n = dr.select(cos_wi >= 0.0, si.sh_frame.n, -si.sh_frame.n)
-        return a, mi.Vector3f(n)
-
-    def _bounce(self, si, n, real_bsdf, albedo, leaf, sampler, active):
-        """Indirect ray through the direction sampler (:mod:`dyngi.directions`): (world direction, weight
-        f cos / pdf, pdf, delta flag, usable lanes, dir_pdf function for the NEE/BSDF MIS weight)."""
-        v = Vertex(si, n, real_bsdf, albedo, leaf, active)
-        u_sel = sampler.next_1d()
-        u1 = sampler.next_1d()
-        u2 = sampler.next_2d()
-        d = self.directions.sample(v, u_sel, u1, u2, active)
-
-        def dir_pdf(wo, act):
-            return self.directions.pdf(v, wo, act)
-
-        return d.wo, d.weight, d.pdf, d.delta, d.ok, dir_pdf
-
     def _trace(self, frame, spp):
-        scene = self.scene.mi_scene
         w, h = frame.res
         n = w * h * spp
         seed = mix_seed(self.params["seed"], frame.seed, 0x4E45)
@@ -346,66 +424,14 @@ class NeePT(Technique):
         idx = dr.arange(mi.UInt32, n)
         pix = idx // dr.opaque(mi.UInt32, spp) if spp > 1 else idx
         ray = frame.camera.sample_rays(frame.res, pix, sampler.next_2d())
-        oc, cdq = self.octree, self.cdq
-        rays = mi.UInt32(1)
-
-        # -- primary hit: emission seen directly (Mitsuba's own emitter), real BSDF --
-        si1 = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
-        v1 = si1.is_valid()
-        L = mi.Color3f(si1.emitter(scene).eval(si1))
-        bsdf1 = si1.bsdf(ray)
-        n1 = mi.Vector3f(dr.select(mi.Frame3f.cos_theta(si1.wi) >= 0.0, si1.sh_frame.n, -si1.sh_frame.n))
-        leaf1 = oc.lookup(si1.p, v1) if oc is not None else None
-        leaf1s = leaf1                   # the sampling leaf: of the previous position (Sec. 6.3)
-        if oc is not None and self.motion is not None and self.motion.active:
-            leaf1s, leaf1 = oc.lookup_pair(self.motion.previous(si1, v1), si1.p, v1)
-        if oc is not None:
-            oc.place_leaf(leaf1, v1)
-        smooth1 = v1 & mi.has_flag(bsdf1.flags(), mi.BSDFFlags.Smooth)
-        u_a, u_b, u_o = sampler.next_1d(), sampler.next_2d(), sampler.next_2d()
-        wo1, bw1, pdf1, delta1, ok1, dir_pdf1 = self._bounce(si1, n1, bsdf1, None, leaf1s, sampler, v1)
-        L_nee1, r = self._nee(scene, si1, n1, bsdf1, None, u_a, u_b, u_o, smooth1, dir_pdf1, leaf1s, leaf1)
-        L += L_nee1
-        rays += r
-
-        # -- secondary hit: diffuse --
-        ray2 = si1.spawn_ray(wo1)
-        si2 = scene.ray_intersect(ray2, ray_flags=mi.RayFlags.All, coherent=False, active=ok1)
-        rays += mi.UInt32(ok1)
-        Le2, Env2 = self._emission(scene, si2, ray2.d, si1, si1.p, n1, pdf1, delta1, ok1, smooth1, leaf1s)
-        v2 = ok1 & si2.is_valid()
-        bsdf2 = si2.bsdf(ray2)
-        a2, n2 = self._diffuse_albedo(si2, bsdf2, v2)
-        v2d = v2 & (dr.max(a2) > 0.0)
-        leaf2 = oc.lookup(si2.p, v2) if oc is not None else None
-        if oc is not None:
-            oc.place_leaf(leaf2, v2)
-        u_a, u_b, u_o = sampler.next_1d(), sampler.next_2d(), sampler.next_2d()
-        wo2, bw2, pdf2, delta2, ok2, dir_pdf2 = self._bounce(si2, n2, None, a2, leaf2, sampler, v2d)
-        L_nee2, r = self._nee(scene, si2, n2, None, a2, u_a, u_b, u_o, v2d, dir_pdf2, leaf2)
-        rays += r
-
-        # -- tertiary hit: emission only --
-        ray3 = si2.spawn_ray(wo2)
-        si3 = scene.ray_intersect(ray3, ray_flags=mi.RayFlags.All, coherent=False, active=ok2)
-        rays += mi.UInt32(ok2)
-        Le3, Env3 = self._emission(scene, si3, ray3.d, si2, si2.p, n2, pdf2, delta2, ok2, v2d, leaf2)
-        if oc is not None:
-            oc.place(si3.p, ok2 & si3.is_valid())
-
-        R3 = Le3                                    # radiance arriving at hit 2 along its indirect ray
-        R2 = Le2 + L_nee2 + bw2 * R3                # radiance arriving at hit 1 along its indirect ray
-        L_ind = bw1 * (L_nee2 + bw2 * R3)
-        L = L + bw1 * R2
-        if cdq is not None:
-            # the indirect samples' luminance f cos L_i / p_mix without the camera-path prefix, L_i without
-            # the emission of lights (NEE's job, Sec. 5.1) but with the environment (cdq.py docstring)
-            cdq.record(leaf1, wo1, luminance(bw1 * (Env2 + L_nee2 + bw2 * Env3)), ok1)
-            cdq.record(leaf2, wo2, luminance(bw2 * Env3), ok2)
-        L = dr.select(dr.isfinite(luminance(L)), L, 0.0)
-        L_ind = dr.select(dr.isfinite(luminance(L_ind)), L_ind, 0.0)
+        # -- the one path walk over Sec. 7's three vertices, unrolled (each vertex its own BSDF and records) --
+        nw = NeePTWalk(self)
+        r = walk(self.scene.mi_scene, sampler, ray, mi.Bool(True), MAX_DEPTH, -1, lights=nw, directions=nw,
+                 vertex=nw.vertex, power_heuristic=False, split=True, unroll=True)
+        L = dr.select(dr.isfinite(luminance(r.L)), r.L, 0.0)
+        L_ind = dr.select(dr.isfinite(luminance(r.L_ind)), r.L_ind, 0.0)
         pending = list(getattr(self.selector, "pending", lambda: [])())
-        rays_total = dr.sum(rays)
+        rays_total = dr.sum(r.n_rays)
         dr.eval(L, L_ind, rays_total, *pending)
         if spp > 1:
             inv = dr.opaque(mi.Float, 1.0 / spp)

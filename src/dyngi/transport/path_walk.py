@@ -28,6 +28,25 @@ Per-vertex choices (Python callables evaluated inside the loop, on Dr.Jit masks)
   ``state`` (a Dr.Jit PyTree given as ``state=``, carried through the loop; e.g. Eq. 7's running
   footprint sum). Default: none.
 
+* ``vertex(v: VertexCtx) -> Vertex``: the vertex (:class:`dyngi.directions.base.Vertex`) that NEE and the
+  direction strategy see, called at every vertex with ``v.active`` its valid lanes: its BSDF, or a diffuse
+  stand-in (``bsdf=None`` with an ``albedo``: nee-pt after the primary hit), its side-corrected shading
+  normal, its octree leaf; the hook may also record the vertex (octree placement). Default: the direction
+  strategy's ``vertex`` (or none).
+
+A light strategy may supply its own estimators (optional methods, used where present):
+``emitted(scene, si, ray, prev_si, prev_pdf, prev_delta, depth, active)``: the MIS-weighted emission at the
+vertex (instead of Mitsuba's emitter times the walk's MIS weight), and ``estimate(scene, vtx, sampler,
+active, depth, dir_pdf) -> (radiance, rays)``: the NEE estimate at the vertex without ``beta`` (instead of one
+light sample; ``dir_pdf(wo, active)``: the BSDF side's density, the direction strategy's where there is
+one), e.g. nee-pt's one triangle sample by its light selector plus one Mitsuba sample of the other emitters
+(the VLC paper, Sec. 7).
+
+``unroll=True`` traces the loop in Python: exactly ``max_depth`` vertices, each hook gets its vertex index as
+a Python ``int`` (so it may specialise per vertex, and keep per-vertex values between its calls, e.g. per-frame
+record lists of a learning sampler), and the last vertex draws no NEE or bounce sample. The estimate is the
+symbolic loop's (same random numbers in the same order); for short fixed-depth walks (nee-pt's three vertices).
+
 Other choices: ``mis=False`` weighs NEE and emission 1 (no MIS; for an estimator whose emission hook
 leaves out what NEE covers); ``rr_depth < 0``: no Russian roulette (and no random number drawn for it);
 ``nee=False``: no NEE at all (no light sample drawn); ``directions``: a direction strategy instead of the
@@ -47,6 +66,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ..backend import dr, mi
+from ..errors import DyngiError
 from ..sampling.lights import EmitterSampling, sample_traced
 from ..sampling.rng import make_sampler
 from .mis import mis_weight
@@ -127,6 +147,30 @@ def _dir_pdf(directions, vtx, wo, active, bsdf_pdf):
     return bsdf_pdf if directions is None else directions.pdf(vtx, wo, active)
 
 
+def _f_pdf(vtx, bsdf, ctx, si, wo, active):
+    """NEE's BSDF side at the vertex: (f cos, pdf) of its BSDF, or of a ``vertex`` hook's diffuse stand-in
+    (``albedo / pi`` times the cosine to the hook's normal; cosine-hemisphere pdf)."""
+    if vtx is None or vtx.bsdf is not None:
+        return bsdf.eval_pdf(ctx, si, si.to_local(wo), active)
+    cos = dr.maximum(dr.dot(vtx.n, wo), 0.0)
+    return dr.select(active, vtx.albedo * cos * dr.inv_pi, 0.0), dr.select(active, cos * dr.inv_pi, 0.0)
+
+
+def _pdf_fn(directions, vtx, bsdf, ctx, si):
+    """``dir_pdf(wo, active)`` for a light strategy's own NEE estimator: the density with which the walk's
+    bounce produces ``wo`` (the direction strategy's, else the BSDF's or the vertex hook's stand-in's)."""
+    def dir_pdf(wo, active):
+        if directions is not None:
+            return directions.pdf(vtx, wo, active)
+        return _f_pdf(vtx, bsdf, ctx, si, wo, active)[1]
+    return dir_pdf
+
+
+def _more(active, depth, n_unroll):
+    """The loop condition: the active lanes (symbolic loop), or ``depth < n_unroll`` (a Python loop)."""
+    return active if n_unroll is None else depth < n_unroll
+
+
 def _bounce(directions, vtx, bsdf, ctx, si, sampler, active, L, beta, depth):
     """Next direction: (world direction, weight f cos / pdf, pdf, delta lobe, eta), by the BSDF or by a
     direction strategy (which records its sample for learning)."""
@@ -158,14 +202,21 @@ def _shade(hook, si, ray, bsdf, depth, active, prev_pdf, prev_delta, sampler, st
 @dr.syntax
 def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None, power_heuristic: bool = True,
          si=None, emission=None, nee=None, terminate=None, total: bool = True, split: bool = False,
-         near: bool = False, directions=None, shade=None, state=None, mis: bool = True) -> PathResult:
+         near: bool = False, directions=None, shade=None, state=None, mis: bool = True, vertex=None,
+         unroll: bool = False) -> PathResult:
     """Trace one path per lane (module docstring); ``si``: start at these surface interactions
     (``ray``: the rays that reached them), else intersect ``ray`` first. ``total``/``split``/``near``:
     which of ``L``/``L_ind``/``L_near`` to sum. ``directions``: a direction strategy
     (:class:`dyngi.directions.walk.WalkDirections`) instead of the BSDF's own sampling. ``shade`` and
-    ``state``: the per-vertex shade hook and its initial state; ``mis``: MIS between NEE and emission."""
+    ``state``: the per-vertex shade hook and its initial state; ``mis``: MIS between NEE and emission;
+    ``vertex``: the vertex hook; ``unroll``: trace the loop in Python (``max_depth`` >= 1 vertices)."""
     lights = lights if lights is not None else EmitterSampling()
     do_nee = nee is not False
+    if unroll and max_depth < 1:
+        raise DyngiError(f"path walk: unroll needs a bounded max_depth >= 1, got {max_depth}")
+    n_unroll = max_depth if unroll else None
+    own_emission = hasattr(lights, "emitted")
+    own_estimate = hasattr(lights, "estimate")
     if state is None:
         state = mi.Float(0.0)
     max_depth = mi.UInt32(0xFFFFFFFF) if max_depth < 0 else mi.UInt32(max_depth)
@@ -189,30 +240,34 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
     L_ind = mi.Spectrum(0.0)
     L_near = mi.Spectrum(0.0)
     beta = mi.Spectrum(1.0)
-    depth = mi.UInt32(0)
+    depth = 0 if unroll else mi.UInt32(0)
     prev_si = dr.zeros(mi.SurfaceInteraction3f)
     prev_pdf = mi.Float(1.0)
     prev_delta = mi.Bool(True)
     bounces = mi.UInt32(0)
 
-    while dr.hint(active, label="dyngi_path_walk"):
+    while dr.hint(_more(active, depth, n_unroll), label="dyngi_path_walk"):
         # -- emission hit by the BSDF-sampled ray, MIS against NEE --
-        ds = mi.DirectionSample3f(scene, si, prev_si)
         em_on = _mask(emission, active, depth, prev_delta)
-        w_bsdf = mi.Float(1.0)
-        if mis and do_nee:
-            em_pdf = mi.Float(0.0)
-            if ~prev_delta:
-                em_pdf = _light_pdf(lights, scene, prev_si, si, ds, active & ~prev_delta)
-            w_bsdf = mis_weight(prev_pdf, em_pdf, power_heuristic)
-        Le = ds.emitter.eval(si, em_on & (prev_pdf > 0))
+        if dr.hint(own_emission, mode="scalar"):      # the light strategy's own emission estimator
+            Le_w = lights.emitted(scene, si, ray, prev_si, prev_pdf, prev_delta, depth, em_on)
+        else:
+            ds = mi.DirectionSample3f(scene, si, prev_si)
+            w_bsdf = mi.Float(1.0)
+            if mis and do_nee:
+                em_pdf = mi.Float(0.0)
+                if ~prev_delta:
+                    em_pdf = _light_pdf(lights, scene, prev_si, si, ds, active & ~prev_delta)
+                w_bsdf = mis_weight(prev_pdf, em_pdf, power_heuristic)
+            Le_w = ds.emitter.eval(si, em_on & (prev_pdf > 0)) * w_bsdf
         if total:
-            L[em_on] = dr.fma(beta, Le * w_bsdf, L)
+            L[em_on] = dr.fma(beta, Le_w, L)
         if split:    # not the emission of vertex 0 nor of vertex 1 (direct light)
-            L_ind[em_on & (depth >= 2)] = dr.fma(beta, Le * w_bsdf, L_ind)
+            L_ind[em_on & (depth >= 2)] = dr.fma(beta, Le_w, L_ind)
         if near:
-            L_near[em_on & (depth < 2)] = dr.fma(beta, Le * w_bsdf, L_near)
+            L_near[em_on & (depth < 2)] = dr.fma(beta, Le_w, L_near)
 
+        last = n_unroll is not None and depth + 1 >= n_unroll    # an unrolled walk's last vertex: nothing follows
         active_next = active & si.is_valid() & (depth + 1 < max_depth)
         bsdf = si.bsdf(ray)
 
@@ -228,52 +283,64 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
                                                      sampler, state, beta, L, L_ind, L_near, total, split, near)
             active_bounce = active_next & ~stop_s
 
-        vtx = _dir_vertex(directions, si, bsdf, active_next)
+        if dr.hint(vertex is None, mode="scalar"):
+            vtx = _dir_vertex(directions, si, bsdf, active_next)
+        else:   # the vertex hook sees every valid vertex (also the last: e.g. its octree placement)
+            vtx = vertex(VertexCtx(si, ray, bsdf, depth, active & si.is_valid(), prev_pdf, prev_delta, sampler,
+                                   state))
         # -- next-event estimation --
-        if do_nee:
+        if dr.hint(do_nee and not last, mode="scalar"):
             active_em = _mask(nee, active_next, depth) & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-            ds_em, em_weight, active_em = _light_sample(lights, scene, si, sampler, active_em, depth)
-            n_rays += mi.UInt32(active_em)
-            wo = si.to_local(ds_em.d)
-            bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, wo, active_em)
-            w_em = mi.Float(1.0)
-            if mis:
-                bsdf_pdf = _dir_pdf(directions, vtx, ds_em.d, active_em, bsdf_pdf)
-                w_em = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, bsdf_pdf, power_heuristic))
+            if dr.hint(own_estimate, mode="scalar"):   # the light strategy's own NEE estimator
+                L_em, r_em = lights.estimate(scene, vtx, sampler, active_em, depth,
+                                             _pdf_fn(directions, vtx, bsdf, ctx, si))
+                n_rays += r_em
+            else:
+                ds_em, em_weight, active_em = _light_sample(lights, scene, si, sampler, active_em, depth)
+                n_rays += mi.UInt32(active_em)
+                bsdf_val, bsdf_pdf = _f_pdf(vtx, bsdf, ctx, si, ds_em.d, active_em)
+                w_em = mi.Float(1.0)
+                if mis:
+                    bsdf_pdf = _dir_pdf(directions, vtx, ds_em.d, active_em, bsdf_pdf)
+                    w_em = dr.select(ds_em.delta, 1.0, mis_weight(ds_em.pdf, bsdf_pdf, power_heuristic))
+                L_em = bsdf_val * em_weight * w_em
             if total:
-                L[active_em] = dr.fma(beta, bsdf_val * em_weight * w_em, L)
+                L[active_em] = dr.fma(beta, L_em, L)
             if split:    # not NEE at vertex 0 (direct light)
-                L_ind[active_em & (depth >= 1)] = dr.fma(beta, bsdf_val * em_weight * w_em, L_ind)
+                L_ind[active_em & (depth >= 1)] = dr.fma(beta, L_em, L_ind)
             if near:
-                L_near[active_em & (depth == 0)] = dr.fma(beta, bsdf_val * em_weight * w_em, L_near)
+                L_near[active_em & (depth == 0)] = dr.fma(beta, L_em, L_near)
 
-        # -- BSDF sampling --
-        active_next = active_bounce
-        wo_w, bsdf_weight, s_pdf, delta_lobe, s_eta = _bounce(directions, vtx, bsdf, ctx, si, sampler, active_next,
-                                                               L, beta, depth)
-        ray = si.spawn_ray(wo_w)
-        beta *= bsdf_weight
-        prev_si = dr.detach(si, True)
-        prev_pdf = s_pdf
-        prev_delta = delta_lobe
-        depth += 1
-        # the next vertex contributes if it counts emission or is not the last one
-        useful = _mask(emission, mi.Bool(True), depth, delta_lobe) | (depth + 1 < max_depth)
+        if dr.hint(last, mode="scalar"):
+            depth += 1
+        else:
+            # -- BSDF sampling --
+            active_next = active_bounce
+            wo_w, bsdf_weight, s_pdf, delta_lobe, s_eta = _bounce(directions, vtx, bsdf, ctx, si, sampler,
+                                                                   active_next, L, beta, depth)
+            ray = si.spawn_ray(wo_w)
+            beta *= bsdf_weight
+            prev_si = dr.detach(si, True)
+            prev_pdf = s_pdf
+            prev_delta = delta_lobe
+            depth += 1
+            # the next vertex contributes if it counts emission or is not the last one
+            useful = _mask(emission, mi.Bool(True), depth, delta_lobe) | (depth + 1 < max_depth)
 
-        # -- Russian roulette --
-        beta_max = dr.max(beta)
-        survive = mi.Bool(True)
-        if rr_depth >= 0:
-            rr_active = depth >= rr_depth_u
-            rr_prob = dr.minimum(beta_max * dr.square(s_eta), 0.95)
-            rr_continue = sampler.next_1d() < rr_prob
-            beta[rr_active] *= dr.rcp(rr_prob)
-            survive = ~rr_active | rr_continue
-        active = active_next & useful & survive & (beta_max != 0.0) & (s_pdf > 0.0)
+            # -- Russian roulette --
+            beta_max = dr.max(beta)
+            survive = mi.Bool(True)
+            if rr_depth >= 0:
+                rr_active = depth >= rr_depth_u
+                rr_prob = dr.minimum(beta_max * dr.square(s_eta), 0.95)
+                rr_continue = sampler.next_1d() < rr_prob
+                beta[rr_active] *= dr.rcp(rr_prob)
+                survive = ~rr_active | rr_continue
+            active = active_next & useful & survive & (beta_max != 0.0) & (s_pdf > 0.0)
 
-        si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
-        n_rays += mi.UInt32(active)
-        bounces += mi.UInt32(active)
+            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
+            n_rays += mi.UInt32(active)
+            bounces += mi.UInt32(active)
 
     if directions is not None:
         directions.end_walk(L)
