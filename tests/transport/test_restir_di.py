@@ -56,7 +56,7 @@ def test_restir_di_shading_is_unbiased_against_mitsuba_direct_light(backend, tar
 
     scene = load_scene("cornell-static")
     K, frames = 8, 12
-    kw = {"candidates": 8, "spatial": 2}
+    kw = {"candidates": 8, "spatial": 2, "visibility_reuse": "none"}   # the unbiased option (test_restir.py)
     if target != "default":
         kw["target_fn"] = _no_cosine_target
     a = np.stack([_direct(scene, k, frames, **kw) for k in range(K)])

@@ -19,6 +19,10 @@ i.e. a probe ray records, at its hit ``y`` (shader :class:`PlusHitShader`):
 * ``L_DDGI+(y -> probe)`` from the previous update's probes (Eq. 6): diffuse
   ``rho / pi * E(y, n)`` plus the glossy term (one glossy BSDF sample,
   :mod:`dyngi.probes.glossy`). The emission of ``y`` itself is the first item.
+  The probes are read at ``q = y - d w``, moved back along the probe ray (Sec. 3.5's view-path
+  self-shadow offset, which replaces DDGI's normal/view offset: the path here is the probe ray),
+  ``d = min(update_view_path_bias x s_min, t / 2)`` with ``s_min`` the smallest probe spacing
+  (default 0.2, as the secondary-vertex shading; our choice).
 
 The probes then converge to ``L_DDGI+ ~= T_f L`` (Sec. 3.3), the *total*
 irradiance (direct from emitters and sky + indirect), not DDGI's
@@ -91,6 +95,9 @@ MODES = ("plus", "ddgi")
 ATTENUATIONS = ("ratio", "inverse-square", "none")
 DEFAULT_ATTENUATION = "ratio"
 DEFAULT_EMISSION_SCALE = 1.0
+DEFAULT_UPDATE_VIEW_PATH_BIAS = 0.2
+"""Sec. 3.5's offset at probe-ray hits, in smallest probe spacings (DDGI's ``view_bias``, the factor the
+secondary-vertex shading uses too; our choice)."""
 ATTENUATION_CLIP = 1.0
 """The probe boundary of the emission heuristic: the box probe +- ATTENUATION_CLIP x spacing (module docstring)."""
 
@@ -139,7 +146,8 @@ class PlusHitShader:
     """
 
     def __init__(self, volume: ProbeVolume, routing: PlusRouting, attenuation: str = DEFAULT_ATTENUATION,
-                 emission_scale: float = DEFAULT_EMISSION_SCALE, lookup: str = "stochastic", glossy: bool = True):
+                 emission_scale: float = DEFAULT_EMISSION_SCALE, lookup: str = "stochastic", glossy: bool = True,
+                 view_path_bias: float = 0.0):
         if attenuation not in ATTENUATIONS:
             raise unknown_choice("emission attenuation", attenuation, ATTENUATIONS)
         if lookup not in HIT_LOOKUPS:
@@ -150,6 +158,7 @@ class PlusHitShader:
         self.emission_scale = float(emission_scale)
         self.lookup = lookup
         self.glossy = bool(glossy)
+        self.view_path_bias = float(view_path_bias)    # world units (0: the hit point itself)
 
     def backward_distance(self, ray):
         """``d``: the ray's probe's mean distance in direction ``-ray.d``, clipped to ``probe +- spacing``."""
@@ -207,7 +216,11 @@ class PlusHitShader:
         # -- L_DDGI+ from the previous probes: diffuse + glossy (Eq. 6) --
         if query is not None:
             smp = sampler if self.lookup == "stochastic" else None
-            L += probe_radiance(query, si, bsdf, n, -ray.d, front, sampler=smp, glossy=self.glossy, draw=sampler)
+            si_q = si
+            if self.view_path_bias > 0.0:   # Sec. 3.5: read back along the probe ray, at most half of it
+                si_q = mi.SurfaceInteraction3f(si)
+                si_q.p = si.p - ray.d * dr.minimum(self.view_path_bias, 0.5 * dr.select(hit, si.t, 0.0))
+            L += probe_radiance(query, si_q, bsdf, n, -ray.d, front, sampler=smp, glossy=self.glossy, draw=sampler)
         return L, hit, front, shadow
 
 
@@ -227,6 +240,10 @@ def plus_params():
         "emission_scale": Param(DEFAULT_EMISSION_SCALE, "user scale of the attenuated emission (the paper's "
                                 "slider)", min=0.0, max=1e6),
         "probe_glossy": Param(True, "glossy term of Eq. 6 at probe-ray hits"),
+        "update_view_path_bias": Param(DEFAULT_UPDATE_VIEW_PATH_BIAS, "Sec. 3.5 at probe-ray hits: the previous "
+                                       "probes are read this many smallest probe spacings back along the probe "
+                                       "ray (at most half of it) instead of at the hit with DDGI's normal/view "
+                                       "offsets; 0: at the hit with the query's offsets", min=0.0, max=10.0),
     })
     return out
 
@@ -258,11 +275,17 @@ class DDGIPlusVolume:
                                   max_distance=max(p["max_distance"] * self.grid.max_spacing,
                                                    self.grid.cell_diagonal), two_sided=p["two_sided"])
         self.query = ProbeQuery(self.volume, p["normal_bias"], p["view_bias"], visibility=p["visibility"])
+        # the previous probes as the update reads them at probe-ray hits (Sec. 3.5): the view-path offset
+        # replaces DDGI's normal/view offsets, so that query has none (the consumers' query where it has none)
+        vpb = p["update_view_path_bias"] * float(np.min(self.grid.spacing_np)) if mode == "plus" else 0.0
+        self.update_query = self.query
+        if vpb > 0.0 and (p["normal_bias"] > 0.0 or p["view_bias"] > 0.0):
+            self.update_query = ProbeQuery(self.volume, 0.0, 0.0, visibility=p["visibility"])
         mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
         self.routing = PlusRouting(mscene)
         if mode == "plus":
             self.shader = PlusHitShader(self.volume, self.routing, p["emission_attenuation"], p["emission_scale"],
-                                        lookup=p["hit_lookup"], glossy=p["probe_glossy"])
+                                        lookup=p["hit_lookup"], glossy=p["probe_glossy"], view_path_bias=vpb)
         else:
             check_direct_mode(p["direct"])
             self.shader = DiffuseHitShader(p["direct"], lookup=p["hit_lookup"])
@@ -271,7 +294,7 @@ class DDGIPlusVolume:
                                        p["change_threshold"], p["brightness_threshold"], "fp32", p["estimator"])
         self.states = ProbeStates(p["relocate"], p["classify"])
         self.pipeline = ProbePipeline(self.volume, self.directions, self.shader, self.blender, self.states,
-                                      self.query, reclassify_interval=p["reclassify_interval"])
+                                      self.update_query, reclassify_interval=p["reclassify_interval"])
         self.updater = self.pipeline       # (older name; ddgi-resampling's control variate reads its last rays)
         self._warmed = False
         self._last_signature = None

@@ -74,7 +74,7 @@ from ..transport.restir_di import PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
 _GLOSSY_STREAM = 0x6C05
-_PROBE_SKIP = ("direct", "emission_attenuation", "emission_scale", "probe_glossy")
+_PROBE_SKIP = ("direct", "emission_attenuation", "emission_scale", "probe_glossy", "update_view_path_bias")
 
 
 def _params() -> dict:

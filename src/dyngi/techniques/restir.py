@@ -15,12 +15,15 @@ illumination at the primary vertex", Sec. 5), built from Bitterli et al. 2020
    surfaces) -- the unshadowed contribution without the BSDF, our choice (it
    needs only the G-buffer's position and normal, so the target of any
    neighbour or of the previous frame is exact and cheap, see Bias below).
+   Bitterli's Alg. 5 visibility reuse (``visibility_reuse='candidate'``): one
+   shadow ray to the chosen candidate before reuse, ``W = 0`` if occluded.
 3. **Temporal reuse** (Alg. 4/5 with the reprojected previous pixel's
    reservoir; M capped at ``m_cap`` x M, the "20x" of Bitterli Sec. 6);
    skipped where the disocclusion mask rejects the previous pixel.
 4. **Spatial reuse**: ``spatial`` (3: the DDGI Resampling paper's "1 temporal
    and 3 spatial candidates", Sec. 3.5; Bitterli's 5 as an option) neighbours
-   uniformly in a disk of ``radius`` (30) px, accepted by the depth (10 %) /
+   uniformly in a disk of ``radius`` (30) px at 1080p, scaled with the image width
+   (at least 2 px), accepted by the depth (10 %) /
    normal (25 deg) similarity test (Bitterli Sec. 6). Its output is the next
    frame's temporal input.
 5. **Shading**: one shadow ray for the final sample; the BSDF (Mitsuba's
@@ -37,7 +40,9 @@ candidates : int = 32     initial light candidates per pixel (M)
 temporal : bool = True    temporal reuse
 m_cap : float = 20        temporal M cap, in multiples of ``candidates``
 spatial : int = 3         spatial neighbours per pixel (0: none; Bitterli: 5)
-radius : float = 30       spatial reuse radius in pixels
+radius : float = 30       spatial reuse radius in pixels of a 1920-wide image (scaled with the width)
+visibility_reuse : str = 'candidate'  Alg. 5: shadow ray to the initial candidate before reuse;
+                          'final' the final visibility stored; 'none' (the unbiased option)
 combine : str = 'mis'     'mis' | '1/z' (unbiased) | 'biased' (:mod:`dyngi.sampling.reservoir`)
 max_depth : int = 12      maximum path depth (-1: unbounded), Mitsuba's convention
 rr_depth : int = 5        Russian roulette start depth
@@ -48,8 +53,11 @@ directions : str = 'bsdf' indirect directions of the path after the primary vert
                           (:class:`dyngi.directions.walk.WalkDirections`; ReSTIR DI at the primary vertex
                           is unchanged)
 
-Bias: none with ``combine='mis'`` or ``'1/z'`` (tested by a per-pixel z-test
-against Mitsuba's ``path``), except for two documented approximations on
+Bias: none with ``combine='mis'`` or ``'1/z'`` and ``visibility_reuse='none'``
+(tested by a per-pixel z-test against Mitsuba's ``path``). The default
+visibility reuse is Bitterli's biased-but-consistent Alg. 5: a slight darkening
+at shadow edges, its image-mean bias bounded in ``tests/techniques/test_restir.py``
+(figures: docs/benchmarks.md, issue 27's section). Besides, two documented approximations on
 *dynamic* scenes: (a) the previous pixel's target is evaluated with the lights
 as they are now (its emitter may have changed since), (b) a reservoir's ``W``
 from the previous frame is reused although the lights may have moved; both
@@ -76,8 +84,8 @@ class ReSTIRPTTechnique(Technique):
     """PT + ReSTIR: ReSTIR DI at the primary vertex (candidates, temporal, spatial), PT for the rest."""
 
     name = "restir-pt"
-    description = ("path tracer with ReSTIR DI at the primary vertex (32 candidates, temporal x20 cap, "
-                   "3 spatial neighbours, unbiased MIS), progressive")
+    description = ("path tracer with ReSTIR DI at the primary vertex (32 candidates, Alg. 5 visibility reuse, "
+                   "temporal x20 cap, 3 spatial neighbours, MIS), progressive")
     HAS_INDIRECT = True
     PARAMS = {
         **{k: Param(**v) for k, v in PARAM_SPECS.items()},

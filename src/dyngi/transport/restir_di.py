@@ -9,21 +9,30 @@ Resampling family; issue 24). The target is a parameter of each reuse stage.
    solid angle, delta lights as point masses) streamed through a reservoir with the default target
    ``p_hat(y) = lum(Lg(y)) * cos+(n, wi)`` (:func:`target`; ``|cos|`` on transmissive surfaces): the
    unshadowed contribution without the BSDF, so any neighbour's or the previous frame's target is
-   exact and needs only a G-buffer's position and normal.
+   exact and needs only a G-buffer's position and normal. **Visibility reuse** (Bitterli Alg. 5,
+   ``visibility_reuse``, default ``'candidate'``, measured: docs/benchmarks.md, issue 27's section): one
+   shadow ray to the chosen candidate before any reuse, ``W = 0`` (and no weight in merges) if occluded;
+   ``'final'`` writes the final shadow ray's visibility into the stored reservoir instead (no extra ray);
+   ``'none'``: neither.
 3. **Temporal reuse** (Alg. 4/5, :meth:`ReSTIRDI.temporal_reuse`): the reprojected previous pixel's
    reservoir, M capped at ``m_cap`` x M (Bitterli Sec. 6: 20); skipped where the disocclusion mask
    rejects the previous pixel.
 4. **Spatial reuse** (Alg. 4/5, unbiased Alg. 6, :func:`spatial_reuse`): ``spatial`` neighbours
-   uniformly in a disk of ``radius`` px, accepted by the depth (10 %) / normal (25 deg) test.
+   uniformly in a disk of ``radius`` pixels *at 1920-pixel width* (Bitterli's 30 px at 1080p), scaled
+   with the image width (:func:`radius_px`, at least 2 px), accepted by the depth (10 %) / normal
+   (25 deg) test.
 5. **Shading** (:meth:`ReSTIRDI.shade`): one shadow ray for the final sample; BSDF x Lg x W.
 
 :func:`continue_paths` is the path walk after ReSTIR DI's primary vertex (vertex 0): it counts what
 ReSTIR's light samples cannot (emission behind a delta lobe of vertex 0) and everything from vertex 2
 on (the indirect part).
 
-Bias: none with ``combine='mis'`` or ``'1/z'`` on static frames; on dynamic frames the previous
-pixel's target is evaluated with today's lights and a reused ``W`` may belong to a light that moved
-(both documented in :mod:`dyngi.techniques.restir`).
+Bias: none with ``combine='mis'`` or ``'1/z'`` and ``visibility_reuse='none'`` on static frames. Visibility
+reuse (either mode) is biased but consistent, as in Bitterli et al.: a sample's visibility at its own pixel
+decides its reuse while the MIS weights count every domain with a positive unshadowed target, a slight
+darkening at shadow edges (bounded in ``tests/techniques/test_restir.py``). On dynamic frames the previous
+pixel's target is evaluated with today's lights and a reused ``W`` may belong to a light that moved (both
+documented in :mod:`dyngi.techniques.restir`).
 """
 from __future__ import annotations
 
@@ -31,6 +40,7 @@ from dataclasses import dataclass
 
 from .. import lights as light_samplers
 from ..backend import dr, mi
+from ..errors import unknown_choice
 from ..lights.candidates import LightCandidates
 from ..lights.nee import LightNEE
 from ..sampling.candidates import EmitterCandidates
@@ -44,12 +54,33 @@ PATH_STREAM = 0x7E57
 """RNG stream of the path after the primary vertex (:meth:`ReSTIRDI.path_after`; the ReSTIR stages use
 stream 0)."""
 
+VISIBILITY_REUSE = ("candidate", "final", "none")
+"""Where a shadow ray's visibility enters the reservoirs (:class:`ReSTIRDI`, ``visibility_reuse``)."""
+REFERENCE_WIDTH = 1920
+"""``radius`` is given in pixels of an image this wide (Bitterli et al. Sec. 6: 30 px at 1920x1080)."""
+MIN_RADIUS_PX = 2.0
+"""Smallest spatial radius in pixels after the width scaling (our choice: below ~1.5 px most neighbours
+round to the pixel itself, which spatial reuse skips)."""
+
+
+def radius_px(radius: float, width: int) -> float:
+    """The spatial radius in pixels at image ``width``: ``radius`` x ``width / 1920``, at least
+    :data:`MIN_RADIUS_PX` (our choice of scaling: the same fraction of the image at every resolution)."""
+    return max(float(radius) * width / REFERENCE_WIDTH, MIN_RADIUS_PX)
+
+
 PARAM_SPECS = {
     "candidates": dict(default=32, doc="initial light candidates per pixel (M)", min=1, max=1024),
     "temporal": dict(default=True, doc="temporal reuse (motion-vector reprojection)"),
     "m_cap": dict(default=20.0, doc="temporal M cap in multiples of 'candidates'", min=0.0, max=1e4),
     "spatial": dict(default=3, doc="spatial neighbours per pixel (Bitterli et al.: 5)", min=0, max=16),
-    "radius": dict(default=30.0, doc="spatial reuse radius (pixels)", min=1.0, max=1e4),
+    "radius": dict(default=30.0, doc="spatial reuse radius in pixels of a 1920-pixel-wide image (Bitterli "
+                   "et al.: 30 px at 1080p), scaled with the image width (at least MIN_RADIUS_PX)",
+                   min=1.0, max=1e5),
+    "visibility_reuse": dict(default="candidate", doc="visibility in the reservoirs (Bitterli Alg. 5): 'candidate' "
+                             "a shadow ray to the initial candidate before reuse (W = 0 if occluded), 'final' "
+                             "the final shadow ray's visibility written back into the stored reservoir, 'none'",
+                             choices=VISIBILITY_REUSE),
     "combine": dict(default="mis", doc="reservoir combination: unbiased 'mis' or '1/z', or 'biased'",
                     choices=COMBINE_MODES),
     "lights": dict(default="scene", doc="light sampler of the candidates and the path's NEE: 'scene' (Mitsuba's "
@@ -182,7 +213,11 @@ class ReSTIRDI:
     reservoir) uses the same temporal and spatial reuse."""
 
     def __init__(self, scene, candidates: int = 32, temporal: bool = True, m_cap: float = 20.0, spatial: int = 3,
-                 radius: float = 30.0, combine: str = "mis", target_fn=target, cand=None, lights: str = "scene"):
+                 radius: float = 30.0, combine: str = "mis", target_fn=target, cand=None, lights: str = "scene",
+                 visibility_reuse: str = "candidate"):
+        if visibility_reuse not in VISIBILITY_REUSE:
+            raise unknown_choice("visibility_reuse", visibility_reuse, VISIBILITY_REUSE)
+        self.visibility_reuse = visibility_reuse
         self.scene = scene
         # -- the light choice (``lights``): one strategy for the candidates and the NEE of the path after --
         if lights == "scene":
@@ -206,6 +241,7 @@ class ReSTIRDI:
                               or str(getattr(a, "key", "")).split(".")[0] in ids for a in scene.animators)
         self.hist = GBufferHistory(scene)
         self.prev_res: Reservoir | None = None
+        self.candidate_rays = 0     # shadow rays of the last candidates() ('candidate' visibility reuse)
         # whether any surface has a delta lobe (mirror, glass): only then does direct light need a path
         self.has_delta = any(sh.bsdf() is not None and mi.has_flag(sh.bsdf().flags(), mi.BSDFFlags.Delta)
                              for sh in scene.mi_scene.shapes())
@@ -292,6 +328,12 @@ class ReSTIRDI:
         r = Reservoir((k, pl), w_sum, dr.select(active, float(self.m), 0.0), ph, mi.Float(0.0),
                       dr.zeros(mi.UInt32, npix))
         finalize_single(r)
+        self.candidate_rays = 0
+        if self.visibility_reuse == "candidate":     # Alg. 5: W = 0 (and no weight in merges) if occluded
+            vis, traced = self.candidate_visibility(gb, (k, pl), active & (r.W > 0.0), time)
+            r.W = dr.select(vis, r.W, 0.0)
+            r.w_sum = dr.select(vis, r.w_sum, 0.0)
+            self.candidate_rays = dr.count(traced)
         dr.eval(*r.arrays())
         return r
 
@@ -317,18 +359,32 @@ class ReSTIRDI:
         dr.eval(*r.arrays())
 
     def spatial_reuse(self, gb, r, active, sampler, eval_here, gather_domain, eval_there) -> Reservoir:
-        """Spatial reuse (:func:`spatial_reuse`) with this component's count, radius and combination."""
-        return spatial_reuse(gb, r, active, sampler, self.radius, self.spatial, self.combine, eval_here,
-                             gather_domain, eval_there)
+        """Spatial reuse (:func:`spatial_reuse`) with this component's count, radius (scaled with the image
+        width, :func:`radius_px`) and combination."""
+        return spatial_reuse(gb, r, active, sampler, radius_px(self.radius, gb.res[0]), self.spatial, self.combine,
+                             eval_here, gather_domain, eval_there)
 
     def shade(self, gb, bsdf, sample, W, active, time):
         """One shadow ray to the emitter sample ``sample`` = (k, payload) per ``active`` lane; returns
-        (BSDF x Lg x W where visible, lanes that traced a shadow ray)."""
+        (BSDF x Lg x W where visible, lanes that traced a shadow ray, lanes that found it occluded)."""
         si = gb.si
         ev = self.cand.evaluate(gb.pos, sample[0], sample[1], time, active)
         vis = self.cand.visible(si, ev, ev.valid)
         f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ev.wi), vis)
-        return dr.select(vis, f * ev.Lg * W, 0.0), ev.valid
+        return dr.select(vis, f * ev.Lg * W, 0.0), ev.valid, ev.valid & ~vis
+
+    def candidate_visibility(self, gb, sample, active, time):
+        """Bitterli Alg. 5's visibility reuse: one shadow ray from the primary vertex to each ``active``
+        lane's emitter sample ``sample`` = (k, payload); returns (visible, lanes that traced a ray)."""
+        ev = self.cand.evaluate(gb.pos, sample[0], sample[1], time, active)
+        return self.cand.visible(gb.si, ev, ev.valid), ev.valid
+
+    @staticmethod
+    def store_visibility(r: Reservoir, occluded) -> None:
+        """``visibility_reuse='final'``: the final shadow ray's result written back into the reservoir that
+        is kept for the next frame (``W = 0`` where it found the sample occluded; Bitterli Alg. 5 applies
+        the same rule to the initial candidate), so an occluded sample is not reused."""
+        r.W = dr.select(occluded, 0.0, r.W)
 
     # -- all stages with the default target -------------------------------------------------------
     def direct(self, pv: PrimaryVertex, timer):
@@ -338,6 +394,8 @@ class ReSTIRDI:
         gb, reproj, bsdf, smooth, sampler, time = pv.gb, pv.reproj, pv.bsdf, pv.smooth, pv.sampler, pv.time
         with timer.stage("candidates"):
             r = self.candidates(gb, smooth, sampler, time)
+        if self.visibility_reuse == "candidate":
+            timer.add_rays("candidates", self.candidate_rays)
         with timer.stage("temporal"):
             def here(sample, ok):
                 return self.eval_at(gb.pos, gb.n_sh, gb.transmissive, sample, time, ok)
@@ -355,8 +413,10 @@ class ReSTIRDI:
                                        lambda nid, npos, nn, ntwo, act: (npos, nn, ntwo),
                                        lambda dom, sample, ok: self.eval_at(*dom, sample, time, ok))
         with timer.stage("shadow"):
-            direct, shadow = self.shade(gb, bsdf, r.sample, r.W, smooth & (r.W > 0.0), time)
-            dr.eval(direct)
+            direct, shadow, occluded = self.shade(gb, bsdf, r.sample, r.W, smooth & (r.W > 0.0), time)
+            if self.visibility_reuse == "final":
+                self.store_visibility(r, occluded)
+            dr.eval(direct, r.W)
         timer.add_rays("shadow", dr.count(smooth & shadow))
         self.prev_res = r
         return direct

@@ -14,15 +14,29 @@ integrand ``T_f (L_e + L_DDGI+)``, our choice, so that no cross pdf is needed):
   of querying the probes towards themselves), target
   ``p1_x(y) = lum(L_y) cos_x min(cos_y / r^2, G_max)`` -- the **bounded** geometry term of Sec. 3.6.
 
-Visibility in reuse (``reuse_visibility``, default off): a BSDF candidate exists only where the point
-is the first hit from its pixel, so strictly a domain's target for a part-1 sample needs a shadow ray
-to it, both when it is merged (temporal, spatial) and in the MIS weights of the other domains (as
-unbiased ReSTIR GI does); without it a neighbour that cannot see the sample still takes a share of
-its MIS weight (a darkening bias where neighbours are occluded). Measured (cornell-static, exact hook,
-10 runs x 24 frames): the region means agree with Mitsuba either way (mean over the unlit pixels
-+1.0 % off, +1.3 % on; p 0.17-0.64), while the rays cost +52 % frame time at 640x360 (1365 vs 898 ms,
-load 7) -- so off by default (our choice), on for the strictly unbiased estimator. Part-0 candidates
-need no ray: emitter samples are drawn irrespective of visibility.
+**BSDF in the target** (``target_bsdf``, default on): the paper resamples "proportional to the sample
+contribution", i.e. to ``T_f (L_e + L_DDGI+)`` with the BSDF ``f_r(x_1)`` inside; both parts' ``cos_x``
+becomes ``lum(f_r(x_1, w) cos_x)`` of the domain's own primary vertex (a separable product of
+luminances, our choice), so glossy primary surfaces resample towards their lobe. A neighbour's or the
+previous frame's target gathers that pixel's surface interaction (the G-buffer keeps it) and evaluates
+its BSDF. Off: ``cos_x`` alone (the BSDF-free target ``restir-pt`` uses).
+
+**Visibility in the reservoir** (Bitterli et al. Alg. 5; ``visibility_reuse`` of the ReSTIR DI component,
+default ``'candidate'``, chosen by measurement: docs/benchmarks.md, issue 27's section): the emitter
+part's chosen candidate gets one shadow ray before it meets the BSDF candidate and before any reuse; an
+occluded one weighs 0, so in shadow the reservoir keeps the (always visible) BSDF candidate instead of an
+occluded light sample. ``'final'``: the final shadow ray's visibility is written into the stored
+reservoir instead (no extra ray, occluded samples are not reused next frame); ``'none'``: neither.
+Either way the estimate at the pixel itself stays unbiased (the shading multiplies by the same
+visibility); reuse then spreads visibility-weighted samples, a darkening bias at shadow edges that
+``tests/techniques/test_restir.py`` bounds for the shared component.
+
+Visibility of reused probe samples (``reuse_visibility``, default off): a BSDF candidate exists only
+where the point is the first hit from its pixel, so strictly a domain's target for a part-1 sample
+needs a shadow ray to it, both when it is merged (temporal, spatial) and in the MIS weights of the
+other domains (as unbiased ReSTIR GI does); without it a neighbour that cannot see the sample still
+takes a share of its MIS weight (a darkening bias where neighbours are occluded). Off by default (our
+choice: +50 % frame time; figures in docs/benchmarks.md), on for the strictly unbiased estimator.
 
 ``L_y`` is a random value (glossy recursion, NEE, or the exact hook's path tracing) that can be 0 where
 its expectation is not; a target that vanishes there would lose that light (the resampled vertex is
@@ -44,16 +58,19 @@ Our choice: the bound applies to the probe part only; emitted light keeps ReSTIR
 geometry term (its candidates are area samples of the emitters, whose weights do not blow up in
 creases the way BSDF-sampled hits of nearby walls do, Fig. 6).
 
-``G_max`` (not scale invariant, Sec. 3.6), parameter ``gmax_scale``: ``'probe'`` (default)
-``G_max = gmax / s^2`` with ``s`` the mean probe spacing (points closer than about one probe cell,
-which the probes cannot resolve anyway, go to the BSDF sample; scales with the scene; our choice),
-``'a0'`` ``G_max = gmax * 4 pi / a0(x_1) = gmax cos_1 / |x_0 - x_1|^2`` (the paper's suggestion,
-proportional to the inverse camera footprint), ``'none'`` the constant ``G_max = gmax`` (the paper's 1).
-``gmax = 0`` sends all probe light through the BSDF sample (the unpartitioned estimate the z-test in
-``tests/techniques/test_ddgi_resampling.py`` compares against).
+``G_max`` (not scale invariant, Sec. 3.6), parameter ``gmax_scale``: ``'none'`` (default) the
+constant ``G_max = gmax`` (the paper's ``G_max = 1``: "the differential under solid angle measure is
+always less than or equal to the differential under area measure"); ``'a0'``
+``G_max = gmax * 4 pi / a0(x_1) = gmax cos_1 / |x_0 - x_1|^2`` (the paper's suggestion for scale
+invariance, proportional to the inverse camera footprint); ``'probe'`` ``G_max = gmax / s^2`` with
+``s`` the mean probe spacing (points closer than about one probe cell go to the BSDF sample; scales
+with the scene; our option). ``gmax = 0`` sends all probe light through the BSDF sample (the
+unpartitioned estimate the z-test in ``tests/techniques/test_ddgi_resampling.py`` compares against).
 
-Temporal reuse (``ddgi-resampling``): the M cap defaults to 1 (:data:`M_CAP`, measured), not
-``restir-pt``'s 20.
+Temporal reuse: the M cap (``m_cap``, in multiples of the ``candidates + 1`` a fresh reservoir holds)
+defaults to :data:`M_CAP`, chosen for the steady per-frame error (a sweep over {1, 4, 20},
+docs/benchmarks.md, issue 27's section); ``restir-pt`` keeps Bitterli's 20. The spatial radius is
+``restir-pt``'s: pixels at 1080p, scaled with the image width.
 """
 from __future__ import annotations
 
@@ -83,13 +100,12 @@ def bounded_fraction(J, gmax):
 
 
 
-M_CAP = 1.0
-"""ddgi-resampling's temporal M cap (our choice, measured): with restir-pt's 20 the previous frame's
-reservoir outweighs the new candidates 20:1, and where the target changes between the jittered
-primary points of two frames (grazing secondary points) the balance heuristic amplifies the old
-sample's weight up to that ratio; a sample then sticks for many frames. Battery furnace (ellipsoid,
-24x16, 8 runs x 32 frames, indirect 0.2025): run-to-run std of the mean 0.038 (cap 20), 0.015 (4),
-0.0035 (1), 0.0010 (no temporal reuse); the means agree (0.198 +- 0.013, 0.207 +- 0.005, 0.2026 +- 0.0012)."""
+M_CAP = 4.0
+"""ddgi-resampling's temporal M cap in multiples of a fresh reservoir's M (our choice, measured for the
+steady per-frame error: docs/benchmarks.md, issue 27's section). A larger cap lets the previous frame's
+reservoir outweigh the new candidates; where the target changes between the jittered primary points of
+two frames (grazing secondary points) the balance heuristic amplifies an old sample's weight up to that
+ratio, so a sample sticks for more frames."""
 
 
 def _resampling_params():
@@ -99,9 +115,11 @@ def _resampling_params():
     out.update({
         "gmax": Param(1.0, "bound G_max of the resampled geometry term cos_y/r^2 (Eq. 9), in the units "
                       "gmax_scale sets; 0: all probe light by the BSDF sample", min=0.0, max=1e9),
-        "gmax_scale": Param("probe", "how G_max scales with the scene: 'probe' gmax/s^2 (s: mean probe "
-                            "spacing), 'a0' gmax*4pi/a0 (Eq. 8), 'none' the constant gmax",
+        "gmax_scale": Param("none", "how G_max scales with the scene: 'none' the constant gmax (the paper's "
+                            "G_max = 1), 'a0' gmax*4pi/a0 (Eq. 8), 'probe' gmax/s^2 (s: mean probe spacing)",
                             choices=("probe", "a0", "none")),
+        "target_bsdf": Param(True, "the primary vertex's BSDF in the target: lum(f_r cos) instead of cos "
+                             "(glossy primary surfaces resample towards their lobe)"),
         "reuse_visibility": Param(False, "shadow ray per reused probe sample and domain (temporal and spatial "
                                   "merges and their MIS weights): the unbiased reuse of BSDF-sampled points "
                                   "(+50 % frame time at 640x360); off: the supports are approximate"),
@@ -158,22 +176,49 @@ class DDGIResamplingTechnique(SecondaryShading):
         ray.maxt = dist * (1.0 - SAME_POINT_TOL)
         return mi.Bool(active) & ~self.scene.mi_scene.ray_test(ray, active)
 
-    def _target(self, pos, n, two, gmax, sample, time, active, g=None, eps=0.0, ng=None):
-        """``p_hat`` of ``sample`` at the domain (pos, n, two, gmax); with ``ng`` (the domain's geometric
-        normal) and ``reuse_visibility``, part-1 samples not visible from ``pos`` get 0 (one shadow ray)."""
+    def _bsdf_factor(self, sid, w, active):
+        """``lum(f_r(x, w) cos)`` at the domain's primary vertex ``sid`` (a surface interaction whose ``wi``
+        points to its camera) towards world direction ``w``: the BSDF factor of the target."""
+        f = sid.bsdf().eval(mi.BSDFContext(), sid, sid.to_local(w), active)
+        return dr.select(active, mi.luminance(mi.Color3f(f)), 0.0)
+
+    def _emitter_target(self, si):
+        """The part-0 target of the initial candidates at the primary vertices ``si`` (as :meth:`_target`)."""
+        if not self.params["target_bsdf"]:
+            return target
+
+        def fn(n, two, ev):
+            return dr.select(ev.valid, mi.luminance(ev.Lg) * self._bsdf_factor(si, ev.wi, ev.valid), 0.0)
+        return fn
+
+    def _target(self, pos, n, two, gmax, sample, time, active, g=None, eps=0.0, ng=None, sid=None):
+        """``p_hat`` of ``sample`` at the domain (pos, n, two, gmax, primary vertex ``sid``); with ``ng``
+        (the domain's geometric normal) and ``reuse_visibility``, part-1 samples not visible from ``pos``
+        get 0 (one shadow ray). With ``target_bsdf`` the cosine ``cos_x`` becomes ``lum(f_r cos_x)`` of the
+        domain's BSDF (module docstring)."""
         part, k, pl, y, ny, Ly = sample
         active = mi.Bool(active)
         p0 = active & (part == 0)
         p1 = active & (part == 1)
+        use_f = self.params["target_bsdf"]
         ph = mi.Float(0.0)
-        if self.cand.count:
-            ev = self.cand.evaluate(pos, k, pl, time, p0)
-            ph = dr.select(p0, target(n, two, ev), 0.0)
         d = y - pos
         r2 = dr.squared_norm(d)
         wdir = d * dr.rsqrt(dr.maximum(r2, 1e-30))
-        cx = dr.dot(n, wdir)
-        cx = dr.select(two, dr.abs(cx), dr.maximum(cx, 0.0))
+        if self.cand.count:
+            ev = self.cand.evaluate(pos, k, pl, time, p0)
+            if use_f:
+                wdir = dr.select(p0, ev.wi, wdir)
+            else:
+                ph = dr.select(p0, target(n, two, ev), 0.0)
+        if use_f:   # one BSDF evaluation per lane, towards the sample of either part
+            fx = self._bsdf_factor(sid, wdir, active)
+            if self.cand.count:
+                ph = dr.select(p0 & ev.valid, mi.luminance(ev.Lg) * fx, 0.0)
+            cx = fx
+        else:
+            cx = dr.dot(n, wdir)
+            cx = dr.select(two, dr.abs(cx), dr.maximum(cx, 0.0))
         J = dr.maximum(dr.dot(ny, -wdir), 0.0) / dr.maximum(r2, 1e-30)
         if g is None:
             val = mi.luminance(Ly) + eps
@@ -214,6 +259,10 @@ class DDGIResamplingTechnique(SecondaryShading):
     def _cv_target_g(self, g):
         """The control variate in the form :meth:`_target` takes (luminance, or (table, probe))."""
         return mi.luminance(g) if self.cvnr is None else (self.cvnr.lum, g)
+
+    def _gather_si(self, si, idx, active):
+        """The primary vertices ``si`` at lanes ``idx`` (only with ``target_bsdf``, which evaluates their BSDF)."""
+        return dr.gather(mi.SurfaceInteraction3f, si, idx, active) if self.params["target_bsdf"] else None
 
     @staticmethod
     def _gather_g(g, idx, active):
@@ -266,17 +315,25 @@ class DDGIResamplingTechnique(SecondaryShading):
         self.last_recursions = rec
 
         # -- initial candidates: M emitter samples (part 0) + the BSDF hit (part 1) --
+        cand_rays = None
         with t.stage("candidates"):
             M_e = p["candidates"] if self.cand.count else 0
             if M_e:
-                k, pl, w_sum_e, ph_e = initial_candidates(self.cand, si, n, two, smooth, sampler, M_e, time)
+                k, pl, w_sum_e, ph_e = initial_candidates(self.cand, si, n, two, smooth, sampler, M_e, time,
+                                                          self._emitter_target(si))
+                if self.restir.visibility_reuse == "candidate":
+                    # Alg. 5: the emitter part's chosen candidate is shadow-tested before it meets the BSDF
+                    # candidate and before reuse; an occluded one weighs 0, so the BSDF candidate is kept
+                    vis_e, traced_e = self.restir.candidate_visibility(gb, (k, pl), smooth & (w_sum_e > 0.0), time)
+                    w_sum_e = dr.select(vis_e, w_sum_e, 0.0)
+                    cand_rays = dr.count(traced_e)
             else:
                 k, pl = dr.zeros(mi.UInt32, npix), dr.zeros(mi.Vector3f, npix)
                 w_sum_e, ph_e = dr.zeros(mi.Float, npix), dr.zeros(mi.Float, npix)
             y = mi.Point3f(si_y.p)
             s1 = (dr.full(mi.UInt32, 1, npix), dr.zeros(mi.UInt32, npix), dr.zeros(mi.Vector3f, npix), y,
                   mi.Vector3f(ny), mi.Color3f(S_y))
-            ph_b = self._target(gb.pos, n, two, gmax, s1, time, is_cand, g_lum, eps)
+            ph_b = self._target(gb.pos, n, two, gmax, s1, time, is_cand, g_lum, eps, sid=si)
             # RIS weight of the BSDF candidate: p_hat / (p_bsdf(w) J)
             w_b = dr.select(is_cand & (ph_b > 0.0), ph_b / dr.maximum(bs.pdf * J_y, 1e-30), 0.0)
             wsum = (w_sum_e / M_e if M_e else 0.0) + w_b
@@ -292,11 +349,13 @@ class DDGIResamplingTechnique(SecondaryShading):
                           dr.select(smooth & (ph > 0.0), wsum / dr.maximum(ph, 1e-30), 0.0),
                           dr.zeros(mi.UInt32, npix))
             dr.eval(*r.arrays())
+        if cand_rays is not None:
+            t.add_rays("candidates", cand_rays)
 
         # -- temporal reuse (1 neighbour: the reprojected pixel) --
         with t.stage("temporal"):
             def here(sample, ok):
-                return self._target(gb.pos, n, two, gmax, sample, time, ok, g_lum, eps, gb.n_geo)
+                return self._target(gb.pos, n, two, gmax, sample, time, ok, g_lum, eps, gb.n_geo, si)
 
             def there_prev(prev, pix, sample, ok):
                 ppos = dr.gather(mi.Point3f, prev.pos, pix, ok)
@@ -305,7 +364,8 @@ class DDGIResamplingTechnique(SecondaryShading):
                 pg = dr.gather(mi.Float, self.prev_gmax, pix, ok)
                 pcv = self._gather_g(self.prev_g, pix, ok) if cv else None
                 png = dr.gather(mi.Vector3f, prev.n_geo, pix, ok)
-                return self._target(ppos, pn, ptwo, pg, sample, time, ok, pcv, self.prev_eps, png)
+                psi = self._gather_si(prev.si, pix, ok)
+                return self._target(ppos, pn, ptwo, pg, sample, time, ok, pcv, self.prev_eps, png, psi)
 
             self.restir.temporal_reuse(r, gb, pv.reproj, smooth, sampler, M, here, there_prev)
 
@@ -320,9 +380,9 @@ class DDGIResamplingTechnique(SecondaryShading):
             p0 = smooth & (r.W > 0.0) & (part == 0)
             p1 = smooth & (r.W > 0.0) & (part == 1)
             direct = mi.Color3f(0.0)
-            shadow_lanes = mi.Bool(False)
+            shadow_lanes = occluded = mi.Bool(False)
             if self.cand.count:
-                direct, shadow_lanes = self.restir.shade(gb, bsdf, (k, pl), r.W, p0, time)
+                direct, shadow_lanes, occluded = self.restir.shade(gb, bsdf, (k, pl), r.W, p0, time)
             dz = yz - gb.pos
             rz = dr.norm(dz)
             wz = dz / dr.maximum(rz, 1e-30)
@@ -337,7 +397,10 @@ class DDGIResamplingTechnique(SecondaryShading):
             J_z = dr.maximum(dr.dot(nz, -wz), 0.0) / dr.maximum(dr.square(rz), 1e-30)
             f1, pdf1 = bsdf.eval_pdf(ctx, si, si.to_local(wz), vis_z)
             beta_z = dr.select(vis_z, mi.Color3f(f1) * dr.minimum(J_z, gmax) * r.W, 0.0)
-            dr.eval(direct, vis_z, beta_z)
+            W_shade = r.W
+            if self.restir.visibility_reuse == "final":    # occluded samples are not reused next frame
+                self.restir.store_visibility(r, occluded | (p1 & ~vis_z))
+            dr.eval(direct, vis_z, beta_z, r.W)
         t.add_rays("shadow", dr.count(shadow_lanes | p1))
         with t.stage("shade z"):
             sz = make_sampler(npix, frame.seed, frame.index, _FINAL_STREAM)
@@ -345,7 +408,7 @@ class DDGIResamplingTechnique(SecondaryShading):
             if cv:   # the diffuse lobe's share carries the difference to g (Sec. 5.1)
                 f1d = bsdf.eval(mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.DiffuseReflection),
                                 si, si.to_local(wz), vis_z)
-                L_z -= dr.select(vis_z, mi.Color3f(f1d) * dr.minimum(J_z, gmax) * r.W
+                L_z -= dr.select(vis_z, mi.Color3f(f1d) * dr.minimum(J_z, gmax) * W_shade
                                  * self._cv_value(g_col, wz, vis_z), 0.0)
             dr.eval(L_z, rays_z)
         t.add_rays("shade z", dr.sum(rays_z))
@@ -367,7 +430,7 @@ class DDGIResamplingTechnique(SecondaryShading):
 
         if self.record_debug:
             self.debug = {"L_z": L_z, "L_res": L_res, "S_y": S_y, "w": w, "p1": p1, "vis_z": vis_z,
-                          "is_cand": is_cand, "W": r.W, "part": part, "t_z": si_z.t, "r_z": rz,
+                          "is_cand": is_cand, "W": W_shade, "part": part, "t_z": si_z.t, "r_z": rz,
                           "valid_z": si_z.is_valid()}
         for c in self._vis_rays:
             t.add_rays("spatial", c)
@@ -384,15 +447,16 @@ class DDGIResamplingTechnique(SecondaryShading):
         """Spatial reuse over ``spatial`` neighbours in a disk (Bitterli Alg. 4/5/6) with this target
         (the ReSTIR DI component's :meth:`~dyngi.transport.restir_di.ReSTIRDI.spatial_reuse`)."""
         def here(sample, ok):
-            return self._target(gb.pos, gb.n_sh, gb.transmissive, gmax, sample, time, ok, g_lum, eps, gb.n_geo)
+            return self._target(gb.pos, gb.n_sh, gb.transmissive, gmax, sample, time, ok, g_lum, eps, gb.n_geo,
+                                gb.si)
 
         def domain(nid, npos, nn, ntwo, act):
             return (npos, nn, ntwo, dr.gather(mi.Float, gmax, nid, act), self._gather_g(g_lum, nid, act),
-                    dr.gather(mi.Vector3f, gb.n_geo, nid, act))
+                    dr.gather(mi.Vector3f, gb.n_geo, nid, act), self._gather_si(gb.si, nid, act))
 
         def there(dom, sample, ok):
-            npos, nn, ntwo, ngmax, ng, nng = dom
-            return self._target(npos, nn, ntwo, ngmax, sample, time, ok, ng, eps, nng)
+            npos, nn, ntwo, ngmax, ng, nng, nsi = dom
+            return self._target(npos, nn, ntwo, ngmax, sample, time, ok, ng, eps, nng, nsi)
 
         return self.restir.spatial_reuse(gb, r_t, active, sampler, here, domain, there)
 
