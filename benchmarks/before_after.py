@@ -13,7 +13,8 @@ Suites:
 * ``techniques`` (default): the transport users on three scenes, plus the VPL radiosity estimator on fixed
   surface points (``vpl/radiosity.py``);
 * ``transport``: the techniques moved onto the one path walk (the DDGI Resampling family's glossy
-  recursions, ``nee-pt``), 12 seeds each (the walk draws its random numbers in its own order);
+  recursions, ``nee-pt`` with a fixed and with its learning light and direction samplers), 12 seeds each
+  (a walk may draw its random numbers in its own order);
 * ``probes``: every probe technique of the DDGI family on one dynamic scene, plus the DDGI+ volume's
   atlases after each update (the one probe pipeline).
 
@@ -42,7 +43,7 @@ SUITES = {
         "techniques": ("ddgi-primary:candidates=4:probe_counts=3:rays_per_probe=16:warmup=1",
                        "ddgi-secondary:candidates=4:probe_counts=3:rays_per_probe=16:warmup=1:progressive=false",
                        "ddgi-resampling:candidates=4:probe_counts=3:rays_per_probe=16:warmup=1:progressive=false",
-                       "nee-pt:lights=power")},
+                       "nee-pt:lights=power", "nee-pt", "nee-pt:lights=vlc:directions=cdq")},
     "probes": {
         "scenes": ("cornell-moving-box",), "res": "32x18", "frames": 4, "seeds": 1, "extras": ("ddgi-plus-volume",),
         "techniques": ("ddgi:probe_counts=4:rays_per_probe=32:warmup=2",
