@@ -153,11 +153,14 @@ def test_bad_heuristic_parameters_raise():
         ADGIHeuristics(GRID, mu=-1.0)
 
 
-def test_camera_threshold_default_follows_the_camera(backend):
-    """Eq. 10's default k (ours): the probe box diagonal inside the box, plus the distance to the box outside
-    it (a camera outside the probe volume must still see its probes at f_c = 1); a user k is kept."""
+def test_camera_threshold_default_varies_fc_over_the_view(backend):
+    """Eq. 10's default k (ours): the 0.9 quantile of the camera distances of the probes in view, so that
+    f_c falls off over the farthest tenth of every view while V_out keeps the rest (on the Cornell-box analog,
+    camera outside the probe volume as in the real cornell-box); without a view the probe box diagonal plus
+    the camera's distance to the box (f_c = 1 everywhere); a user k is kept."""
     from dyngi.probes import ProbeGrid
-    from dyngi.techniques.adgi.heuristics import ADGIHeuristics, camera_falloff
+    from dyngi.techniques.adgi.heuristics import ADGIHeuristics, camera_falloff, view_distances
+    from dyngi.probes.pipeline import probes_in_frustum
     g = ProbeGrid.from_box((0, 0, 0), (2, 1, 3), (3, 2, 4))
     h = ADGIHeuristics(g)
     diag = np.linalg.norm([2, 1, 3])
@@ -166,4 +169,17 @@ def test_camera_threshold_default_follows_the_camera(backend):
     assert np.isclose(h.k_for((5, 4, 3)), diag + np.linalg.norm([3, 3, 0]))
     far = np.linalg.norm(g.positions() - np.array([1, 0.5, -5]), axis=1)
     assert np.all(camera_falloff(far, h.k_for((1, 0.5, -5))) == 1.0)
-    assert ADGIHeuristics(g, k=0.5).k_for((1, 0.5, -5)) == 0.5
+    assert ADGIHeuristics(g, k=0.5).k_for((1, 0.5, -5), far) == 0.5
+    # -- from the view: f_c varies over the probes in view, V_out keeps at least 90% of them --
+    sc = load_scene("cornell-static")
+    vol = ProbeVolume(ProbeGrid.from_scene(sc, (8, 8, 8)), 8, 16)
+    cam, res = sc.camera(0.0), (32, 24)
+    hv = ADGIHeuristics(vol.grid)
+    view = view_distances(vol, cam, res)
+    k = hv.k_for(cam.origin, view)
+    fc, v_in, v_out = frusta(vol, cam, res, k)
+    seen = probes_in_frustum(vol, cam, res, 1.4)
+    assert seen.sum() == len(view) > 100
+    assert 0.05 <= np.mean(fc[seen] < 1.0) <= 0.15 and fc[seen].min() < 0.95, (k, fc[seen].min())
+    assert v_in.any() and v_out.sum() >= 0.9 * seen.sum()
+    assert k < hv.k_for(cam.origin)          # the fallback would give f_c = 1 to every probe

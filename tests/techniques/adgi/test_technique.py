@@ -39,7 +39,7 @@ def test_static_scene_converges_to_ddgi(adgi):
     sc = load_scene("cornell-moving-light")
     d, rd = _run("ddgi", sc, {"probe_counts": "4"}, 24, t=0.0)
     a, ra = _run("adgi", sc, {"probe_counts": "4", "static_chains": 2048}, 24, t=0.0)
-    _, vin, _ = frusta(a.volume, sc.camera(0.0), RES, a.heur.k_for(sc.camera(0.0).origin))
+    _, vin, _ = frusta(a.volume, sc.camera(0.0), RES, a.k_for(Frame(0, 0.0, sc.camera(0.0), RES)))
     m = vin & (d.volume.state.states != 0) & (a.volume.state.states != 0)
     assert m.sum() >= 8
     A = d.volume.state.irradiance.reshape(-1, T, T, 3)[m][:, 1:-1, 1:-1]
@@ -76,7 +76,7 @@ def test_moving_object_is_finite_and_fires_the_dynamic_chains(adgi):
     # probes in V_out - V_in have their counts capped at 16 (Sec. 4.8)
     frusta = adgi
     t = sc.frame_time(29)
-    _, vin, vout = frusta(a.volume, sc.camera(t), RES, a.heur.k_for(sc.camera(t).origin))
+    _, vin, vout = frusta(a.volume, sc.camera(t), RES, a.k_for(Frame(29, t, sc.camera(t), RES)))
     outer = vout & ~vin & (a.volume.state.states != 0)
     assert outer.any()
     Td = a.volume.distance_texels
@@ -119,3 +119,29 @@ def test_equal_ray_budget_is_kept(adgi):
         if f:
             spent.append(r.stats["total_rays"])
     assert max(spent) <= budget and min(spent) > 0.3 * budget, spent
+
+
+def test_probes_no_pixel_uses_get_no_update(adgi):
+    """Sec. 4.9's culling: the primary pass marks the 8 cage probes of every pixel's lookup (on the device);
+    stages S and D then sample no other probe, so a probe no cage touches keeps its texels and counts (pilot
+    updates off: they update V_out as the paper says). Cornell box, 6^3 probes: the interior ones are in no
+    surface point's cage."""
+    sc = load_scene("cornell-static")
+    p = {"probe_counts": "6", "static_chains": 1024, "dynamic_chains": 64, "iterations": 6, "burn_in": 2,
+         "warmup": 1, "warmup_rays": 32, "pilot_updates": False, "jitter": False, "relocate": False,
+         "classify": False}
+    a, _ = _run("adgi", sc, p, 2, t=0.0)
+    used = np.asarray(a._used) > 0
+    assert 0 < used.sum() < a.volume.n_probes, used.sum()
+    before = (np.asarray(a.radiance.count).copy(), a.volume.state.distance_count.copy(),
+              a.volume.state.irradiance.copy())
+    for f in range(2, 5):
+        sc.at(0.0)
+        a.step(Frame(f, 0.0, sc.camera(0.0), RES, seed=0, static=True))
+    assert np.array_equal(np.asarray(a._used) > 0, used)        # a still camera uses the same probes
+    P = a.volume.n_probes
+    after = (np.asarray(a.radiance.count), a.volume.state.distance_count, a.volume.state.irradiance)
+    for b, c in zip(before, after):
+        b, c = b.reshape(P, -1), c.reshape(P, -1)
+        assert np.array_equal(b[~used], c[~used])
+        assert not np.array_equal(b[used], c[used])

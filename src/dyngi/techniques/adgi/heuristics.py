@@ -23,11 +23,17 @@ frames only, and only for probes that were also traced the frame before.
 Heuristics
 ----------
 * ``f_c`` (Eq. 10): 1 if ``|p - c| < k``, else ``exp(-(|p - c| - k))``
-  (world units, as the paper). ``k`` is the user's threshold; our default is
-  the probe box diagonal plus the camera's distance to the probe box
-  (:meth:`ADGIHeuristics.k_for`; ours: the scenes are room-sized, and a camera
-  outside the probe volume -- the real Cornell box -- would otherwise put every
-  probe outside ``V_out``).
+  (world units, as the paper). ``k`` is the user's threshold; our default is the
+  ``K_QUANTILE`` = 0.9 quantile of the camera distances of the active probes inside
+  the ``V_out`` clip frustum (:func:`view_distances`, :meth:`ADGIHeuristics.k_for`;
+  ours, the paper leaves k to the user): the nearest 90% of the probes the view
+  holds get ``f_c = 1``, the farthest 10% fall off, so f_c varies over every view
+  while ``V_out`` (``f_c >= 0.5``, i.e. ``|p - c| <= k + ln 2``) keeps at least 90%
+  of them -- whatever the scene's scale or where the camera stands (the real
+  Cornell box's camera is outside its probe volume; a fixed k in metres would
+  either cut the view or never fall off). Without a view (no probe in the
+  frustum) the fallback is the probe box diagonal plus the camera's distance to
+  the box (f_c = 1 everywhere).
 * ``f_v`` (Eq. 11): ``exp(-2 t / s)``, ``t = trace(p, -w)``, ``s`` the cell
   diagonal. The pilot ray of octant ``o`` along ``w_o`` measures ``t`` for the
   opposite octant ``o ^ 7`` (ours: no extra ray). A miss gives ``f_v = 0``; a
@@ -92,6 +98,7 @@ V_OUT_CLIP, V_OUT_FC = 1.4, 0.5
 BETA = 5.0                              # Eq. 12
 MU = 2.0                                # Eq. 20
 THETA = 16.0                            # trigger decay in frames (ours)
+K_QUANTILE = 0.9                        # Eq. 10's default k: this quantile of the view's probe distances (ours)
 SPATIAL_RADIUS = 2                      # 5x5x5 (Sec. 4.1.4)
 BACKFACE_DISTANCE_SCALE = 0.2           # the tracer's -0.2 t for back faces
 FV_BITS, FS_BITS, FD_BITS = 6, 10, 10   # Sec. 4.3: the 6-10-10 word (+ 6 flag bits)
@@ -120,6 +127,15 @@ def camera_falloff(distance, k: float):
     """``f_c`` (Eq. 10) of distances to the camera (NumPy)."""
     d = np.asarray(distance, np.float64)
     return np.exp(-np.maximum(d - k, 0.0))
+
+
+def view_distances(volume, camera, res, active=None) -> np.ndarray:
+    """Camera distances of the probes inside the ``V_out`` clip frustum (``|clip xy| <= 1.4``, Fig. 6b),
+    of the ``active`` ones when given: what Eq. 10's default k is taken from (:meth:`ADGIHeuristics.k_for`)."""
+    inside = probes_in_frustum(volume, camera, res, V_OUT_CLIP)
+    if active is not None:
+        inside &= np.asarray(active, bool)
+    return np.linalg.norm(volume.positions()[inside] - np.asarray(camera.origin, np.float64), axis=1)
 
 
 def frusta(volume, camera, res, k: float):
@@ -240,7 +256,7 @@ class ADGIHeuristics:
     """Builds and updates :class:`HeuristicState` from pilot-ray results (see the module docstring).
 
     grid : ProbeGrid     the probe grid (its counts and cell diagonal)
-    k : float | None     Eq. 10's threshold (world units); None = the probe box diagonal
+    k : float | None     Eq. 10's threshold (world units); None = from the view (:meth:`k_for`)
     beta, mu, theta      Eq. 12's range (5), Eq. 20's weight (2), the trigger's decay in frames (16)
     """
 
@@ -258,12 +274,15 @@ class ADGIHeuristics:
         self.beta, self.mu, self.theta = float(beta), float(mu), float(theta)
         self.pilot = PilotRays()
 
-    def k_for(self, camera_origin) -> float:
-        """Eq. 10's ``k`` for a camera at ``camera_origin``: the user's value, else (ours) the probe box
-        diagonal plus the camera's distance to the probe box (0 inside it), so that a camera outside the
-        probe volume (e.g. the real Cornell box's) does not see every probe at ``f_c < 0.5``."""
+    def k_for(self, camera_origin, view=None) -> float:
+        """Eq. 10's ``k`` for a camera at ``camera_origin``: the user's value, else (ours, module docstring)
+        the ``K_QUANTILE`` quantile of ``view`` (the camera distances of the probes in view,
+        :func:`view_distances`); with no probe in view (or ``view`` None) the probe box diagonal plus the
+        camera's distance to the probe box (0 inside it), so that f_c = 1 for every probe."""
         if self.user_k is not None:
             return self.user_k
+        if view is not None and len(view):
+            return float(np.quantile(np.asarray(view, np.float64), K_QUANTILE))
         c = np.asarray(camera_origin, np.float64)
         lo, hi = self._box
         return self.k + float(np.linalg.norm(np.maximum(np.maximum(lo - c, c - hi), 0.0)))

@@ -40,6 +40,10 @@ One frame, in the paper's stages (Table 4; ``stats['ms']`` keys ``P``, ``S``, ``
   (6x6 interior) map holds only 3-6 texel centres, so 64 rays through them
   would repeat directions), plus the shadow ray along ``-w`` each.
   Dynamic updates use N_max = 10, static ones 63 (Table 3).
+* Culling (Sec. 4.9, ``cull_unused``): the primary pass marks on the device the 8 cage probes of every
+  pixel's probe lookup (:class:`CageMarkingQuery`); the next frame's S and D sample only probes of
+  ``V_in`` so marked (the paper culls "probes that are not used in deferred shading" in D; ours in S too,
+  the issue's reading; the mask is one frame old since our primary pass shades in the same pass).
 * After the updates, probes in ``V_out - V_in`` get their texel counts capped,
   ``N <- min(N, 16)`` (Sec. 4.8).
 
@@ -96,9 +100,11 @@ iterations : int = 20             M per frame (ours)
 burn_in : int = 4                 K per frame (ours): M - K = 16 samples per chain per frame
 position_step : float = 0.5       static position step, in probe spacings (ours; "proportional", Sec. 4.8)
 direction_step : float = sqrt(pi/256)  static direction step, radians (Sec. 4.8)
-camera_threshold : float = 0      k of Eq. 10 (world units); 0 = the probe box diagonal + the camera's
-                                  distance to the probe box (ours, :meth:`.heuristics.ADGIHeuristics.k_for`)
+camera_threshold : float = 0      k of Eq. 10 (world units); 0 = the 0.9 quantile of the camera distances
+                                  of the probes in view (ours, :meth:`.heuristics.ADGIHeuristics.k_for`)
 theta : float = 16                trigger decay, frames (ours)
+cull_unused : bool = True         S and D skip probes no pixel's cage used (Sec. 4.9)
+dynamic_share : float = 0.5       share of a budget reserved for D when some f_d > 0 (ours)
 n_max_static, n_max_dynamic : int = 63, 10   (Table 3)
 outer_count_cap : int = 16        (Sec. 4.8)
 encoding : str = 'adgi'           R9G9B8 + 6-bit count / R13G13 + count (Sec. 4.5-4.6, Table 3)
@@ -127,7 +133,7 @@ from ...sampling.diffuse import diffuse_albedo
 from ...sampling.metropolis import ADGI_DIRECTION_STEP
 from ..base import Frame, FrameResult, Param, StageTimer, register
 from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase
-from .heuristics import OCTANTS, ADGIHeuristics, frusta, pack_heuristics, unpack_heuristics
+from .heuristics import OCTANTS, ADGIHeuristics, frusta, pack_heuristics, unpack_heuristics, view_distances
 from .moving_average import N_MAX_DYNAMIC, N_MAX_STATIC, Algorithm3Accumulator
 from .planner import ADGIChainPlanner, negated
 from .radiance import RadianceCache
@@ -148,6 +154,40 @@ class PilotShader(DiffuseHitShader):
             L = L + diffuse_radiance(albedo, E, front)
         dr.schedule(self.last_direct)
         return L, hit, front, shadow
+
+
+class CageMarkingQuery:
+    """A :class:`~dyngi.probes.query.ProbeQuery` that also scatters 1 into ``used[probe]`` for the 8 probes of
+    the cage each irradiance lookup reads (the same biased position and base cell as the query), so the
+    primary pass records on the device which probes the image uses (Sec. 4.9's culling). Everything else is
+    the wrapped query's."""
+
+    def __init__(self, query, used):
+        self._q = query
+        self.used = used
+
+    def __getattr__(self, name):
+        return getattr(self._q, name)
+
+    def irradiance(self, pos, normal, wo, direction=None, active=True, sampler=None):
+        self.mark(pos, normal, wo, active)
+        return self._q.irradiance(pos, normal, wo, direction=direction, active=active, sampler=sampler)
+
+    def mark(self, pos, normal, wo, active=True) -> None:
+        q = self._q
+        g = q.volume.grid
+        nx, ny, nz = (int(c) for c in g.counts)
+        origin, _, inv_spacing = g.opaque_params()
+        scale = g.min_spacing
+        ok = mi.Bool(active) & dr.all(dr.isfinite(pos)) & dr.all(dr.isfinite(normal)) & dr.all(dr.isfinite(wo))
+        bpos = pos + normal * (q.normal_bias * scale) + wo * (q.view_bias * scale)
+        rel = dr.select(ok, (bpos - origin) * inv_spacing, mi.Vector3f(0.0))
+        base = mi.Vector3u(dr.clip(dr.floor(rel), 0.0, mi.Vector3f(nx - 2, ny - 2, nz - 2)))
+        for c in range(8):
+            i = base.x + (c & 1)
+            j = base.y + ((c >> 1) & 1)
+            k = base.z + ((c >> 2) & 1)
+            dr.scatter(self.used, mi.Float(1.0), i + nx * (j + ny * k), ok)
 
 
 @register
@@ -172,8 +212,8 @@ class ADGITechnique(_ProbeTechniqueBase):
         "dynamic_direction_scale": Param(6.0, "dynamic/static direction step ratio (Sec. 4.9)", min=0.1),
         "dynamic_rays": Param(64, "deterministic rays per probe octant of a sampled proxy (a square)",
                               choices=(16, 64, 256)),
-        "camera_threshold": Param(0.0, "k of Eq. 10 in world units (0: the probe box diagonal + the camera's "
-                                  "distance to the box)", min=0.0),
+        "camera_threshold": Param(0.0, "k of Eq. 10 in world units (0: the 0.9 quantile of the camera "
+                                  "distances of the probes in view)", min=0.0),
         "beta": Param(5.0, "range of the radiance heuristic (Eq. 12)", min=1e-3),
         "mu": Param(2.0, "weight of the radiance change in f_d (Eq. 20)", min=0.0),
         "theta": Param(16.0, "temporal trigger decay in frames (Eq. 14)", min=1.0),
@@ -193,6 +233,11 @@ class ADGITechnique(_ProbeTechniqueBase):
         "warmup_rays": Param(256, "rays per probe of each warm-up update", min=8, max=1 << 14),
         "relocate": Param(True, "move probes out of geometry (warm-up, then every reclassify_interval frames)"),
         "classify": Param(True, "deactivate probes inside geometry or far from surfaces (as relocate)"),
+        "cull_unused": Param(True, "Sec. 4.9: the static and dynamic stages skip probes that no pixel's probe "
+                             "cage used on the previous frame's primary pass"),
+        "dynamic_share": Param(0.5, "share of an equal-ray/equal-time budget (after primary and pilot rays) "
+                               "reserved for the dynamic stage when some octant has f_d > 0 (ours)", min=0.0,
+                               max=1.0),
         "reclassify_interval": Param(8, "frames between ddgi's relocation/classification passes after the "
                                      "warm-up (fixed rays; 0: warm-up only)", min=0),
         "guide_mip": Param(1, "mip level of the irradiance feedback g in the static guide (Sec. 3.2/4.8; "
@@ -237,6 +282,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         self.radiance = RadianceCache(vol_n := self.volume.n_probes, p["radiance_texels"],
                                       self.volume.irradiance_texels)
         self._updated = np.zeros(vol_n, bool)
+        self._used = dr.full(mi.Float, 1.0, vol_n)     # probes the last primary pass read (all, before one ran)
 
     # the planner's chains and guide, readable here (the viewer draws the static chains)
     @property
@@ -246,6 +292,14 @@ class ADGITechnique(_ProbeTechniqueBase):
     def guide_feedback(self):
         """The static guide's irradiance feedback (:meth:`.planner.ADGIChainPlanner.guide_feedback`)."""
         return self.planner.guide_feedback()
+
+    def k_for(self, frame: Frame) -> float:
+        """Eq. 10's k on ``frame`` (:meth:`.heuristics.ADGIHeuristics.k_for`: the user's, else from the camera
+        distances of the active probes in view)."""
+        vol = self.volume
+        view = None if self.heur.user_k is not None else \
+            view_distances(vol, frame.camera, frame.res, vol.state.states != 0)
+        return self.heur.k_for(frame.camera.origin, view)
 
     # -- one frame ------------------------------------------------------------------------------
     def step(self, frame: Frame) -> FrameResult:
@@ -261,10 +315,10 @@ class ADGITechnique(_ProbeTechniqueBase):
         # -- ddgi's relocation/classification after the warm-up (the paper is silent; ours) --
         if self._warmed and frame.index > 0 and p["reclassify_interval"] and \
                 frame.index % p["reclassify_interval"] == 0 and (p["relocate"] or p["classify"]):
-            _, _, near = frusta(vol, frame.camera, frame.res, self.heur.k_for(frame.camera.origin))
+            _, _, near = frusta(vol, frame.camera, frame.res, self.k_for(frame))
             self._states_pass(frame, t, near | (vol.state.states == 0))
         active = vol.state.states != 0
-        fc, v_in, v_out = frusta(vol, frame.camera, frame.res, self.heur.k_for(frame.camera.origin))
+        fc, v_in, v_out = frusta(vol, frame.camera, frame.res, self.k_for(frame))
         v_in &= active
         v_out &= active
         stats = {}
@@ -295,15 +349,17 @@ class ADGITechnique(_ProbeTechniqueBase):
             self._fs_q = fs_q
             dr.eval(fs_q, fd)
         self._plan_budget(frame, t)
+        # -- Sec. 4.9's culling: the chains sample only probes of V_in that the last primary pass used --
+        samp_dr = vin_dr * self._used if p["cull_unused"] else vin_dr
         # -- S: static chains (Sec. 4.8) --
         with t.stage("S"):
-            stats["static_samples"] = self._static(frame, vin_dr, fd, t)
+            stats["static_samples"] = self._static(frame, samp_dr, fd, t)
         if self._time_avail_ms is not None:      # equal time: D gets what S left
             per = self._ms_per_ray["D"] or self._ms_per_ray["S"]
             self._dynamic_rays = None if per is None else max(self._time_avail_ms - t.ms.get("S", 0.0), 0.0) / per
         # -- D: dynamic chains on proxies (Sec. 4.9) --
         with t.stage("D"):
-            stats["dynamic_proxy_octants"] = self._dynamic(frame, vin_dr, fd, t)
+            stats["dynamic_proxy_octants"] = self._dynamic(frame, samp_dr, fd, t)
             self._cap_outer(v_out & ~v_in, p["outer_count_cap"])
             stats["probes_updated"] = self._convolve_updated()
         img, ind = self._primary(frame, t)
@@ -313,6 +369,25 @@ class ADGITechnique(_ProbeTechniqueBase):
         out["static_chains_run"] = self.planner.n_run
         self._measure_time(out)
         return FrameResult(image=img, indirect=ind, stats=out)
+
+    def _primary(self, frame: Frame, t: StageTimer):
+        """The primary pass (``ddgi``'s), which also marks, on the device, the 8 cage probes of every pixel's
+        probe lookup (:class:`CageMarkingQuery`): the next frame's stages S and D skip the others (Sec. 4.9,
+        "culling probes that are not used in deferred shading"; the paper renders its G-buffer before the
+        probe update, ours shades in the same pass, so the mask is one frame old; our choice). Probe-ray hits
+        (multi-bounce) do not mark."""
+        if not self.params["cull_unused"]:
+            return super()._primary(frame, t)
+        used = dr.zeros(mi.Float, self.volume.n_probes)
+        inner = self.query
+        self.query = CageMarkingQuery(inner, used)
+        try:
+            out = super()._primary(frame, t)
+        finally:
+            self.query = inner
+        dr.eval(used)
+        self._used = used
+        return out
 
     # -- equal-ray and equal-time budgets (ours) ----------------------------------------------------
     def _plan_budget(self, frame: Frame, t: StageTimer) -> None:
@@ -331,7 +406,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         if frame.ray_budget is None and frame.time_budget_ms is None:
             return
         dyn = self.planner.dynamic_state is not None and float(np.asarray(self.lut_scale).ravel()[0]) > 0.0
-        share = 0.5 if dyn else 0.0
+        share = float(self.params["dynamic_share"]) if dyn else 0.0
         if frame.ray_budget is None:
             if frame.time_budget_ms is not None and self._ms_per_ray["S"]:
                 self._time_avail_ms = max(float(frame.time_budget_ms) - self._ms_fixed, 0.0)
