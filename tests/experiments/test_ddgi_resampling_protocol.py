@@ -8,7 +8,7 @@ import pytest
 
 from dyngi.experiments.reproductions.ddgi_resampling import (TARGET_TOL, accumulated_mapes, calibrated_scale,
                                                              fit_inverse_sqrt, frames_from_fit, frames_needed,
-                                                             reference_noise_mape, select_target)
+                                                             reference_noise_mape, scaled_frame_ms, select_target)
 from dyngi.metrics.image import mape
 
 
@@ -24,6 +24,9 @@ def test_fit_recovers_a_and_b_and_extrapolates():
     assert N == pytest.approx(4000.0, rel=1e-9)
     assert frames_from_fit(a, b, b) is None and frames_from_fit(a, b, 0.5 * b) is None
     assert frames_from_fit(-1.0, b, 1.0) is None and frames_from_fit(float("nan"), b, 1.0) is None
+    # the floor known (an unbiased method's: the reference's noise): only a is fitted
+    fa, fb = fit_inverse_sqrt(n, m, b=b)
+    assert fb == b and abs(fa - a) < 0.01, fa
 
 
 def test_frames_needed_measured_first_then_fitted():
@@ -36,6 +39,9 @@ def test_frames_needed_measured_first_then_fitted():
     assert not out["measured"] and out["fit"]["a"] == pytest.approx(0.8, rel=1e-6)
     assert out["frames"] == pytest.approx((0.8 / (0.06 * (1 + TARGET_TOL) - 0.05)) ** 2, rel=1e-6)
     assert frames_needed(curve, 0.04, fit_from=4)["frames"] is None        # below the floor b: never
+    fixed = frames_needed(curve, 0.06, fit_from=4, floor=0.05)
+    assert fixed["fit"]["b_fixed"] and fixed["frames"] == pytest.approx(out["frames"], rel=1e-6)
+    assert fixed["fit"]["free"]["b"] == pytest.approx(0.05, abs=1e-9)
 
 
 def test_target_is_the_best_mean_one_frame_mape():
@@ -66,6 +72,12 @@ def test_calibrated_scale_secant():
     assert calibrated_scale(1.0, m(1.0), 2.0, m(2.0), 10.0, 16.0) == 16.0       # clamped
     assert calibrated_scale(1.0, m(1.0), 0.5, m(0.5), 0.0, 16.0) == 0.0
     assert calibrated_scale(1.0, 0.3, 2.0, 0.3, 0.2, 16.0) == 1.0                # emission has no effect
+
+
+def test_update_time_scaled_to_the_papers_rays_per_pixel():
+    # 10x the paper's rays per pixel: 90 % of the update's 60 ms goes
+    assert scaled_frame_ms(100.0, 60.0, 2.5, paper_ratio=0.25) == pytest.approx(46.0)
+    assert scaled_frame_ms(100.0, 60.0, 0.2, paper_ratio=0.25) == 100.0          # already below the paper's
 
 
 def test_accumulated_mapes_is_the_running_mean():
