@@ -21,15 +21,18 @@ The package, by concept:
 Stats: per stage (``ms``/``rays``) and ``table2_ms`` = {trace & shade, resampling, update} as the
 paper's Table 2 groups them.
 
-Parameters (both; ``ddgi-resampling`` adds ``gmax``, ``gmax_scale``, ``control_variate``, ``cv_kind``)
+Parameters (both; ``ddgi-resampling`` adds ``gmax``, ``gmax_scale``, ``target_bsdf``, ``reuse_visibility``,
+``target_floor``, ``control_variate``, ``cv_kind``)
 -----------------------------------------------------------------------------------------------------
-candidates, temporal, m_cap, spatial, radius, combine, progressive : as ``restir-pt``
+candidates, temporal, m_cap, spatial, radius, combine, visibility_reuse, progressive : as ``restir-pt``
+                               (``ddgi-resampling``'s ``m_cap`` default: :data:`.resampling.M_CAP`)
 footprint_c : float = 0.2      Eq. 8 threshold c
 max_glossy : int = 3           most glossy recursion steps after the secondary vertex
 view_path_bias : float = 0.2   Sec. 3.5 offset, in units of the smallest probe spacing
 exact_radiance, exact_depth    the test hook (:mod:`.shading`)
 probe parameters               those of :func:`dyngi.probes.ddgi_plus.plus_params` (DDGI's, the
-                               emission heuristic, ...); ``normal_bias``/``view_bias`` default 0
+                               emission heuristic, Sec. 3.5's ``update_view_path_bias`` at probe-ray
+                               hits, ...); ``normal_bias``/``view_bias`` default 0
 
 Measured frame times, errors and leaks: docs/benchmarks.md ("DDGI Resampling family").
 
