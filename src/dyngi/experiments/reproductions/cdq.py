@@ -13,8 +13,8 @@ Three parts, each beside the paper's statements (issue 18 item 6):
     shadow). The error of a 1-spp frame here is heavy-tailed (a BSDF ray hits the 0.5-degree sun
     with probability ~1e-5 and then returns ~1e4), so we give the mean over frames (the estimate of
     the expected MSE) and the median (the typical frame). Paper: "the CDQ improves sampling by two
-    to three orders of magnitude for these regions". With ``cdq_memory`` available in nee-pt, the
-    CDQ is also run with a temporal memory of its statistics (our extension, ``sampling/cdq.py``).
+    to three orders of magnitude for these regions". (``cdq_memory``, our temporal memory of the
+    statistics, is no row here: it did not lower the means, docs/benchmarks.md.)
 (b) **Fig. 10** on ``rotating-hidden-light-9`` / ``-36``: the CDQ adapts for ``pre`` frames, the light
     then turns by
     9 or 36 degrees over one frame (scene time 0 for ``pre`` frames, then 1 s: the state after its
@@ -31,12 +31,22 @@ Three parts, each beside the paper's statements (issue 18 item 6):
 (a') the same on ``sky-pit`` (sun and sky in NEE, the scene's default): issue 28's target "CDQ no worse
     than BSDF anywhere with default NEE" (the all-pixel and indirect-pixel ratios >= 1 / noise).
 
-Samples per octree leaf per frame (placed vertices / leaves; paper: leaves split at 4096 and collapse
-at 2048 samples at 1080p, Sec. 7) are stated beside each CDQ figure; ours are the scaled thresholds
-(``octree.scaled_thresholds``, floored at 512 / 256), see ``reproduce vlc``.
+(a'') ``path:directions=cdq`` beside ``path:directions=bsdf`` (spp 1, depth 3; first seed, scenes of
+    ``extras_a``): a row no paper has, the CDQ inside the framework's path tracer, whose NEE samples the
+    sunsky (sun included), so little is left for guiding.
 
-``--quick``: small images and few frames (minutes on the 2-core box). Measured figures are
-recorded in the summary this writes (and by the lead in docs/benchmarks.md).
+Samples per octree leaf (issue 28): the paper's octree splits a leaf at 4096 samples and collapses at
+2048 (Sec. 7, 1080p), so its CDQs learn from thousands of samples per leaf and frame. nee-pt's default
+thresholds (``octree.scaled_thresholds``: the paper's scaled by the placed vertices per frame, floored at
+512 / 256) leave ~50-70 samples per leaf and frame at our sizes, too few to find a small sun: the CDQ's
+gain was small there. Part (a) therefore runs the CDQ twice, labelled: at nee-pt's default thresholds and
+at the paper's (``leaf_samples=4096``: the paper's samples per leaf at our resolution, with fewer, larger
+leaves); the mean placed samples per leaf and frame and the leaf count stand beside each figure.
+Every part-(a) figure is given for ``seeds_a`` seeds (mean over seeds of the per-seed mean over frames,
+and each seed's BSDF/CDQ ratio, so the spread shows).
+
+``--quick``: fewer frames (minutes on the 2-core box). Measured figures are recorded in the summary this
+writes (and in docs/benchmarks.md).
 """
 from __future__ import annotations
 
@@ -52,11 +62,19 @@ from ._summary import write_summary
 
 PAPER = ("Dittebrandt, Hanika, Dachsbacher, \"Temporal Sample Reuse for Next Event Estimation and Path "
          "Guiding for Real-Time Path Tracing\", EGSR 2020, Secs. 5, 7.1, 7.3, 7.4")
-CDQ_QUICK = {"scenes_a": ("sky-pit-sun-disc", "sky-pit-sun-disc-2deg", "sky-pit"), "res_a": (96, 54), "frames_a": 40, "warmup_a": 15,
+CDQ_QUICK = {"scenes_a": ("sky-pit-sun-disc-2deg", "sky-pit-sun-disc", "sky-pit"), "res_a": (192, 108),
+             "frames_a": 50, "warmup_a": 15, "seeds_a": (0, 1, 2), "extras_a": ("sky-pit-sun-disc-2deg",),
              "res_b": (48, 48), "pre_b": 30, "post_b": 20, "runs_b": 1, "ref_spp": 128, "bits": (32, 128)}
-CDQ_FULL = {"scenes_a": ("sky-pit-sun-disc", "sky-pit-sun-disc-2deg", "sky-pit"), "res_a": (160, 90), "frames_a": 120,
-            "warmup_a": 40, "res_b": (64, 64), "pre_b": 60, "post_b": 40, "runs_b": 3, "ref_spp": 512,
-            "bits": (32, 64, 96, 128)}
+CDQ_FULL = {"scenes_a": ("sky-pit-sun-disc-2deg", "sky-pit-sun-disc", "sky-pit"), "res_a": (320, 180),
+            "frames_a": 160, "warmup_a": 40, "seeds_a": (0, 1, 2),
+            "extras_a": ("sky-pit-sun-disc-2deg", "sky-pit-sun-disc"), "res_b": (64, 64), "pre_b": 60, "post_b": 40,
+            "runs_b": 3, "ref_spp": 512, "bits": (32, 64, 96, 128)}
+PAPER_LEAF = "leaf_samples=4096"
+"""nee-pt's octree at the paper's thresholds (split 4096, collapse 2048 samples per leaf; Sec. 7)."""
+PATH = "path:spp=1:max_depth=3:progressive=false"
+EXTRAS = (f"{PATH}:directions=bsdf", f"{PATH}:directions=cdq")
+"""Rows no paper has (issue 28): the CDQ inside the framework's path tracer (whose NEE samples the sunsky,
+sun included), first seed only, on the scenes of ``extras_a``."""
 BASE = "nee-pt"
 from ...color import LUMINANCE as _LUM  # noqa: E402
 _NONFINITE: dict = {}   # NaN/Inf pixels per technique spec over the run (summary.json "failed")
@@ -98,52 +116,74 @@ def _part(name: str, cfg: dict, out_dir: str, quiet: bool = True) -> tuple[dict,
 
 # -- (a) Fig. 8 (b) -----------------------------------------------------------------------------------
 def part_a(cfg, out_dir, scene_name="sky-pit-sun-disc", quiet=True) -> dict:
+    """Part (a) on one scene: BSDF, CDQ at nee-pt's default thresholds and CDQ at the paper's samples per
+    leaf, each for every seed of ``cfg["seeds_a"]``; per technique the per-seed figures and their means."""
     from ...scene.library import make_builtin
     from ..io import write_png
     from ..reference import reference_image
 
     sc = make_builtin(scene_name)
     res, F, W = cfg["res_a"], cfg["frames_a"], cfg["warmup_a"]
+    seeds = tuple(cfg.get("seeds_a", (0,)))
     ref = reference_image(sc, 0.0, res, cfg["ref_spp"], 3).astype(np.float64)
     ind = reference_image(sc, 0.0, res, cfg["ref_spp"], 3, indirect=True).astype(np.float64)
     mask = ind @ _LUM > 0.5 * (ref @ _LUM)
     write_png(os.path.join(out_dir, f"a_{scene_name}_reference.png"), ref)
-    specs = [f"{BASE}:directions=bsdf", f"{BASE}:directions=cdq"]
-    if _has_param("cdq_memory"):
-        specs.append(f"{BASE}:directions=cdq:cdq_memory=0.8")
-    out = {"scene": scene_name, "res": res, "frames": F, "warmup": W, "indirect_pixels": float(mask.mean()), "techniques": {}}
+    specs = [f"{BASE}:directions=bsdf", f"{BASE}:directions=cdq", f"{BASE}:directions=cdq:{PAPER_LEAF}"]
+    out = {"scene": scene_name, "res": res, "frames": F, "warmup": W, "seeds": list(seeds),
+           "indirect_pixels": float(mask.mean()), "techniques": {}}
     rows = []
     for spec in specs:
-        mse, msei, acc = [], [], []
+        per_seed = []
+        for seed in seeds:
+            mse, msei, acc = [], [], []
 
-        def on_image(i, img):
-            mse.append(_mse(img, ref))
-            msei.append(_mse(img, ref, mask))
-            if i >= W:
-                acc.append(img)
-            if i == F - 1:
-                write_png(os.path.join(out_dir, f"a_{scene_name}_{spec.replace(':', '_')}.png"), img)
+            def on_image(i, img):
+                mse.append(_mse(img, ref))
+                msei.append(_mse(img, ref, mask))
+                if i >= W:
+                    acc.append(img)
+                if i == F - 1 and seed == seeds[0]:
+                    write_png(os.path.join(out_dir, f"a_{scene_name}_{spec.replace(':', '_')}.png"), img)
 
-        walls, stats = _run(sc, spec, F, res, lambda i: 0.0, on_image)
-        m, mi_ = np.asarray(mse[W:]), np.asarray(msei[W:])
-        cdq_ms = [st.get("cdq_adapt_ms", st.get("cdq", {}).get("cdq_adapt_ms", 0.0)) for st in stats[W:]]
-        mean_img = np.mean(acc, axis=0) @ _LUM
-        out["techniques"][spec] = {
-            "energy": float(mean_img.mean() / max((ref @ _LUM).mean(), 1e-30)),
-            "energy_ind": float(mean_img[mask].mean() / max((ref @ _LUM)[mask].mean(), 1e-30)),
-            "mse_mean": float(m.mean()), "mse_median": float(np.median(m)),
-            "mse_ind_mean": float(mi_.mean()), "mse_ind_median": float(np.median(mi_)),
-            "frame_ms": float(np.median(walls[W:])), "trace_ms": float(np.median(
-                [st.get("ms", {}).get("trace", 0.0) for st in stats[W:]])),
-            "cdq_adapt_ms": float(np.median(cdq_ms)), "per_frame_mse": mse, "per_frame_mse_ind": msei}
-        octs = [st.get("octree") for st in stats[W:] if st.get("octree")]
-        if octs:     # samples per octree leaf per frame (issue 28): placed vertices / leaves
-            out["techniques"][spec]["samples_per_leaf"] = float(np.mean([o["placed"] / max(o["leaves"], 1)
-                                                                       for o in octs]))
-        rows += [(spec, i, a, b) for i, (a, b) in enumerate(zip(mse, msei))]
+            walls, stats = _run(sc, spec, F, res, lambda i: 0.0, on_image, seed=seed)
+            m, mi_ = np.asarray(mse[W:]), np.asarray(msei[W:])
+            cdq_ms = [st.get("cdq_adapt_ms", st.get("cdq", {}).get("cdq_adapt_ms", 0.0)) for st in stats[W:]]
+            mean_img = np.mean(acc, axis=0) @ _LUM
+            r = {"seed": seed,
+                 "energy": float(mean_img.mean() / max((ref @ _LUM).mean(), 1e-30)),
+                 "energy_ind": float(mean_img[mask].mean() / max((ref @ _LUM)[mask].mean(), 1e-30)),
+                 "mse_mean": float(m.mean()), "mse_median": float(np.median(m)),
+                 "mse_ind_mean": float(mi_.mean()), "mse_ind_median": float(np.median(mi_)),
+                 "frame_ms": float(np.median(walls[W:])), "trace_ms": float(np.median(
+                     [st.get("ms", {}).get("trace", 0.0) for st in stats[W:]])),
+                 "cdq_adapt_ms": float(np.median(cdq_ms)), "per_frame_mse": mse, "per_frame_mse_ind": msei}
+            octs = [st.get("octree") for st in stats[W:] if st.get("octree")]
+            if octs and octs[0].get("placed") is not None:   # samples per octree leaf per frame (issue 28)
+                r["samples_per_leaf"] = float(np.mean([o["placed"] / max(o["leaves"], 1) for o in octs]))
+                r["leaves"] = float(np.mean([o["leaves"] for o in octs]))
+            per_seed.append(r)
+            rows += [(spec, seed, i, a, b) for i, (a, b) in enumerate(zip(mse, msei))]
+        agg = {k: float(np.mean([r[k] for r in per_seed])) for k in per_seed[0]
+               if k != "seed" and not k.startswith("per_frame")}
+        agg["per_seed"] = per_seed
+        out["techniques"][spec] = agg
+    if scene_name in cfg.get("extras_a", ()):
+        out["extras"] = {}
+        for spec in EXTRAS:      # first seed only (their own rows)
+            mse, msei = [], []
+
+            def on_image_x(i, img):
+                if i >= W:
+                    mse.append(_mse(img, ref))
+                    msei.append(_mse(img, ref, mask))
+
+            walls, _ = _run(sc, spec, F, res, lambda i: 0.0, on_image_x, seed=seeds[0])
+            out["extras"][spec] = {"mse_mean": float(np.mean(mse)), "mse_ind_mean": float(np.mean(msei)),
+                                   "mse_ind_median": float(np.median(msei)), "frame_ms": float(np.median(walls[W:]))}
     with open(os.path.join(out_dir, f"a_{scene_name}_mse.csv"), "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["technique", "frame", "mse", "mse_indirect"])
+        w.writerow(["technique", "seed", "frame", "mse", "mse_indirect"])
         w.writerows(rows)
     return out
 
@@ -216,26 +256,45 @@ def _rows(a_all: list, b: dict) -> list:
     return rows
 
 
+def _seed_ratios(bs: dict, v: dict, key: str) -> str:
+    """Each seed's BSDF / CDQ ratio of ``key``, and their range."""
+    r = [b[key] / max(c[key], 1e-30) for b, c in zip(bs["per_seed"], v["per_seed"])]
+    return "/".join(f"{x:.3g}" for x in r) + (f" (min {min(r):.3g}, max {max(r):.3g})" if len(r) > 1 else "")
+
+
 def _rows_a(a: dict) -> list:
     rows = []
     sn = a["scene"]
     t = a["techniques"]
     bs, cq = t[f"{BASE}:directions=bsdf"], t[f"{BASE}:directions=cdq"]
+    ns = len(a.get("seeds", [0]))
     for spec, v in t.items():
         if spec == f"{BASE}:directions=bsdf":
             continue
-        spl = f"; {v['samples_per_leaf']:.0f} samples/leaf/frame" if "samples_per_leaf" in v else ""
-        rows.append((f"{sn}, indirectly lit pixels ({100 * a['indirect_pixels']:.0f} %): MSE BSDF / {spec}{spl}",
+        spl = (f"; {v['samples_per_leaf']:.0f} samples/leaf/frame over {v['leaves']:.0f} leaves"
+               if "samples_per_leaf" in v else "")
+        what = "the paper's thresholds" if PAPER_LEAF in spec else "nee-pt's default thresholds"
+        rows.append((f"{sn}, indirectly lit pixels ({100 * a['indirect_pixels']:.0f} %): MSE BSDF / {spec} "
+                     f"({what}{spl}; {ns} seeds)",
                      "CDQ 2-3 orders of magnitude lower (Fig. 8 b); target >= 10x",
                      f"mean {bs['mse_ind_mean'] / max(v['mse_ind_mean'], 1e-30):.3g}x "
-                     f"({bs['mse_ind_mean']:.3g} vs {v['mse_ind_mean']:.3g}); median "
-                     f"{bs['mse_ind_median'] / max(v['mse_ind_median'], 1e-30):.3g}x "
-                     f"({bs['mse_ind_median']:.3g} vs {v['mse_ind_median']:.3g}); mean image / reference "
-                     f"{bs['energy_ind']:.2f} (BSDF) vs {v['energy_ind']:.2f}"))
-        rows.append((f"{sn}, all pixels: MSE BSDF / {spec}", "(Fig. 8 b image; no number published)",
+                     f"({bs['mse_ind_mean']:.3g} vs {v['mse_ind_mean']:.3g}); per seed {_seed_ratios(bs, v, 'mse_ind_mean')}; "
+                     f"median over frames {bs['mse_ind_median'] / max(v['mse_ind_median'], 1e-30):.3g}x; mean image / "
+                     f"reference {bs['energy_ind']:.2f} (BSDF) vs {v['energy_ind']:.2f}"))
+        rows.append((f"{sn}, all pixels: MSE BSDF / {spec} ({ns} seeds)", "(Fig. 8 b image; no number published)",
                      f"mean {bs['mse_mean'] / max(v['mse_mean'], 1e-30):.3g}x ({bs['mse_mean']:.3g} vs "
-                     f"{v['mse_mean']:.3g}); median {bs['mse_median'] / max(v['mse_median'], 1e-30):.3g}x; mean image / "
+                     f"{v['mse_mean']:.3g}); per seed {_seed_ratios(bs, v, 'mse_mean')}; median over frames "
+                     f"{bs['mse_median'] / max(v['mse_median'], 1e-30):.3g}x; mean image / "
                      f"reference {bs['energy']:.2f} (BSDF) vs {v['energy']:.2f}"))
+    x = a.get("extras")
+    if x:
+        b2, c2 = x[EXTRAS[0]], x[EXTRAS[1]]
+        rows.append((f"{sn}: {EXTRAS[1]} vs {EXTRAS[0]} (ours: the CDQ in the framework's path tracer, whose NEE "
+                     f"samples the sunsky; seed {a.get('seeds', [0])[0]})", "(no paper has this row)",
+                     f"MSE BSDF / CDQ all pixels {b2['mse_mean'] / max(c2['mse_mean'], 1e-30):.3g}x ({b2['mse_mean']:.3g} vs "
+                     f"{c2['mse_mean']:.3g}), indirectly lit {b2['mse_ind_mean'] / max(c2['mse_ind_mean'], 1e-30):.3g}x "
+                     f"({b2['mse_ind_mean']:.3g} vs {c2['mse_ind_mean']:.3g}); frame {c2['frame_ms']:.1f} vs "
+                     f"{b2['frame_ms']:.1f} ms"))
     cost = cq["frame_ms"] - bs["frame_ms"]
     rows.append((f"{sn}: nee-pt frame with CDQ vs without (Sec. 7.4)", "17.1 ms vs 15.1 ms (+13 %); target CDQ < 20 % of "
                  "the frame", f"{cq['frame_ms']:.1f} vs {bs['frame_ms']:.1f} ms ({100 * cost / max(cq['frame_ms'], 1e-9):.0f} % "
@@ -281,7 +340,9 @@ def reproduce_cdq(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
     rows = _rows(a, b)
     md = "\n".join([f"# reproduce cdq ({'quick' if quick else 'full'} run)", "", "CDQ: " + PAPER + ".",
                     f"(a) {' and '.join(cfg['scenes_a'])} at {cfg['res_a'][0]}x{cfg['res_a'][1]}, {cfg['frames_a']} frames at t = 0, "
-                    f"the first {cfg['warmup_a']} left out (adaptation); (b) rotating-hidden-light-9/-36 at "
+                    f"the first {cfg['warmup_a']} left out (adaptation), seeds {', '.join(map(str, cfg.get('seeds_a', (0,))))}; "
+                    "samples per leaf per frame = placed vertices / octree leaves (paper: split at 4096, collapse at "
+                    "2048 per leaf); (b) rotating-hidden-light-9/-36 at "
                     f"{cfg['res_b'][0]}x{cfg['res_b'][1]}, {cfg['pre_b']} frames before and {cfg['post_b']} after the "
                     f"step; references: Mitsuba path, {cfg['ref_spp']} spp, max depth 3. 1 spp everywhere. Per-frame "
                     "MSE in a_mse.csv / b_mse.csv. Part (b) uses medians over frames (heavy-tailed 1-spp MSE).", "", paper_table(rows), ""])

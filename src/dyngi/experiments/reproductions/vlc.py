@@ -28,11 +28,15 @@ frame (stated beside each figure: mean placed samples / leaves). Two rows reach 
 another way, labelled: ``leaf_samples=4096`` (the paper's thresholds at our resolution: fewer,
 larger leaves) and ``memory=8`` (a leaf's VLC keeps the lights seen in its last 8 frames: ~8 x 512
 records accumulated over frames). ``explorer=lighttree`` (our local exploration, Sec. 8) is a row
-of its own.
+of its own. ``restir-pt:lights=vlc`` beside ``restir-pt:lights=lighttree`` (both at depth 3) are rows
+no paper has: the VLC as ReSTIR DI's candidate and NEE light sampler.
 
 Techniques at 1 spp (``directions=bsdf``), MSE against Mitsuba's ``path`` at ``max_depth = 3``
 (nee-pt's depth: primary, secondary and tertiary hit). ``--quick``: 6 frames at 64x36, 64
-reference spp, the extra rows on warehouse-rooms only (a few minutes on 2 cores).
+reference spp, the extra rows on warehouse-rooms only (a few minutes on 2 cores). Seeds (issue 28: at
+least 3 per headline figure): the paper's rows (VLC, SLL, LH) run for every seed of ``seeds`` (0, 1, 2 in
+both configurations) and their VLC/SLL and VLC/LH ratios are given per seed with mean and range; the other
+rows, the per-stage times and Fig. 9 are from the first seed.
 """
 from __future__ import annotations
 
@@ -59,15 +63,22 @@ VLC_LEAF = "nee-pt:lights=vlc:leaf_samples=4096"
 VLC_MEMORY = "nee-pt:lights=vlc:memory=8"
 """Records accumulated over 8 frames (a light stays in a leaf's VLC 8 frames after its last visible sample):
 ~8 x our per-frame samples per leaf, the paper's count reached over time (ours, labelled)."""
-EXTRAS = (ORACLE, VLC_LH, VLC_LEAF, VLC_MEMORY)
+RESTIR = ("restir-pt:lights=vlc:max_depth=3:progressive=false", "restir-pt:lights=lighttree:max_depth=3:progressive=false")
+"""Rows no paper has (issue 28): the VLC and the light tree as the light sampler of ReSTIR DI's candidates and
+the path's NEE in restir-pt, at nee-pt's depth."""
+EXTRAS = (ORACLE, VLC_LH, VLC_LEAF, VLC_MEMORY) + RESTIR
 SCENES = (("warehouse-rooms", "Fig. 8 (a) warehouse (rooms analog)",
            "VLC almost an order of magnitude lower error than SLL and LH; LH worst"),
           ("covered-lights", "Fig. 8 (c) dragon under covered lights",
            "all noisy; VLC (with CDQ) still slightly better"))
 PAPER_MS = "preprocessing ~1.2 ms in all; path tracing LH 11.2, SLL 15.1, VLC 15.1 ms (RTX 2080 Ti, 1080p)"
 PAPER_LEAF = "split at 4096, collapse at 2048 samples per leaf (Sec. 7; 1080p, 2 placed vertices per path)"
-VLC_QUICK = {"res": (64, 36), "frames": 6, "ref_spp": 64, "extras_on": ("warehouse-rooms",)}
-VLC_FULL = {"res": (160, 90), "frames": 30, "ref_spp": 512, "extras_on": ("warehouse-rooms", "covered-lights")}
+VLC_QUICK = {"res": (64, 36), "frames": 6, "ref_spp": 64, "extras_on": ("warehouse-rooms",), "seeds": (0, 1, 2)}
+VLC_FULL = {"res": (160, 90), "frames": 30, "ref_spp": 512, "extras_on": ("warehouse-rooms", "covered-lights"),
+            "seeds": (0, 1, 2)}
+HEADLINE = SPECS[:3]
+"""The paper's three rows (VLC, SLL, LH): run for every seed of the configuration's ``seeds``; the other
+rows for its first seed only."""
 REF_DEPTH = 3
 
 
@@ -86,11 +97,25 @@ def run_scene(scene_name: str, cfg: dict, out_dir: str, quiet: bool = True) -> d
     for r in rs["rows"]:
         per_frame.setdefault(r["technique"], []).append((int(r["frame"]), float(r["mse"])))
     out = {}
+    seeds = tuple(cfg.get("seeds", (0,)))
+    extra = {}        # label -> MSE (frames 1..) per further seed: the paper's rows only
+    for seed in seeds[1:]:
+        run_s = prepare(scene_name, list(HEADLINE), out_dir, cfg["frames"], "equal-frames", cfg["ref_spp"], {},
+                        ["mse"], REF_DEPTH, False, tracked=False)
+        rs_s = execute(run_s, cfg["res"], seed=seed, quiet=quiet)
+        pf = {}
+        for r in rs_s["rows"]:
+            pf.setdefault(r["technique"], []).append((int(r["frame"]), float(r["mse"])))
+        for label, c in pf.items():
+            curve = [m for _, m in sorted(c)]
+            extra.setdefault(label, []).append(float(np.mean(curve[1:])) if len(curve) > 1 else curve[0])
     for label, s in rs["summary"].items():
         curve = [m for _, m in sorted(per_frame.get(label, []))]
         out[label] = {"mse": s["mean"]["mse"], "mse_after_first": float(np.mean(curve[1:])) if len(curve) > 1
                       else s["mean"]["mse"], "mse_per_frame": curve, "ms_per_frame": s["ms_per_frame"],
                       "stage_ms": s["stage_ms"], "failed": bool(s.get("failed"))}
+        out[label]["seeds"] = list(seeds[:1 + len(extra.get(label, []))])
+        out[label]["mse_per_seed"] = [out[label]["mse_after_first"]] + extra.get(label, [])
         seq = rs["results"].get(label)
         octs = [st.get("octree") for st in (getattr(seq, "stats", None) or [])[1:] if st.get("octree")]
         if octs:      # samples per leaf per frame: placed vertices / leaves (issue 28)
@@ -122,6 +147,12 @@ def adaptation(curve: list) -> dict:
             "late_mse": late, "frame0_mse": float(c[0])}
 
 
+def seed_ratios(a: list, b: list) -> str:
+    """Per-seed ratios a/b, their mean and range: 'r0/r1/r2 (mean m, min x, max y)'."""
+    r = [x / max(y, 1e-30) for x, y in zip(a, b)]
+    return "/".join(f"{x:.2f}" for x in r) + f" (mean {np.mean(r):.2f}, min {min(r):.2f}, max {max(r):.2f})"
+
+
 def _ratio(a: float, b: float) -> str:
     return f"{a / max(b, 1e-30):.2f}"
 
@@ -134,10 +165,17 @@ def _rows(figs: dict, cfg: dict) -> list:
             continue
         f = figs[scene]
         mse = {k: f[k]["mse_after_first"] for k in (v, s, lt, u)}
-        rows.append((f"{what}: MSE at 1 spp (frames 1..{cfg['frames'] - 1}); VLC at {leaf_note(f, v)}", claim,
+        ns = len(f[v].get("mse_per_seed", [0]))
+        rows.append((f"{what}: MSE at 1 spp (frames 1..{cfg['frames'] - 1}, seed {f[v].get('seeds', [0])[0]}); VLC at "
+                     f"{leaf_note(f, v)}", claim,
                      f"VLC {mse[v]:.4g}, SLL {mse[s]:.4g}, LH {mse[lt]:.4g}, uniform {mse[u]:.4g}; "
                      f"VLC/SLL {_ratio(mse[v], mse[s])}, VLC/LH {_ratio(mse[v], mse[lt])} (target <= 0.2); SLL mean "
                      f"list {f[s].get('mean_list', float('nan')):.0f} lights"))
+        if ns > 1:
+            rows.append((f"{what}: VLC/SLL and VLC/LH MSE ratios over {ns} seeds "
+                         f"({', '.join(map(str, f[v]['seeds']))}); VLC at {leaf_note(f, v)}", claim,
+                         f"VLC/SLL {seed_ratios(f[v]['mse_per_seed'], f[s]['mse_per_seed'])}; VLC/LH "
+                         f"{seed_ratios(f[v]['mse_per_seed'], f[lt]['mse_per_seed'])} (target <= 0.2)"))
         if ORACLE in f:
             m = f[ORACLE]["mse_after_first"]
             rows.append((f"{what}: SLL oracle (ray-cast per-cell visible lists; ours, stronger than the paper's SLL)",
@@ -154,6 +192,11 @@ def _rows(figs: dict, cfg: dict) -> list:
             rows.append((f"{what}: {label}; {leaf_note(f, spec)}", paper,
                          f"MSE {m2:.4g}; /SLL {_ratio(m2, mse[s])}, /LH {_ratio(m2, mse[lt])}, /paper's VLC "
                          f"{_ratio(m2, mse[v])}; trace {f[spec]['stage_ms'].get('trace', 0.0):.1f} ms"))
+        if all(k in f for k in RESTIR):
+            rv, rl = (f[k]["mse_after_first"] for k in RESTIR)
+            rows.append((f"{what}: {RESTIR[0]} vs {RESTIR[1]} (ours: the VLC under ReSTIR DI)",
+                         "(no paper has this row)", f"MSE {rv:.4g} vs {rl:.4g} (VLC/LH {_ratio(rv, rl)}); nee-pt's "
+                         f"VLC {mse[v]:.4g}, LH {mse[lt]:.4g}"))
         st = f[v]["stage_ms"]
         pre = st.get("preprocess", 0.0) + st.get("adapt", 0.0)
         tr = {k: f[k]["stage_ms"].get("trace", 0.0) for k in (v, s, lt, u, pt)}
