@@ -226,27 +226,26 @@ def test_reproduction_is_registered_and_counts_frames(backend):
 
 
 @pytest.mark.slow
-def test_reproduce_smoke_writes_table1(backend, tmp_path):
-    """``dyngi reproduce ddgi-resampling`` at its smoke size writes the Table 1 summary with the paper's
-    figures beside ours: per scene the three noisy methods with frames and time per seed, a finite target
-    taken from one of them, the reference's spp and noise, the emission calibration and the probe rays
-    per pixel; exits 0. (The protocol's arithmetic: tests/experiments/test_ddgi_resampling_protocol.py.)"""
-    import json
+def test_reproduction_protocol_on_a_tiny_scene(backend):
+    """``reproduce ddgi-resampling``'s per-scene protocol at a tiny size (the CLI's smoke run is
+    tests/experiments/test_reproduce_smoke.py; the protocol's arithmetic
+    tests/experiments/test_ddgi_resampling_protocol.py): the three noisy methods with frames and time per
+    seed, a finite target taken from one of them, the reference's spp grown from its start and its noise,
+    the emission calibration, the probe rays per pixel, and the tables format."""
+    from dyngi.experiments.reproductions import ddgi_resampling as rep
 
-    from dyngi.cli import main
-
-    out = tmp_path / "r"
-    assert main(["reproduce", "ddgi-resampling", "--smoke", "--out", str(out)]) == 0
-    md = (out / "summary.md").read_text()
-    assert "Time to equal MAPE" in md and "ROOM DOOR" in md and "ddgi-resampling" in md
-    figs = json.loads((out / "paper.json").read_text())["figures"]
-    assert figs
-    for f in figs:
-        assert set(f["techniques"]) == {"restir-pt", "ddgi-secondary", "ddgi-resampling"}
-        assert np.isfinite(f["target_mape"]) and f["target_method"] in f["techniques"]
-        assert all(len(t["seeds"]) >= 3 for t in f["techniques"].values())
-        assert f["reference"]["spp"] >= 4 and np.isfinite(f["reference"]["noise_mape"])
-        assert f["calibration"]["scale"] >= 0 and f["probe_rays_per_pixel"] > 0
+    cfg = {"res": (16, 9), "max_frames": 6, "ref_spp": 4, "ref_spp_max": 64, "seeds": 3, "warm_frames": 3,
+           "steady_frames": 2, "calib_frames": 4}
+    f = rep.run_scene("cornell-static", cfg)
+    assert set(f["techniques"]) == set(rep.METHODS)
+    assert np.isfinite(f["target_mape"]) and f["target_method"] in f["techniques"]
+    assert f["target_mape"] == pytest.approx(min(np.mean(v) for v in f["one_frame_mape"].values()))
+    assert all(len(t["seeds"]) == 3 for t in f["techniques"].values())
+    assert 4 <= f["reference"]["spp"] <= 64 and np.isfinite(f["reference"]["noise_mape"])
+    assert f["reference"]["ok"] or f["reference"]["spp"] == 64
+    assert f["calibration"]["scale"] >= 0 and f["probe_rays_per_pixel"] > 0
+    t1, prot, fits, _ = rep._tables([f])
+    assert "cornell-static (RED BALL)" in t1 and "cornell-static" in prot
 
 
 @pytest.mark.slow
