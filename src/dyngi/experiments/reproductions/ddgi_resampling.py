@@ -49,8 +49,10 @@ pixel (the paper: 16 x 8 x 16 probes x 256 rays at 1920 x 1080 = 0.25).
 Extras, labelled as not the paper's Table 1: with Intel OIDN installed (our substitute for OptiX), each
 method's denoised 1-frame MAPE; and the speed-up over ``restir-pt`` with ``ddgi-resampling``'s probe
 update time scaled down to the paper's probe rays per pixel (:func:`scaled_frame_ms`), since at the
-CPU's small resolutions the update traces tens of rays per pixel and dominates the frame. ``--quick``: 64 x 36, three seeds, 64 measured ``restir-pt`` frames;
-the full run: 320 x 180, up to 256 measured frames. CPU (LLVM) timings, not the paper's RTX 3090:
+CPU's small resolutions the update traces tens of rays per pixel and dominates the frame. ``--quick``: 64 x 36, three seeds, 64 measured ``restir-pt`` frames,
+four scenes; the full run: 320 x 180, up to 256 measured frames, six scenes (hours on 2 CPU cores: a
+reference of 10^4 spp at 320 x 180 alone takes minutes per scene; ``DYNGI_RESAMPLING_SCENES`` runs a
+subset). CPU (LLVM) timings, not the paper's RTX 3090:
 compare ratios. Options through the environment (:data:`OPTIONS`): a longer measured ``restir-pt`` run
 (``DYNGI_RESAMPLING_PT_FRAMES``), a subset of scenes, more seeds. Figures measured with it:
 docs/benchmarks.md.
@@ -340,19 +342,19 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
     ref, ref_noise, spp = R.image, R.noise, R.spp
     say(f"reference {spp} spp, noise MAPE {ref_noise:.4f}")
 
-    # -- 2. emission calibration (the paper's per-scene slider) --
+    # -- emission calibration (the paper's per-scene slider; step 2) --
     calib = _calibrate(scene, res, ref, cfg)
     params = {"emission_scale": calib["scale"]}
     say(f"emission scale {calib['default_scale']:g} -> {calib['scale']:.3g} (mean ratio {calib['ratio_default']:.3f})")
 
-    # -- 3. warmed DDGI methods, steady frames kept --
+    # -- warmed DDGI methods, steady frames kept (step 3) --
     runs = {name: [_steady(scene, name, res, s, params, cfg["warm_frames"], cfg["steady_frames"]) for s in seeds]
             for name in DDGI_METHODS}
 
     def one_frame(name):
         return [float(np.mean([_mape(im, ref) for im in r["images"]])) for r in runs[name]]
 
-    # -- 1. reference noise at least REF_NOISE_FACTOR below the (DDGI) target; refine and re-measure --
+    # -- reference noise at least REF_NOISE_FACTOR below the DDGI methods' 1-frame MAPE (step 1) --
     while ref_noise * REF_NOISE_FACTOR > min(np.mean(one_frame(n)) for n in DDGI_METHODS) \
             and spp < int(cfg["ref_spp_max"]):
         R.double()
@@ -360,7 +362,7 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
         say(f"reference {spp} spp, noise MAPE {ref_noise:.4f}")
     mapes1 = {n: one_frame(n) for n in DDGI_METHODS}
 
-    # -- restir-pt from a fresh start; its first frame joins the target --
+    # -- restir-pt from a fresh start; its first frame joins the target (steps 3-4) --
     pt = []
     for s in seeds:
         goal = {}
@@ -375,7 +377,7 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
     mapes1["restir-pt"] = [r["mape"][0] for r in pt]
     target_method, target = select_target(mapes1)
 
-    # -- 4./5. frames and time to the target, per seed --
+    # -- frames and time to the target, per seed (steps 4-5) --
     fig = {"scene": scene_name, "analog": ANALOG.get(scene_name, scene_name), "res": list(res),
            "target_mape": target, "target_method": target_method, "one_frame_mape": mapes1,
            "reference": {"spp": spp, "noise_mape": ref_noise, "ok": ref_noise * REF_NOISE_FACTOR <= target},
