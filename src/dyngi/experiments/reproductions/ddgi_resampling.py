@@ -49,13 +49,13 @@ pixel (the paper: 16 x 8 x 16 probes x 256 rays at 1920 x 1080 = 0.25).
 Extras, labelled as not the paper's Table 1: with Intel OIDN installed (our substitute for OptiX), each
 method's denoised 1-frame MAPE; and the speed-up over ``restir-pt`` with ``ddgi-resampling``'s probe
 update time scaled down to the paper's probe rays per pixel (:func:`scaled_frame_ms`), since at the
-CPU's small resolutions the update traces tens of rays per pixel and dominates the frame. ``--quick``: 64 x 36, three seeds, 64 measured ``restir-pt`` frames,
-four scenes; the full run: 320 x 180, up to 256 measured frames, six scenes (hours on 2 CPU cores: a
-reference of 10^4 spp at 320 x 180 alone takes minutes per scene; ``DYNGI_RESAMPLING_SCENES`` runs a
-subset). CPU (LLVM) timings, not the paper's RTX 3090:
-compare ratios. Options through the environment (:data:`OPTIONS`): a longer measured ``restir-pt`` run
-(``DYNGI_RESAMPLING_PT_FRAMES``), a subset of scenes, more seeds. Figures measured with it:
-docs/benchmarks.md.
+CPU's small resolutions the update traces tens of rays per pixel and dominates the frame.
+
+``--quick``: 64 x 36, three seeds, 64 measured ``restir-pt`` frames, four scenes; the full run:
+320 x 180, up to 256 measured frames, six scenes (hours on 2 CPU cores: a reference of 10^4 spp at
+320 x 180 alone takes minutes per scene). Options through the environment (:data:`OPTIONS`): a longer
+measured ``restir-pt`` run (``DYNGI_RESAMPLING_PT_FRAMES``), a subset of scenes, more seeds. CPU (LLVM)
+timings, not the paper's RTX 3090: compare ratios. Figures measured with it: docs/benchmarks.md.
 """
 from __future__ import annotations
 
@@ -691,7 +691,8 @@ def reproduce_ddgi_resampling(out_dir: str, quick: bool = False, quiet: bool = T
         "best 1-frame MAPE of restir-pt (its first frame from a fresh start) / ddgi-secondary / ddgi-resampling "
         f"(steady frames), over the seeds; reached at accumulated MAPE <= target x {1 + TARGET_TOL:g}; restir-pt "
         f"measured up to {cfg['max_frames']} frames, beyond that MAPE(N) = a/sqrt(N) + b fitted (b fixed to the "
-        "reference's noise MAPE, a on the last 3/4 of the measured frames) and extrapolated ('~', 'fit'); time = frames x median steady frame time. Per-seed cells "
+        "reference's noise MAPE, a on the last 3/4 of the measured frames) and extrapolated ('~', 'fit'); "
+        "time = frames x median steady frame time. Per-seed cells "
         "are separated by '/'; speed-ups are the median [min-max] over seeds. Emission scale calibrated per "
         "scene (the paper's slider). CPU (LLVM) timings, not the paper's RTX 3090: compare ratios.", "",
         "## Time to equal MAPE (Table 1)", "", t1, "",
