@@ -15,8 +15,8 @@ combined by the balance heuristic with the light selector's exact ``pmf``.
 The path is the one path walk (:func:`dyngi.transport.path_walk.walk`, unrolled over its three vertices,
 no Russian roulette) composed with :class:`NeePTWalk`: its vertex hook (real BSDF or diffuse stand-in,
 octree leaves), its light strategy (the NEE and emission estimators above) and its direction strategy. A
-sampled direction of zero weight ends the path there (the walk's rule; e.g. a CDQ sample below the surface),
-so no ray is traced for it.
+path goes on after a sampled direction of zero weight (e.g. a CDQ direction below the surface): the VLC and
+the CDQ learn at the vertices it reaches, and each path still traces its five rays (Sec. 7).
 
 Lights
 ------
@@ -427,7 +427,7 @@ class NeePT(Technique):
         # -- the one path walk over Sec. 7's three vertices, unrolled (each vertex its own BSDF and records) --
         nw = NeePTWalk(self)
         r = walk(self.scene.mi_scene, sampler, ray, mi.Bool(True), MAX_DEPTH, -1, lights=nw, directions=nw,
-                 vertex=nw.vertex, power_heuristic=False, split=True, unroll=True)
+                 vertex=nw.vertex, power_heuristic=False, split=True, unroll=True, stop_at_zero=False)
         L = dr.select(dr.isfinite(luminance(r.L)), r.L, 0.0)
         L_ind = dr.select(dr.isfinite(luminance(r.L_ind)), r.L_ind, 0.0)
         pending = list(getattr(self.selector, "pending", lambda: [])())

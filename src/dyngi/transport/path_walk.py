@@ -27,7 +27,6 @@ Per-vertex choices (Python callables evaluated inside the loop, on Dr.Jit masks)
   vertex still happens; e.g. DDGI Resampling's footprint termination, Eq. 8), and the hook's per-lane
   ``state`` (a Dr.Jit PyTree given as ``state=``, carried through the loop; e.g. Eq. 7's running
   footprint sum). Default: none.
-
 * ``vertex(v: VertexCtx) -> Vertex``: the vertex (:class:`dyngi.directions.base.Vertex`) that NEE and the
   direction strategy see, called at every vertex with ``v.active`` its valid lanes: its BSDF, or a diffuse
   stand-in (``bsdf=None`` with an ``albedo``: nee-pt after the primary hit), its side-corrected shading
@@ -45,12 +44,16 @@ one), e.g. nee-pt's one triangle sample by its light selector plus one Mitsuba s
 ``unroll=True`` traces the loop in Python: exactly ``max_depth`` vertices, each hook gets its vertex index as
 a Python ``int`` (so it may specialise per vertex, and keep per-vertex values between its calls, e.g. per-frame
 record lists of a learning sampler), and the last vertex draws no NEE or bounce sample. The estimate is the
-symbolic loop's (same random numbers in the same order); for short fixed-depth walks (nee-pt's three vertices).
+symbolic loop's, bit for bit (same random numbers in the same order, ``tests/transport/test_path_walk.py``);
+for short fixed-depth walks (nee-pt's three vertices).
 
-Other choices: ``mis=False`` weighs NEE and emission 1 (no MIS; for an estimator whose emission hook
-leaves out what NEE covers); ``rr_depth < 0``: no Russian roulette (and no random number drawn for it);
-``nee=False``: no NEE at all (no light sample drawn); ``directions``: a direction strategy instead of the
-BSDF's own sampling (:class:`dyngi.directions.walk.WalkDirections`; a restricted one such as
+Other choices: ``stop_at_zero=False``: a path whose throughput became 0 goes on (its vertices add
+nothing, but the hooks and a learning sampler see them; nee-pt's VLC and CDQ learn at the vertices that
+zero-weight samples reach, e.g. a CDQ direction below the surface); ``mis=False`` weighs NEE and emission
+1 (no MIS; for an estimator whose emission hook leaves out what NEE covers); ``rr_depth < 0``: no Russian
+roulette (and no random number drawn for it); ``nee=False``: no NEE at all (no light sample drawn);
+``directions``: a direction strategy instead of the BSDF's own sampling
+(:class:`dyngi.directions.walk.WalkDirections`; a restricted one such as
 :class:`dyngi.directions.glossy.GlossyLobes`).
 
 A path that can no longer contribute (its next vertex counts no emission and is the last) stops early.
@@ -203,13 +206,14 @@ def _shade(hook, si, ray, bsdf, depth, active, prev_pdf, prev_delta, sampler, st
 def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None, power_heuristic: bool = True,
          si=None, emission=None, nee=None, terminate=None, total: bool = True, split: bool = False,
          near: bool = False, directions=None, shade=None, state=None, mis: bool = True, vertex=None,
-         unroll: bool = False) -> PathResult:
+         unroll: bool = False, stop_at_zero: bool = True) -> PathResult:
     """Trace one path per lane (module docstring); ``si``: start at these surface interactions
     (``ray``: the rays that reached them), else intersect ``ray`` first. ``total``/``split``/``near``:
     which of ``L``/``L_ind``/``L_near`` to sum. ``directions``: a direction strategy
     (:class:`dyngi.directions.walk.WalkDirections`) instead of the BSDF's own sampling. ``shade`` and
     ``state``: the per-vertex shade hook and its initial state; ``mis``: MIS between NEE and emission;
-    ``vertex``: the vertex hook; ``unroll``: trace the loop in Python (``max_depth`` >= 1 vertices)."""
+    ``vertex``: the vertex hook; ``unroll``: trace the loop in Python (``max_depth`` >= 1 vertices);
+    ``stop_at_zero``: a path whose throughput is 0 ends."""
     lights = lights if lights is not None else EmitterSampling()
     do_nee = nee is not False
     if unroll and max_depth < 1:
@@ -336,7 +340,8 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
                 rr_continue = sampler.next_1d() < rr_prob
                 beta[rr_active] *= dr.rcp(rr_prob)
                 survive = ~rr_active | rr_continue
-            active = active_next & useful & survive & (beta_max != 0.0) & (s_pdf > 0.0)
+            alive = (beta_max != 0.0) if stop_at_zero else mi.Bool(True)
+            active = active_next & useful & survive & alive & (s_pdf > 0.0)
 
             si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
             n_rays += mi.UInt32(active)
