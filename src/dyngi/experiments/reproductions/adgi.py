@@ -140,6 +140,16 @@ def recovery_frames(errors, steady: float, fraction: float = RECOVERED) -> int |
     return int(hit[0]) + 1 if hit.size else None
 
 
+def settle_frames(errors, final: float, fraction: float = RECOVERED) -> int:
+    """Frames (from the first of ``errors``) until the error enters ``final`` +- ``fraction`` and stays there:
+    1 + the last frame outside the band (0 when none is). The issue's recovery reading ("frames from
+    gate-open until relMSE is within 10% of its final value") made robust to the curve crossing the band
+    on its way up, which a first-hit count (:func:`recovery_frames`) would take for a recovery."""
+    e = np.asarray(errors, np.float64)
+    out = np.nonzero(np.abs(e - final) > fraction * final)[0]
+    return int(out[-1]) + 1 if out.size else 0
+
+
 def _techniques(scene, extra: dict | None = None, common: dict | None = None):
     """Makers of the compared techniques; ``common`` (``cfg['params']``, e.g. a smaller grid in tests) and
     ``extra`` (the experiment's settings) apply to all of them."""

@@ -66,28 +66,32 @@ def moving_average_update(o, n, v, n_max: int):
     return V, N
 
 
-def retention(n, m, n_max: int):
+def retention(n, m, n_max):
     """Weight the old value keeps after ``m`` Algorithm-3 updates from count ``n`` (module docstring; Float,
-    1 where ``m = 0``, 0 where ``n = 0 < m``). ``n``, ``m``: UInt32 (Dr.Jit); ``n_max``: a Python int."""
+    1 where ``m = 0``, 0 where ``n = 0 < m``). ``n``, ``m``: UInt32 (Dr.Jit); ``n_max``: a Python int or a
+    UInt32 per lane."""
     n, m = mi.UInt32(n), mi.UInt32(m)
-    N = int(n_max)
+    N = mi.UInt32(n_max) if not isinstance(n_max, int) else mi.UInt32(int(n_max))
+    Nf = mi.Float(N)
     nf, mf = mi.Float(n), mi.Float(m)
     below = n < N
-    j = dr.select(below, dr.minimum(m, mi.UInt32(N) - dr.minimum(n, N)), dr.minimum(m, 1))
+    j = dr.select(below, dr.minimum(m, N - dr.minimum(n, N)), dr.minimum(m, 1))
     jf = mi.Float(j)
-    rest = dr.power(mi.Float(N / (N + 1.0)), mf - jf)
+    rest = dr.power(Nf / (Nf + 1.0), mf - jf)
     r = dr.select(jf > 0.0, nf / dr.maximum(nf + jf, 1.0), 1.0) * rest
     return dr.select(m > 0, r, 1.0)
 
 
 def batch_update(o, n, sum_v, m, n_max: int):
     """The batch rule (module docstring): ``(V, N)`` after ``m`` samples summing to ``sum_v`` (``m = 0``
-    keeps ``o, n``); equals ``m`` sequential :func:`moving_average_update` calls by equal samples."""
+    keeps ``o, n``); equals ``m`` sequential :func:`moving_average_update` calls by equal samples.
+    ``n_max``: a Python int or a UInt32 per lane."""
     mf = mi.Float(m)
     r = retention(n, m, n_max)
     vbar = sum_v / dr.maximum(mf, 1.0)
     V = dr.select(mf > 0.0, r * o + (1.0 - r) * vbar, o)
-    return V, dr.select(mi.UInt32(m) > 0, dr.minimum(mi.UInt32(n) + mi.UInt32(m), int(n_max)), mi.UInt32(n))
+    N = int(n_max) if isinstance(n_max, int) else mi.UInt32(n_max)
+    return V, dr.select(mi.UInt32(m) > 0, dr.minimum(mi.UInt32(n) + mi.UInt32(m), N), mi.UInt32(n))
 
 
 class Algorithm3Accumulator:

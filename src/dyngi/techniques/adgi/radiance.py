@@ -65,8 +65,10 @@ class RadianceCache:
         iy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, self.R - 3)
         return mi.UInt32(iy * (self.R - 2) + ix)
 
-    def merge(self, results, n_max: int) -> None:
-        """Bin the front-face hits of ``results`` (a ProbeRayResults) into their texels; Algorithm 3 batch rule."""
+    def merge(self, results, n_max: int, n_max_lane=None) -> None:
+        """Bin the front-face hits of ``results`` (a ProbeRayResults) into their texels; Algorithm 3 batch rule.
+        ``n_max_lane`` (UInt32 per ray, optional): a per-sample N_max; a texel takes the smallest of its
+        samples' (and of ``n_max``)."""
         plan = results.plan
         Pt = len(plan.probe_ids)
         if Pt == 0 or plan.n_rays == 0:
@@ -87,7 +89,11 @@ class RadianceCache:
         old = dr.gather(mi.Color3f, self.value, gidx)
         n_old = dr.gather(mi.UInt32, self.count, gidx)
         s = mi.Color3f(*[mi.Float(x) for x in sums])
-        V, N = batch_update(old, n_old, s, cnt, int(n_max))
+        cap = int(n_max)
+        if n_max_lane is not None:
+            cap = dr.full(mi.UInt32, int(n_max), n)
+            dr.scatter_reduce(dr.ReduceOp.Min, cap, mi.UInt32(n_max_lane), entry, front)
+        V, N = batch_update(old, n_old, s, cnt, cap)
         hit = cnt > 0
         dr.eval(V, N, hit)
         dr.scatter(self.value, V, gidx, hit)

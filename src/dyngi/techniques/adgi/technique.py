@@ -47,11 +47,16 @@ One frame, in the paper's stages (Table 4; ``stats['ms']`` keys ``P``, ``S``, ``
 * After the updates, probes in ``V_out - V_in`` get their texel counts capped,
   ``N <- min(N, 16)`` (Sec. 4.8).
 
-How a sample becomes a texel update (the paper is silent; ours, :mod:`.radiance`):
-the radiance along ``w`` goes into the one *radiance* texel ``w`` falls in
-(``radiance_texels`` = 16 per side) with Algorithm 3's batch rule, and every
-probe updated in the frame is re-convolved to its 8x8 irradiance texels
-(cosine x solid-angle weights over the texels that hold samples). A cosine
+How a sample becomes a texel update (Algorithm 2 updates "the closest entry"; how a radiance sample
+becomes irradiance the paper does not say; ours, :mod:`.radiance`): the radiance along ``w`` goes into
+the one *radiance* texel ``w`` falls in (``radiance_texels`` = 8 per side: the irradiance map's own
+8x8 octahedral layout, so a sample updates the entry Algorithm 2 would) with Algorithm 3's batch rule,
+and every probe updated in the frame is re-convolved to its 8x8 irradiance texels (cosine x solid-angle
+weights over the texels that hold samples), which removes the closest-entry update's bias (a radiance
+mean is not an irradiance). A finer radiance layer (16 per side, the earlier default) spreads a probe's
+samples over 196 texels instead of 36: at an equal-ray budget each texel is then visited about 5x less
+often, and Algorithm 3's count-based memory of up to 63 samples spans 5x more frames -- it slowed ADGI's
+recovery on the opening tunnel (docs/benchmarks.md, issue 25). A cosine
 splat of each sample over the irradiance texels was tried first and is
 biased wherever the guide is 0 over part of a texel's hemisphere (measured
 -52% on the Cornell box's front probes). The distance of the ``-w`` ray goes
@@ -133,7 +138,8 @@ from ...sampling.diffuse import diffuse_albedo
 from ...sampling.metropolis import ADGI_DIRECTION_STEP
 from ..base import Frame, FrameResult, Param, StageTimer, register
 from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase
-from .heuristics import OCTANTS, ADGIHeuristics, frusta, pack_heuristics, unpack_heuristics, view_distances
+from .heuristics import (OCTANTS, ADGIHeuristics, frusta, octant_of, pack_heuristics, unpack_heuristics,
+                         view_distances)
 from .moving_average import N_MAX_DYNAMIC, N_MAX_STATIC, Algorithm3Accumulator
 from .planner import ADGIChainPlanner, negated
 from .radiance import RadianceCache
@@ -221,8 +227,9 @@ class ADGITechnique(_ProbeTechniqueBase):
         "n_max_dynamic": Param(N_MAX_DYNAMIC, "N_max of dynamic updates (Table 3)", min=1, max=63),
         "outer_count_cap": Param(16, "count cap of probes in V_out - V_in (Sec. 4.8)", min=1, max=63),
         "pilot_updates": Param(True, "pilot rays update the caches on alternate frames (Sec. 4.4)"),
-        "radiance_texels": Param(16, "radiance texels per side incl. border that samples are binned into "
-                                 "(convolved to irradiance each frame)", min=4, max=64),
+        "radiance_texels": Param(8, "radiance texels per side incl. border that samples are binned into "
+                                 "(convolved to irradiance each frame; 8: the irradiance map's, Algorithm 2's "
+                                 "closest entry)", min=4, max=64),
         "irradiance_texels": Param(8, "irradiance texels per side incl. the 1-texel border", min=4, max=64),
         "distance_texels": Param(16, "distance texels per side incl. the 1-texel border", min=4, max=64),
         "distance_power": Param(50.0, "cosine power of the warm-up's distance blend", min=1.0),
@@ -235,6 +242,8 @@ class ADGITechnique(_ProbeTechniqueBase):
         "classify": Param(True, "deactivate probes inside geometry or far from surfaces (as relocate)"),
         "cull_unused": Param(True, "Sec. 4.9: the static and dynamic stages skip probes that no pixel's probe "
                              "cage used on the previous frame's primary pass"),
+        "change_cap": Param(False, "static samples in octants with f_d > 0 merge into the radiance texels with "
+                            "the dynamic N_max (ours)"),
         "dynamic_share": Param(0.5, "share of an equal-ray/equal-time budget (after primary and pilot rays) "
                                "reserved for the dynamic stage when some octant has f_d > 0 (ours)", min=0.0,
                                max=1.0),
@@ -447,7 +456,13 @@ class ADGITechnique(_ProbeTechniqueBase):
                                  rays=self._static_rays, shadow_rate=self._shadow_rate)
         if plan is None:
             return 0
-        spent = self._trace_and_merge(frame, plan, self.acc_static, self.params["n_max_static"], stream=43)
+        lane_cap = None
+        if self.params["change_cap"]:    # samples of entries with f_d > 0 merge with the dynamic N_max (ours)
+            changed = dr.gather(mi.Float, fd, plan.probe * OCTANTS + octant_of(plan.direction)) > 0.0
+            lane_cap = dr.select(changed, mi.UInt32(self.params["n_max_dynamic"]),
+                                 mi.UInt32(self.params["n_max_static"]))
+        spent = self._trace_and_merge(frame, plan, self.acc_static, self.params["n_max_static"], stream=43,
+                                      lane_cap=lane_cap)
         t.add_rays("S", spent)
         if self._dynamic_rays is not None:
             self._dynamic_rays = max(self._dynamic_rays - spent, 0.0)
@@ -462,7 +477,7 @@ class ADGITechnique(_ProbeTechniqueBase):
                                                   stream=45))
         return self.planner.last_samples
 
-    def _trace_and_merge(self, frame: Frame, plan: RayPlan, acc, n_max: int, stream: int) -> int:
+    def _trace_and_merge(self, frame: Frame, plan: RayPlan, acc, n_max: int, stream: int, lane_cap=None) -> int:
         """Trace ``plan`` (radiance along ``w``, distance along ``-w``) and merge; returns the rays cast
         (probe rays, their NEE shadow rays and the ``-w`` rays)."""
         tt = StageTimer()
@@ -470,7 +485,7 @@ class ADGITechnique(_ProbeTechniqueBase):
                                   shader=self.shader)
         back = negated(plan)
         dist = self.pipeline.trace_distances(self.scene, back)
-        self._merge(res, ProbeRayResults(res.radiance, dist, back), acc, n_max)
+        self._merge(res, ProbeRayResults(res.radiance, dist, back), acc, n_max, lane_cap)
         return self._count(tt) + plan.n_rays
 
     def _count(self, tt: StageTimer) -> int:
@@ -481,13 +496,13 @@ class ADGITechnique(_ProbeTechniqueBase):
             self._shadow_rate = rays.get("shade probes", 0) / rays["trace probes"]
         return int(sum(rays.values()))
 
-    def _merge(self, irr_res, dist_res, acc, n_max: int) -> None:
+    def _merge(self, irr_res, dist_res, acc, n_max: int, lane_cap=None) -> None:
         """Radiance of ``irr_res`` into the radiance texels (:mod:`.radiance`), distance moments of
         ``dist_res`` (or of ``irr_res`` when None: the pilot rays' own distances) into the visibility texels,
         both with Algorithm 3's batch rule; the probes are convolved to irradiance at the end of the frame."""
         vol = self.volume
         plan = irr_res.plan
-        self.radiance.merge(irr_res, n_max)
+        self.radiance.merge(irr_res, n_max, lane_cap)
         est_d = self.est_dist.distance(vol, dist_res if dist_res is not None else irr_res)
         if plan.weight is not None:      # the static plan's weight is a multiplicity: m samples of one ray
             est_d = dataclasses.replace(est_d, count=mi.UInt32(dr.round(est_d.weight)))
