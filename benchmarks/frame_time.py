@@ -6,7 +6,8 @@ compilation, probe warm-up); Mitsuba's ``path`` integrator (``max_depth`` 12, 1 
 is timed right before and after each technique and its median is the denominator, so a change of the
 machine's load between techniques shows in the reference too. Prints one Markdown row per technique
 (a technique that fails prints its error in the row and the run goes on) and the machine load
-(``os.getloadavg``) before and after. ``--techniques all``: every registered technique at its defaults.
+(``os.getloadavg``) before and after. ``--techniques all``: every registered technique at its defaults but the offline references
+(:data:`OFFLINE`; name one to include it).
 The scene: ``--scene`` (or the first argument), a built-in name or a Mitsuba XML file; by default the
 real Cornell box of ``../shared/scenes`` (issue 24 item 5: 320x180 on a real scene).
 
@@ -22,6 +23,9 @@ import traceback
 
 import numpy as np
 
+OFFLINE = ("probes-reference",)
+"""Not real-time techniques: ``probes-reference`` recomputes 32x32-texel probes with 64 rays per texel every
+frame (ADGI's reference; minutes per frame at its defaults), left out of ``--techniques all``."""
 DEFAULT_SCENE = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "..", "shared", "scenes",
                              "cornell-box", "scene_mi3.xml")
 
@@ -63,7 +67,7 @@ def main():
     ap.add_argument("--scene", default=None,
                     help="built-in scene name or a Mitsuba XML / OBJ / PLY file (default: ../shared's Cornell box)")
     ap.add_argument("--techniques", default="path;restir-pt",
-                    help="';'-separated technique specs, or 'all' (every registered technique, defaults)")
+                    help="';'-separated technique specs, or 'all' (every registered real-time technique, defaults)")
     ap.add_argument("--res", default="320x180")
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--skip", type=int, default=4)
@@ -80,7 +84,7 @@ def main():
     if args.skip >= args.frames:
         ap.error(f"--skip ({args.skip}) must be below --frames ({args.frames})")
     res = tuple(int(x) for x in args.res.split("x"))
-    specs = (technique_names() if args.techniques.strip() == "all"
+    specs = ([n for n in technique_names() if n not in OFFLINE] if args.techniques.strip() == "all"
              else [s for s in args.techniques.split(";") if s])
     scene = load_scene(scene_name)
     scene.at(0.0)
