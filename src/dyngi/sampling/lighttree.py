@@ -43,12 +43,15 @@ top-down (equal up to float rounding of the product order).
 
 Rebuild policy: ``rebuild="frame"`` (default) rebuilds every frame, as the paper's baseline does (Sec. 7);
 ``rebuild="change"`` (ours, labelled so) rebuilds only when a light's triangle or power changed. The build
-has no per-node Python loop: the binary SAH levels run either on the device (``build="device"``,
-:func:`_build_binary_device`, Dr.Jit scatter reductions per node and per bin, a prefix-sum partition; the
-default on CUDA) or as NumPy array passes (``build="host"``, the declared CPU fast path and the default
-there); the 8-wide collapse is a host array pass per wide level after one read-back (not yet on the device).
-Both builds make the same tree up to equal-cost SAH ties (float32 vs float64 binning) and, where binning
-finds no split, the fallback (device: middle of the current order; host: coordinate median).
+has no per-node Python loop. ``build="device"`` (the default on CUDA) runs it on the device: the binary SAH
+levels (:func:`_build_binary_device`, Dr.Jit scatter reductions per node and per bin, a prefix-sum partition)
+and the 8-wide collapse (:func:`_collapse_device`, one pass per wide level over all its nodes, compaction by
+``dr.compress``), with no read-back of the tree (one host read of a count per level; the triangles come from
+the emitter table's host arrays); the host copy ``_host`` is read back only when inspected.
+``build="host"``: NumPy array passes per level (the declared CPU fast path and the default there). The device
+collapse gives exactly the host collapse's tree from the same binary tree (tested); the two builds' binary
+trees agree up to equal-cost SAH ties (float32 vs float64 binning) and, where binning finds no split, the
+fallback (device: middle of the current order; host: coordinate median).
 
 CPU fast path (documented): the build runs in NumPy/Python on the host over
 the L triangle lights (a few hundred; O(L) nodes, level-synchronous NumPy) from the host arrays
@@ -178,12 +181,14 @@ def _build_binary(tlo, thi, cen, power, normal):
                 hi=c_hi[:nb], power=c_pow[:nb], axis=c_axis[:nb], cos_o=c_cos[:nb])
 
 
-def _build_binary_device(tlo, thi, cen, power, normal):
+def _build_binary_device(tlo, thi, cen, power, normal, read_back: bool = True):
     """:func:`_build_binary` on the device (Dr.Jit): the same binned SAH, level by level, every node of a level in
     one pass (scatter reductions per node and per (node, bin); the 16-bin sweeps unrolled over bins, not nodes;
     a stable partition by exclusive prefix sums). Where binning finds no split (flat centroids) a node splits
     at the middle of its current order (ours; the host version takes the coordinate median). One host read per
-    level (how many nodes split); the result is read back once for the wide collapse."""
+    level (how many nodes split). ``read_back``: the result as NumPy arrays over the ``nb`` binary nodes (for the
+    host collapse); else the device arrays (width ``2 L - 1``, the first ``nb`` used) and ``nb``, for
+    :func:`_collapse_device`."""
     L = len(cen)
     M = max(2 * L - 1, 2)
     F, U = mi.Float, mi.UInt32
@@ -338,6 +343,9 @@ def _build_binary_device(tlo, thi, cen, power, normal):
         dr.eval(perm, seg, start, end, left, right)
         a, b = nb, nb + 2 * K
         nb += 2 * K
+    if not read_back:
+        return dict(perm=perm, start=start, end=end, left=left, right=right, lo=c_lo, hi=c_hi, power=c_pw,
+                    axis=c_ax, cos_o=c_cos, nb=nb, L=L)
     h = lambda x: np.asarray(x)
     return dict(perm=h(perm).astype(np.int64), start=h(start)[:nb].astype(np.int64), end=h(end)[:nb].astype(np.int64),
                 left=h(left)[:nb].astype(np.int64), right=h(right)[:nb].astype(np.int64),
@@ -346,6 +354,118 @@ def _build_binary_device(tlo, thi, cen, power, normal):
                 power=h(c_pw)[:nb].astype(np.float64),
                 axis=np.stack([h(c_ax[k])[:nb] for k in range(3)], 1).astype(np.float64),
                 cos_o=h(c_cos)[:nb].astype(np.float64))
+
+
+def _collapse_device(bt: dict) -> dict:
+    """The 8-wide collapse of :meth:`LightTreeSelector.build` on the device, from the device result of
+    :func:`_build_binary_device` (``read_back=False``): one wide level at a time, all its nodes at once (the
+    WIDTH - 2 expansions unrolled over the 8 slots: the largest-area inner child, first slot on ties, as
+    ``np.argmax``), leaves and inner children of a level in row-major (node, slot) order by ``dr.compress``
+    (one host read of their count per level), rows appended into buffers sized for the worst case; then the
+    flattened node, leaf and light arrays by gathers and scatters. The same tree as the host collapse of the
+    same binary tree. Returns the device arrays :meth:`LightTreeSelector.build` uploads, and the counts."""
+    U, I, F = mi.UInt32, mi.Int32, mi.Float
+    L, nb = bt["L"], bt["nb"]
+    left, right = bt["left"], bt["right"]
+    lo, hi = bt["lo"], bt["hi"]
+    # surface area (up to the factor 2) in double precision, as the host collapse: equal areas tie alike
+    d = [dr.maximum(mi.Float64(hi[k]) - mi.Float64(lo[k]), 0.0) for k in range(3)]
+    area = d[0] * d[1] + d[1] * d[2] + d[2] * d[0]
+    n_max, l_max = max(L - 1, 1), max(L, 1)      # wide nodes <= binary inner nodes; leaves <= lights
+    inner_b = dr.full(U, 0, n_max)               # binary node of each wide node
+    par_n, par_s = dr.full(U, INVALID, n_max), dr.zeros(U, n_max)
+    slots = dr.full(I, -1, n_max * WIDTH)        # binary node in each (wide node, slot), -1 empty
+    leaves_b = dr.zeros(U, l_max)
+    lpar_n, lpar_s = dr.zeros(U, l_max), dr.zeros(U, l_max)
+    frontier = U([0])
+    f_pn, f_ps = U([INVALID]), U([0])
+    n_wide = n_leaf = depth = 0
+    gl = (lambda arr, idx: dr.gather(type(arr), arr, U(dr.maximum(idx, 0))))
+    while True:
+        F_ = dr.width(frontier)
+        fi = I(frontier)
+        is_in = gl(left, fi) >= 0
+        kids = [dr.select(is_in, gl(left, fi), fi), dr.select(is_in, gl(right, fi), -1)] + \
+               [dr.full(I, -1, F_) for _ in range(WIDTH - 2)]
+        cnt = dr.select(is_in, I(2), I(1))
+        for _ in range(WIDTH - 2):                # at most WIDTH - 2 expansions, every node at once
+            best, big, bn = dr.full(mi.Float64, -float("inf"), F_), dr.zeros(I, F_), dr.full(I, -1, F_)
+            for j in range(WIDTH):
+                kj = kids[j]
+                inner = (kj >= 0) & (gl(left, kj) >= 0)
+                ar = dr.select(inner, gl(area, kj), -float("inf"))
+                better = ar > best                # strict: the first maximum wins, as np.argmax
+                best, big, bn = dr.select(better, ar, best), dr.select(better, I(j), big), dr.select(better, kj, bn)
+            go = dr.isfinite(best) & (cnt < WIDTH)
+            bl, br = gl(left, bn), gl(right, bn)
+            kids = [dr.select(go & (big == j), bl, dr.select(go & (cnt == j), br, kids[j])) for j in range(WIDTH)]
+            cnt = cnt + dr.select(go, I(1), I(0))
+        # -- this level's rows --
+        rows = dr.arange(U, F_)
+        off = dr.opaque(U, n_wide)
+        dr.scatter(inner_b, frontier, off + rows)
+        dr.scatter(par_n, f_pn, off + rows)
+        dr.scatter(par_s, f_ps, off + rows)
+        flat = dr.empty(I, F_ * WIDTH)
+        for j in range(WIDTH):
+            dr.scatter(flat, kids[j], rows * WIDTH + j)
+            dr.scatter(slots, kids[j], (off + rows) * WIDTH + j)
+        dr.eval(flat, inner_b, par_n, par_s, slots)
+        k_ok = flat >= 0
+        leaf_k = k_ok & (gl(left, flat) < 0)
+        q_leaf = dr.compress(leaf_k)              # row-major (node, slot): the order a BFS visits them
+        q_in = dr.compress(k_ok & ~leaf_k)
+        nl_, ni_ = dr.width(q_leaf), dr.width(q_in)
+        if nl_:
+            lo_ = dr.opaque(U, n_leaf) + dr.arange(U, nl_)
+            dr.scatter(leaves_b, U(dr.gather(I, flat, q_leaf)), lo_)
+            dr.scatter(lpar_n, off + q_leaf // WIDTH, lo_)
+            dr.scatter(lpar_s, q_leaf % WIDTH, lo_)
+            dr.eval(leaves_b, lpar_n, lpar_s)
+        n_wide, n_leaf, depth = n_wide + F_, n_leaf + nl_, depth + 1
+        if ni_ == 0:
+            break
+        frontier = U(dr.gather(I, flat, q_in))
+        f_pn, f_ps = off + q_in // WIDTH, q_in % WIDTH
+        dr.eval(frontier, f_pn, f_ps)
+    N, nl = n_wide, n_leaf
+    # -- flattened child slots: index, bounds, power, cone --
+    j = dr.arange(U, N * WIDTH)
+    kb = dr.gather(I, slots, j)
+    ok = kb >= 0
+    wide_of = dr.full(U, INVALID, max(nb, 1))
+    dr.scatter(wide_of, dr.arange(U, N), dr.gather(U, inner_b, dr.arange(U, N)))
+    leaf_of = dr.full(U, INVALID, max(nb, 1))
+    lb = dr.gather(U, leaves_b, dr.arange(U, nl))
+    dr.scatter(leaf_of, dr.arange(U, nl), lb)
+    is_leaf = gl(left, kb) < 0
+    child = dr.select(ok, dr.select(is_leaf, LEAF_BIT | gl(leaf_of, kb), gl(wide_of, kb)), INVALID)
+    clo = [dr.select(ok, gl(lo[k], kb), 0.0) for k in range(3)]
+    chi = [dr.select(ok, gl(hi[k], kb), 0.0) for k in range(3)]
+    cpow = dr.select(ok, dr.maximum(gl(bt["power"], kb), 1e-30), 0.0)
+    caxis = [dr.select(ok, gl(bt["axis"][k], kb), 1.0 if k == 2 else 0.0) for k in range(3)]
+    ccos = dr.select(ok, gl(bt["cos_o"], kb), -1.0)
+    # -- leaves: their (<= 2) lights in id order; each light's leaf and slot --
+    ls, le = dr.gather(U, bt["start"], lb), dr.gather(U, bt["end"], lb)
+    first = dr.gather(U, bt["perm"], ls)
+    two = le - ls > 1
+    second = dr.gather(U, bt["perm"], dr.minimum(ls + 1, L - 1))
+    a0 = dr.select(two, dr.minimum(first, second), first)
+    a1 = dr.select(two, dr.maximum(first, second), INVALID)
+    light_leaf, light_slot = dr.zeros(U, L), dr.zeros(U, L)
+    li = dr.arange(U, nl)
+    dr.scatter(light_leaf, li, a0)
+    dr.scatter(light_slot, U(0), a0)
+    dr.scatter(light_leaf, li, a1, two)
+    dr.scatter(light_slot, U(1), a1, two)
+    n_i = dr.arange(U, N)
+    out = dict(child=child, lo=mi.Point3f(*clo), hi=mi.Point3f(*chi), power=cpow, axis=mi.Vector3f(*caxis),
+               cos_o=ccos, leaf_l0=a0, leaf_l1=a1, light_leaf=light_leaf, light_slot=light_slot,
+               node_par=dr.gather(U, par_n, n_i), node_pslot=dr.gather(U, par_s, n_i),
+               leaf_par=dr.gather(U, lpar_n, li), leaf_pslot=dr.gather(U, lpar_s, li))
+    dr.eval(*out.values())
+    out.update(nodes=N, leaves=nl, depth=depth)
+    return out
 
 
 class LightTreeSelector:
@@ -388,7 +508,19 @@ class LightTreeSelector:
         tlo, thi = v.min(1), v.max(1)
         power = np.maximum(h["power"], 0.0)
         normal = h["normal"]
-        bt = (_build_binary_device if self.device_build else _build_binary)(tlo, thi, h["centroid"], power, normal)
+        if self.device_build:      # binary SAH levels and the 8-wide collapse on the device: no read-back
+            c = _collapse_device(_build_binary_device(tlo, thi, h["centroid"], power, normal, read_back=False))
+            self._child, self._clo, self._chi, self._cpow = c["child"], c["lo"], c["hi"], c["power"]
+            self._caxis, self._ccos, self._leaf_l0, self._leaf_l1 = c["axis"], c["cos_o"], c["leaf_l0"], c["leaf_l1"]
+            self._light_leaf, self._light_slot = c["light_leaf"], c["light_slot"]
+            self._node_par, self._node_pslot = c["node_par"], c["node_pslot"]
+            self._leaf_par, self._leaf_pslot = c["leaf_par"], c["leaf_pslot"]
+            self.nodes, self.leaves, self.depth = c["nodes"], c["leaves"], c["depth"]
+            self._host_tree = None
+            self.build_ms = 1e3 * (time.perf_counter() - t0)
+            self.builds += 1
+            return
+        bt = _build_binary(tlo, thi, h["centroid"], power, normal)
         b_left, b_right = bt["left"], bt["right"]
         d = np.maximum(bt["hi"] - bt["lo"], 0.0)
         b_area = d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0]
@@ -489,13 +621,31 @@ class LightTreeSelector:
                 self._leaf_l1, self._light_leaf, self._light_slot, self._node_par, self._node_pslot,
                 self._leaf_par, self._leaf_pslot)
         self.nodes, self.leaves, self.depth = N, nl, depth
-        self._host = dict(child=child, lo=clo, hi=chi, power=cpow, axis=caxis, cos_o=ccos, leaf_lights=leaf_lights,
+        self._host_tree = dict(child=child, lo=clo, hi=chi, power=cpow, axis=caxis, cos_o=ccos, leaf_lights=leaf_lights,
                           light_leaf=light_leaf, node_parent=par, leaf_parent=lpar)
         self.build_ms = 1e3 * (time.perf_counter() - t0)
         self.builds += 1
 
+    @property
+    def _host(self) -> dict:
+        """Host copy of the flattened tree (child slots, bounds, power, cone, leaf lights, parents), for tests
+        and inspection; after a device build it is read back on first use."""
+        if self._host_tree is None:
+            h = lambda x: np.asarray(x.numpy())
+            v3 = lambda x: np.stack([h(x[k]) for k in range(3)], 1).astype(np.float64)
+            child = h(self._child).astype(np.int64)
+            self._host_tree = dict(
+                child=child, lo=v3(self._clo), hi=v3(self._chi), power=h(self._cpow).astype(np.float64),
+                axis=v3(self._caxis), cos_o=h(self._ccos).astype(np.float64),
+                leaf_lights=np.stack([h(self._leaf_l0), h(self._leaf_l1)], 1).astype(np.int64),
+                light_leaf=h(self._light_leaf).astype(np.int64),
+                node_parent=np.stack([h(self._node_par), h(self._node_pslot)], 1).astype(np.int64),
+                leaf_parent=np.stack([h(self._leaf_par), h(self._leaf_pslot)], 1).astype(np.int64))
+        return self._host_tree
+
     def _empty(self):
         self.nodes = self.leaves = self.depth = 0
+        self._host_tree = {}
         z = mi.UInt32(np.array([INVALID], np.uint32))
         self._child = z
 
