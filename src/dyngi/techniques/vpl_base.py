@@ -52,11 +52,11 @@ COMMON_PARAMS = {
     "direct_samples": Param(1, "NEE samples per pixel for direct light", min=1, max=64),
     "filter_sigma_px": Param(2.0, "bilateral filter: position sigma in pixel footprints", min=0.01),
     "filter_normal_power": Param(16.0, "bilateral filter: exponent of the normals' dot product", min=0.0),
-    "lights": Param("scene", "light sampler of the VPL radiosity's NEE ('scene': Mitsuba's emitter sampling)",
-                    choices=("scene",) + light_samplers.names()),
+    "lights": Param("scene", "light sampler of the direct light's and the VPL radiosity's NEE ('scene': "
+                    "Mitsuba's emitter sampling)", choices=("scene",) + light_samplers.names()),
 }
-EMISSION_LIGHTS = Param("scene", "light sampler choosing the photons' lights ('scene': Mitsuba's emitter "
-                        "sampling)", choices=("scene",) + EMISSION_SAMPLERS)
+EMISSION_LIGHTS = Param("scene", "light sampler of the direct light's NEE and of the photons' lights ('scene': "
+                        "Mitsuba's emitter sampling)", choices=("scene",) + EMISSION_SAMPLERS)
 """``lights=`` of the photon techniques (``ir``, ``tcas``): :mod:`dyngi.vpl.emission`."""
 
 
