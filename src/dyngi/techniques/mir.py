@@ -31,7 +31,7 @@ the valid count back) and the resampling from an inverse CDF
 image and stats.
 
 Extra parameter: ``resampling_rate`` (256, the paper's); ``lights=`` chooses the light sampler of the paths'
-NEE (:mod:`~dyngi.techniques.vpl_base`). Bias: the kNN density ``q`` and clamping.
+NEE and of the direct light's (:mod:`~dyngi.techniques.vpl_base`). Bias: the kNN density ``q`` and clamping.
 """
 from __future__ import annotations
 

@@ -71,7 +71,8 @@ density_k : int = 0             k of the rendering density (line 19); 0: Eq. 8 (
 reestimate : str = 'independent' line 18's rendering radiosity: stream 1 of the VPL's seed, or
                                 'same-seed' (the selection's own estimate)
 impl : str = 'device'           'device' (Dr.Jit, no host round trip) or 'host' (NumPy + k-d tree)
-lights : str = 'scene'          light sampler of the radiosity paths' NEE (:mod:`~dyngi.techniques.vpl_base`)
+lights : str = 'scene'          light sampler of the radiosity paths' and the direct light's NEE
+                                (:mod:`~dyngi.techniques.vpl_base`)
 
 Bias (Sec. 3.3): kNN densities make the estimate biased but consistent; clamping removes
 near-field interreflections; ray-traced visibility replaces the paper's shadow maps. Measured
