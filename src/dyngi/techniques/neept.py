@@ -176,6 +176,7 @@ class NeePTWalk:
         self.env: dict = {}
 
     def begin_walk(self, n: int) -> None:
+        """Before the walk (called once as its light and once as its direction strategy): no vertex yet."""
         self.vx, self.env = {}, {}
 
     def _lk(self, leaf):
@@ -185,6 +186,8 @@ class NeePTWalk:
 
     # -- the vertex hook -------------------------------------------------------------------------
     def vertex(self, c):
+        """The walk's vertex hook: the :class:`Vertex` NEE and the direction sampler see at vertex ``c.depth``
+        (None at the tertiary hit), its octree placement (class docstring)."""
         t, oc, si, valid = self.t, self.t.octree, c.si, c.active
         if c.depth >= MAX_DEPTH - 1:              # the tertiary hit: emission only
             if oc is not None:
@@ -292,15 +295,18 @@ class NeePTWalk:
 
     # -- the direction strategy ------------------------------------------------------------------
     def sample(self, v, sampler, active):
+        """The indirect direction through the direction sampler (:mod:`dyngi.directions`); draws 1D, 1D, 2D."""
         u_sel = sampler.next_1d()
         u1 = sampler.next_1d()
         u2 = sampler.next_2d()
         return self.t.directions.sample(v, u_sel, u1, u2, mi.Bool(active) & v.active)
 
     def pdf(self, v, wo, active):
+        """The direction sampler's density of ``wo`` (the BSDF side of the MIS weights)."""
         return self.t.directions.pdf(v, wo, active)
 
     def record(self, v, d, L, beta, depth) -> None:
+        """Keep vertex ``depth``'s sampled direction for the CDQ record (:meth:`end_walk`)."""
         self.vx[depth]["d"] = d
 
     def end_walk(self, L) -> None:
