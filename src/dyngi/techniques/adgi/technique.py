@@ -39,7 +39,12 @@ One frame, in the paper's stages (Table 4; ``stats['ms']`` keys ``P``, ``S``, ``
   sends them through irradiance texel centres, but an octant of our 8x8
   (6x6 interior) map holds only 3-6 texel centres, so 64 rays through them
   would repeat directions), plus the shadow ray along ``-w`` each.
-  Dynamic updates use N_max = 10, static ones 63 (Table 3).
+  Dynamic updates use N_max = 10, static ones 63 (Table 3); a static sample in an octant with
+  ``f_d > 0`` also merges into its radiance texel with N_max = 10 (``change_cap``; ours: the paper
+  snaps such samples to texel centres "to avoid injecting sampling noise" but does not say which
+  N_max they use; with 63, a texel visited every other frame at an equal-ray budget keeps ~100
+  frames of samples from before a change, and the tunnel's interior lagged Q-DDGI's, measured in
+  docs/benchmarks.md, issue 25).
 * Culling (Sec. 4.9, ``cull_unused``): the primary pass marks on the device the 8 cage probes of every
   pixel's probe lookup (:class:`CageMarkingQuery`); the next frame's S and D sample only probes of
   ``V_in`` so marked (the paper culls "probes that are not used in deferred shading" in D; ours in S too,
@@ -109,6 +114,7 @@ camera_threshold : float = 0      k of Eq. 10 (world units); 0 = the 0.9 quantil
                                   of the probes in view (ours, :meth:`.heuristics.ADGIHeuristics.k_for`)
 theta : float = 16                trigger decay, frames (ours)
 cull_unused : bool = True         S and D skip probes no pixel's cage used (Sec. 4.9)
+change_cap : bool = True          static samples of octants with f_d > 0 merge with N_max dynamic (ours)
 dynamic_share : float = 0.5       share of a budget reserved for D when some f_d > 0 (ours)
 n_max_static, n_max_dynamic : int = 63, 10   (Table 3)
 outer_count_cap : int = 16        (Sec. 4.8)
@@ -242,7 +248,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         "classify": Param(True, "deactivate probes inside geometry or far from surfaces (as relocate)"),
         "cull_unused": Param(True, "Sec. 4.9: the static and dynamic stages skip probes that no pixel's probe "
                              "cage used on the previous frame's primary pass"),
-        "change_cap": Param(False, "static samples in octants with f_d > 0 merge into the radiance texels with "
+        "change_cap": Param(True, "static samples in octants with f_d > 0 merge into the radiance texels with "
                             "the dynamic N_max (ours)"),
         "dynamic_share": Param(0.5, "share of an equal-ray/equal-time budget (after primary and pilot rays) "
                                "reserved for the dynamic stage when some octant has f_d > 0 (ours)", min=0.0,
