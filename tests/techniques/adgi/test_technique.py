@@ -62,10 +62,12 @@ def test_static_scene_converges_to_ddgi(adgi):
 def test_moving_object_is_finite_and_fires_the_dynamic_chains(adgi):
     sc = load_scene("cornell-moving-box")
     lo, hi = (np.asarray(v, float) for v in sc.meta.probe_box)
-    # k = the box diagonal (the camera sits outside the box: the default k would give f_c = 1 everywhere and
-    # leave V_out - V_in to the clip margins alone, empty here)
+    # k = the box diagonal: the camera sits outside the box, so the nearer probes get f_c = 1 and the farther
+    # ones fall into V_out - V_in (f_c in [0.5, 0.75))
+    # change_cap off: with it every texel of an octant with f_d > 0 (here all of V_in) merges with N_max = 10,
+    # and the contrast below between V_in's counts and V_out - V_in's cap of 16 would not show
     a, rs = _run("adgi", sc, {"probe_counts": "5", "static_chains": 512, "dynamic_chains": 256,
-                              "iterations": 8, "warmup": 2, "warmup_rays": 64,
+                              "iterations": 8, "warmup": 2, "warmup_rays": 64, "change_cap": False,
                               "camera_threshold": float(np.linalg.norm(hi - lo))}, 30)
     for i, r in enumerate(rs):
         assert np.all(np.isfinite(r.image)) and np.all(np.isfinite(r.indirect)), i

@@ -92,7 +92,8 @@ class RadianceCache:
         cap = int(n_max)
         if n_max_lane is not None:
             cap = dr.full(mi.UInt32, int(n_max), n)
-            dr.scatter_reduce(dr.ReduceOp.Min, cap, mi.UInt32(n_max_lane), entry, front)
+            # Local mode: Auto would expand (baking n, which follows the traced probes, into the kernel)
+            dr.scatter_reduce(dr.ReduceOp.Min, cap, mi.UInt32(n_max_lane), entry, front, mode=dr.ReduceMode.Local)
         V, N = batch_update(old, n_old, s, cnt, cap)
         hit = cnt > 0
         dr.eval(V, N, hit)
