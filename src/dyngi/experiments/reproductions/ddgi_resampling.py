@@ -107,7 +107,7 @@ REF_NOISE_FACTOR = 10.0
 """The reference's own MAPE noise must be this many times below the target."""
 
 QUICK = {"scenes": ("room-door", "villa-sun", "pink-room", "living-room"), "res": (64, 36), "max_frames": 64,
-         "ref_spp": 1024, "ref_spp_max": 8192, "seeds": 3, "warm_frames": 16, "steady_frames": 4,
+         "ref_spp": 1024, "ref_spp_max": 32768, "seeds": 3, "warm_frames": 16, "steady_frames": 4,
          "calib_frames": 12}
 FULL = {"scenes": ("room-door", "villa-sun", "pink-room", "cornell-static", "living-room", "glossy-floor"),
         "res": (320, 180), "max_frames": 256, "ref_spp": 2048, "ref_spp_max": 16384, "seeds": 3,
