@@ -5,16 +5,6 @@ path-traced ground truth."""
 import numpy as np
 import pytest
 
-from dyngi.scene import load_scene
-from dyngi.techniques import create_technique
-
-RES = (64, 48)
-DT = 1.0 / 15.0            # every other frame of the scene's 30 fps (the full reproduction's sampling)
-HOLD = 30                  # frames held open after the gate stops (t = 4 s)
-FINAL = 5                  # the final value: the median of the last FINAL frames
-SEEDS = (0, 1, 2)
-REF_SPP = 128
-
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
@@ -23,33 +13,19 @@ REF_SPP = 128
     "technique's own final value ADGI settles in a median 79 frames against Q-DDGI's 76"))
 def test_equal_rays_recovery_on_the_opening_tunnel(backend):
     """Frames from gate-open (t = 0.5 s) until the ground-truth relMSE enters and stays within 10% of its
-    final value (:func:`~dyngi.experiments.reproductions.adgi.settle_frames`), median of 3 seeds at 64x48:
-    ADGI fewer than the paper's Q-DDGI (``qddgi`` at its defaults), and at a final relMSE no worse than 1.1x
-    Q-DDGI's -- "within 10% of its own final value" alone would reward a technique that settles at a
-    worse level."""
-    from dyngi.experiments.reference import reference_halves, scene_max_depth
-    from dyngi.experiments.reproductions.adgi import GATE_END, GATE_OPEN, run_frames, settle_frames
-    from dyngi.metrics import relmse
+    final value (:func:`~dyngi.experiments.reproductions.adgi.settle_frames`), median of 3 seeds at 64x48
+    (:func:`~dyngi.experiments.reproductions.adgi.equal_rays_recovery`: every other frame of the scene's
+    30 fps, 30 frames held open, 128-spp ground truth): ADGI fewer than the paper's Q-DDGI (``qddgi`` at its
+    defaults), and at a final relMSE no worse than 1.1x Q-DDGI's -- "within 10% of its own final value"
+    alone would reward a technique that settles at a worse level."""
+    from dyngi.experiments.reproductions.adgi import equal_rays_recovery
 
-    sc = load_scene("tunnel-gate")
-    times = [min(i * DT, GATE_END) for i in range(int(round(GATE_END / DT)) + 1 + HOLD)]
-    opened = next(i for i, t in enumerate(times) if t >= GATE_OPEN)
-    depth = scene_max_depth(sc)
-    refs = [reference_halves(sc, t, RES, REF_SPP, depth)[0] for t in times]
-    settle = {"qddgi": [], "adgi": []}
-    final = {"qddgi": [], "adgi": []}
-    for seed in SEEDS:
-        q = run_frames(sc, create_technique("qddgi", sc), times, RES, seed=seed)
-        a = run_frames(sc, create_technique("adgi", sc), times, RES, seed=seed,
-                       budgets=[st["total_rays"] for st in q["stats"]])
-        steady = [st["total_rays"] for st in a["stats"][1:]], [st["total_rays"] for st in q["stats"][1:]]
-        assert abs(sum(steady[0]) / sum(steady[1]) - 1) < 0.05, "not at equal rays"
-        for name, run in (("qddgi", q), ("adgi", a)):
-            e = np.array([relmse(np.maximum(img, 0.0), ref) for img, ref in zip(run["images"], refs)])
-            assert np.all(np.isfinite(e)), name
-            f = float(np.median(e[-FINAL:]))
-            final[name].append(f)
-            settle[name].append(settle_frames(e[opened:], f))
-    med = {k: float(np.median(v)) for k, v in settle.items()}
-    fin = {k: float(np.median(v)) for k, v in final.items()}
-    assert med["adgi"] < med["qddgi"] and fin["adgi"] <= 1.1 * fin["qddgi"], (settle, final)
+    out = equal_rays_recovery(("adgi",))
+    runs = out["runs"]
+    for seed in runs["adgi"]:
+        a, q = runs["adgi"][seed], runs["qddgi"][seed]
+        assert np.all(np.isfinite(a["relmse"])) and np.all(np.isfinite(q["relmse"]))
+        assert abs(a["steady_rays"] / q["steady_rays"] - 1) < 0.05, "not at equal rays"
+    med = {k: float(np.median([r["settle"] for r in v.values()])) for k, v in runs.items()}
+    fin = {k: float(np.median([r["final"] for r in v.values()])) for k, v in runs.items()}
+    assert med["adgi"] < med["qddgi"] and fin["adgi"] <= 1.1 * fin["qddgi"], (med, fin)

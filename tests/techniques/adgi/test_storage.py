@@ -192,3 +192,53 @@ def test_device_convolution_equals_the_numpy_reference(adgi):
         assert np.array_equal(ok_a, ok_b) and not ok_a.reshape(4, -1)[1].any() and ok_a.sum() > 0
         assert np.allclose(np.asarray(a.value), np.asarray(b.value), rtol=2e-5, atol=1e-6)
         assert np.array_equal(np.asarray(a.count), np.asarray(b.count)) and a.n == b.n
+
+
+def test_cache_update_is_algorithm_2_and_3_and_table3_memory(adgi):
+    """The default cache update on scripted samples: each sample updates the closest entry of the probe's
+    8x8 octahedral map (Algorithm 2; the radiance layer has the irradiance map's layout) with Algorithm 3 in
+    its batch form, equal to the sequential updates by the frame's mean per texel, across frames and past
+    the static N_max = 63 (reference: the literal scalar Algorithm 3). Memory per probe as Table 3: 8x8 +
+    16x16 32-bit words, and the 6-10-10 word per octant; the radiance layer (ours) is reported apart."""
+    from dyngi.backend import mi
+    from dyngi.probes import RayPlan
+    from dyngi.probes.trace import ProbeRayResults
+    from dyngi.probes.volume import upload
+    from dyngi.sampling.octahedral import texel_directions
+    from dyngi.techniques import create_technique
+
+    sc = load_scene("cornell-static")
+    a = create_technique("adgi", sc, {"probe_counts": "3", "warmup": 0})
+    rc = a.radiance
+    assert rc.R == a.volume.irradiance_texels == 8
+    centres = texel_directions(8)[1:-1, 1:-1].reshape(-1, 3)
+    rng = np.random.default_rng(5)
+    pids = np.array([1, 7], np.uint32)
+    ref_v = np.zeros((2, 36))
+    ref_n = np.zeros((2, 36), int)
+    for frame in range(6):
+        m = 40 if frame < 5 else 70              # up to 270 samples a texel: past N_max = 63
+        texel = rng.integers(0, 4, size=(2, m))  # texels 0..3 of each probe
+        rad = rng.uniform(0.1, 2.0, size=(2, m)).astype(np.float32)
+        # a direction near (not at) the texel centre: the closest entry is the texel it falls in
+        d = centres[texel].reshape(-1, 3) + rng.normal(0, 0.02, size=(2 * m, 3))
+        d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+        dirs = mi.Vector3f(*[upload(d[:, c]) for c in range(3)])
+        assert np.array_equal(np.asarray(rc.texel_of(dirs)), texel.ravel())      # the closest entry
+        plan = RayPlan.ragged(pids, [m, m], dirs)
+        L = upload(rad.ravel())
+        rc.merge(ProbeRayResults(mi.Color3f(L, L, L), upload(np.ones(2 * m, np.float32)), plan), 63)
+        for p in range(2):
+            for t in range(4):
+                v = rad[p][texel[p] == t].astype(np.float64)
+                if len(v):       # the frame's samples in sequence, each equal to their mean (the batch form)
+                    for _ in range(len(v)):
+                        ref_v[p, t] = v.mean() / (ref_n[p, t] + 1) + ref_n[p, t] * ref_v[p, t] / (ref_n[p, t] + 1)
+                        ref_n[p, t] = min(ref_n[p, t] + 1, 63)
+    got = np.asarray(rc.value).reshape(rc.P, rc.n_tex, 3)[pids][..., 0]
+    cnt = np.asarray(rc.count).reshape(rc.P, rc.n_tex)[pids]
+    assert np.array_equal(cnt, ref_n) and ref_n.max() == 63
+    assert np.allclose(got, ref_v, rtol=1e-4, atol=1e-6)
+    mem = a.memory_per_probe()
+    assert mem["irradiance"] + mem["visibility"] == 8 * 8 * 4 + 16 * 16 * 4 == 1280
+    assert mem["heuristics"] == 32 and mem["radiance_layer"] == 36 * 16

@@ -503,3 +503,80 @@ def reproduce_adgi(out_dir: str, quick: bool = False, quiet: bool = True) -> str
                        "tunnel": {k: v for k, v in tu.items() if k != "per_frame"}, "atrium": at,
                        "static": {k: v for k, v in st.items() if k != "curves"}, "glossy": gl,
                        "rows": [{"quantity": q, "paper": p, "ours": o} for q, p, o in rows]}})
+
+
+# -- equal-rays recovery on the opening tunnel (issue 25) -------------------------------------------
+RECOVERY = {"res": (64, 48), "dt": 1.0 / 15.0, "hold": 30, "ref_spp": 128, "final": 5, "seeds": (0, 1, 2)}
+
+
+def equal_rays_recovery(specs=("adgi",), baseline: str = "qddgi", **cfg) -> dict:
+    """Issue 25's recovery reading on ``tunnel-gate``: per seed, ``baseline`` at its defaults and each spec of
+    ``specs`` at the baseline's rays on every frame (:func:`run_frames` with its budgets, as ``compare
+    --budget equal-rays``), the ground-truth relMSE per frame (times ``i * dt`` up to the held-open 4 s, then
+    ``hold`` frames held), and per run: ``final`` (the median of the last ``final`` frames), ``settle`` (frames
+    from gate-open, t = 0.5 s, until relMSE enters and stays within 10% of its final value,
+    :func:`settle_frames`), ``reach`` (frames from gate-open until, after its peak, relMSE is within 10% of
+    the baseline's final value; None: never) and the steady rays per frame. ``cfg`` overrides
+    :data:`RECOVERY`. Used by tests/techniques/adgi/test_recovery.py and, from the command line,
+    ``python -m dyngi.experiments.reproductions.adgi "adgi;adgi:change_cap=false"`` (docs/benchmarks.md)."""
+    from ...scene import load_scene
+    from ...techniques.base import create_technique
+    from ..reference import reference_halves, scene_max_depth
+    from ...metrics import relmse
+
+    c = {**RECOVERY, **cfg}
+    sc = load_scene("tunnel-gate")
+    dt, res = c["dt"], tuple(c["res"])
+    times = [min(i * dt, GATE_END) for i in range(int(round(GATE_END / dt)) + 1 + c["hold"])]
+    opened = next(i for i, t in enumerate(times) if t >= GATE_OPEN)
+    depth = scene_max_depth(sc)
+    refs = [reference_halves(sc, t, res, c["ref_spp"], depth)[0] for t in times]
+    out = {"times": times, "opened": opened, "config": c, "runs": {}}
+
+    def record(name, seed, run):
+        e = np.array([relmse(np.maximum(img, 0.0), ref) for img, ref in zip(run["images"], refs)])
+        rays = [st.get("total_rays", 0) for st in run["stats"]]
+        out["runs"].setdefault(name, {})[seed] = {"relmse": e, "rays": rays,
+                                                   "final": float(np.median(e[-c["final"]:]))}
+
+    for seed in c["seeds"]:
+        q = run_frames(sc, create_technique(baseline, sc), times, res, seed=seed)
+        record(baseline, seed, q)
+        for spec in specs:
+            record(spec, seed, run_frames(sc, create_technique(spec, sc), times, res, seed=seed,
+                                          budgets=[st["total_rays"] for st in q["stats"]]))
+    for name, per in out["runs"].items():
+        for seed, r in per.items():
+            e = r["relmse"][opened:]
+            r["settle"] = settle_frames(e, r["final"])
+            peak = int(np.argmax(e))
+            hit = np.nonzero(e[peak:] <= (1.0 + RECOVERED) * out["runs"][baseline][seed]["final"])[0]
+            r["reach"] = peak + int(hit[0]) + 1 if hit.size else None
+            r["steady_rays"] = float(np.mean(r["rays"][1:]))
+    return out
+
+
+def recovery_table(out: dict) -> str:
+    """Markdown rows of :func:`equal_rays_recovery`: mean [min-max] over seeds."""
+    def f(v):
+        v = np.asarray(v, float)
+        return f"{v.mean():.4f} [{v.min():.4f}-{v.max():.4f}]"
+    o = out["opened"]
+    lines = ["| spec | mean relMSE, all frames | after gate-open | peak | final | settle frames per seed (median) | "
+             "reach qddgi's final, per seed | rays/frame |", "|---|---|---|---|---|---|---|---|"]
+    for name, per in out["runs"].items():
+        rs = [per[s] for s in sorted(per)]
+        st = [r["settle"] for r in rs]
+        lines.append(f"| {name} | {f([r['relmse'].mean() for r in rs])} | {f([r['relmse'][o:].mean() for r in rs])} | "
+                     f"{f([r['relmse'].max() for r in rs])} | {f([r['final'] for r in rs])} | {st} "
+                     f"({np.median(st):.0f}) | {[r['reach'] for r in rs]} | "
+                     f"{np.mean([r['steady_rays'] for r in rs]):.0f} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":      # python -m dyngi.experiments.reproductions.adgi "SPEC;SPEC" [hold]
+    import sys
+
+    _specs = tuple(sys.argv[1].split(";")) if len(sys.argv) > 1 else ("adgi",)
+    _cfg = {"hold": int(sys.argv[2])} if len(sys.argv) > 2 else {}
+    print(recovery_table(equal_rays_recovery(_specs, **_cfg)))

@@ -299,6 +299,19 @@ class ADGITechnique(_ProbeTechniqueBase):
         self._updated = np.zeros(vol_n, bool)
         self._used = dr.full(mi.Float, 1.0, vol_n)     # probes the last primary pass read (all, before one ran)
 
+    def memory_per_probe(self) -> dict:
+        """Bytes per probe by part: the irradiance and visibility texels as their encoded words (Table 3:
+        ``adgi``'s ``R9G9B8-N`` and ``R13G13-N`` are 32 bits each, so 8x8 + 16x16 words = 1280 B), the
+        6-10-10 heuristics word per octant (Sec. 4.3, 32 B), and ours: the radiance layer as held (fp32 RGB +
+        a UInt32 count per interior texel, 16 B each; Table 3 has none) and the fp32 moments' working copy
+        is not counted (the encoded word is what is stored). Bits per word from the encoding."""
+        enc = self.encoding
+        irr_bits = sum(getattr(enc, "IRR_BITS", (32, 32, 32, 32)))
+        vis_bits = sum(getattr(enc, "VIS_BITS", (32, 32, 32)))
+        Ti, Td = self.volume.irradiance_texels, self.volume.distance_texels
+        return {"irradiance": Ti * Ti * irr_bits // 8, "visibility": Td * Td * vis_bits // 8,
+                "heuristics": OCTANTS * 4, "radiance_layer": self.radiance.n_tex * 16}
+
     # the planner's chains and guide, readable here (the viewer draws the static chains)
     @property
     def static_state(self):
