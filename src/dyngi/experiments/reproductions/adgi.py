@@ -517,8 +517,8 @@ def equal_rays_recovery(specs=("adgi",), baseline: str = "qddgi", **cfg) -> dict
     from gate-open, t = 0.5 s, until relMSE enters and stays within 10% of its final value,
     :func:`settle_frames`), ``reach`` (frames from gate-open until, after its peak, relMSE is within 10% of
     the baseline's final value; None: never) and the steady rays per frame. ``cfg`` overrides
-    :data:`RECOVERY`. Used by tests/techniques/adgi/test_recovery.py and, from the command line,
-    ``python -m dyngi.experiments.reproductions.adgi "adgi;adgi:change_cap=false"`` (docs/benchmarks.md)."""
+    :data:`RECOVERY`. Used by tests/techniques/adgi/test_recovery.py; :func:`recovery_table` prints it
+    (docs/benchmarks.md has the command)."""
     from ...scene import load_scene
     from ...techniques.base import create_technique
     from ..reference import reference_halves, scene_max_depth
@@ -572,11 +572,3 @@ def recovery_table(out: dict) -> str:
                      f"({np.median(st):.0f}) | {[r['reach'] for r in rs]} | "
                      f"{np.mean([r['steady_rays'] for r in rs]):.0f} |")
     return "\n".join(lines)
-
-
-if __name__ == "__main__":      # python -m dyngi.experiments.reproductions.adgi "SPEC;SPEC" [hold]
-    import sys
-
-    _specs = tuple(sys.argv[1].split(";")) if len(sys.argv) > 1 else ("adgi",)
-    _cfg = {"hold": int(sys.argv[2])} if len(sys.argv) > 2 else {}
-    print(recovery_table(equal_rays_recovery(_specs, **_cfg)))
