@@ -36,8 +36,10 @@ nor how the target was chosen; the protocol below is ours and is written to be f
    means accumulated MAPE <= target x (1 + ``TARGET_TOL``): the paper's own Table 1 rows differ from
    their target by up to 1.8 %.
 5. **Time** = frames x the method's median steady frame time (probe update included for the DDGI
-   methods; ``restir-pt``: frames >= 2, after its kernels compiled). Frames and time are reported
-   separately, per seed, with the median and range over ``seeds`` seeds of the speed-ups.
+   methods), measured after the runs in round-robin turns over the warmed instances
+   (:func:`interleaved_ms`), so that a load change on a shared machine falls on all three alike.
+   Frames and time are reported separately, per seed, with the median and range over ``seeds`` seeds
+   of the speed-ups.
 
 Scenes (:mod:`dyngi.scene.builtin_table1`): ``room-door`` (ROOM DOOR), ``villa-sun`` (GREEK VILLA),
 ``pink-room`` (PINK ROOM / RED BALL), ``cornell-static`` (RED BALL, the classic box) and ``living-room``
@@ -96,6 +98,8 @@ PAPER_RAYS_PER_PIXEL = 16 * 8 * 16 * 256 / (1920 * 1080)
 """The paper's probe-update rays per pixel: a 16 x 8 x 16 grid, 256 rays per probe (Sec. 4), at 1080p."""
 SPEEDUP_GOAL = 50.0
 """Issue 27's goal for ddgi-resampling over restir-pt (the paper: >= 84x on every Table 1 scene)."""
+TIMING_ROUNDS = 6
+"""Round-robin turns of :func:`interleaved_ms` (one timed frame per method each)."""
 TARGET_TOL = 0.02
 """Reached: accumulated MAPE <= target x (1 + TARGET_TOL); the paper's rows differ by up to 1.8 %."""
 FIT_FROM = 4
@@ -296,7 +300,23 @@ def _accumulate_pt(scene, res, seed: int, frames: int, ref, stop_at=None, keep_f
                        keep_images=False)
     out["ms"] = seq.wall_ms
     out["nonfinite_frames"] = int(np.sum(~np.isfinite(out["mape"])))
+    out["tech"] = tech
     return out
+
+
+def interleaved_ms(scene, res, techs: dict, rounds: int) -> dict:
+    """Median steady frame time of each warmed technique of ``techs`` (name -> instance), measured in
+    ``rounds`` round-robin turns of two static frames each (the second timed): a load change on a shared
+    machine then falls on every method alike (our choice; the runs' own frame times are kept beside)."""
+    from ..runner import run_sequence
+
+    ms = {n: [] for n in techs}
+    for k in range(rounds):
+        for n, tech in techs.items():
+            seq = run_sequence(scene, tech, 0, res, seed=5000 + k, times=[scene.frame_time(0)] * 2,
+                               keep_images=False)
+            ms[n].append(seq.wall_ms[1])
+    return {n: float(np.median(v)) for n, v in ms.items()}
 
 
 class _Reference:
@@ -410,6 +430,10 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
     mapes1["restir-pt"] = [r["mape"][0] for r in pt]
     target_method, target = select_target(mapes1)
 
+    # -- frame times, round-robin over the warmed instances (step 5) --
+    timed = interleaved_ms(scene, res, {"restir-pt": pt[0]["tech"], **{n: runs[n][0]["tech"] for n in DDGI_METHODS}},
+                           int(cfg.get("timing_rounds", TIMING_ROUNDS)))
+
     # -- frames and time to the target, per seed (steps 4-5) --
     fig = {"scene": scene_name, "analog": ANALOG.get(scene_name, scene_name), "res": list(res),
            "target_mape": target, "target_method": target_method, "one_frame_mape": mapes1,
@@ -420,7 +444,7 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
         for k, s in enumerate(seeds):
             if name == "restir-pt":
                 r = pt[k]
-                acc, ms = r["mape"], steady_ms(r["ms"])
+                acc, ms_run = r["mape"], steady_ms(r["ms"])
                 fit_from, floor = max(FIT_FROM, len(acc) // 4), ref_noise
             else:
                 r = runs[name][k]
@@ -428,12 +452,13 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
                 more = int(cfg["max_frames"]) - len(acc)
                 if frames_to_reach(acc, target * (1.0 + TARGET_TOL)) is None and more > 0:
                     acc += _continue(r, scene, res, more, ref, target * (1.0 + TARGET_TOL))
-                ms = float(np.median(r["ms"]))
+                ms_run = float(np.median(r["ms"]))
                 fit_from, floor = max(1, len(acc) // 4), None
             need = frames_needed(acc, target, fit_from, floor)
             n = need["frames"]
+            ms = timed[name]
             per_seed.append({"seed": s, "frames": n, "measured": need["measured"], "fit": need["fit"],
-                             "frame_ms": ms, "time_ms": (n * ms if n is not None else None),
+                             "frame_ms": ms, "frame_ms_run": ms_run, "time_ms": (n * ms if n is not None else None),
                              "frames_run": len(acc), "final_mape": acc[-1], "curve": [float(x) for x in acc],
                              "nonfinite_frames": int(r["nonfinite_frames"])})
         t2 = [x for r in (pt if name == "restir-pt" else runs[name]) for x in r["table2"][2 if name == "restir-pt"
@@ -556,7 +581,7 @@ def _tables(figs) -> tuple[str, str, str, str]:
                   + (lambda s: f"{_x(s['median'])} [{_x(s['min'])}-{_x(s['max'])}]")(f["speedup_paper_ratio"]) + " |")
     prot = ["| scene | 1-frame MAPE restir-pt / secondary / resampling | reference spp, its noise MAPE (target/10) | "
             "emission scale: default ratio -> scale -> calibrated ratio | probe rays per pixel (paper "
-            f"{PAPER_RAYS_PER_PIXEL:.2f}) | frame ms restir-pt / secondary / resampling |",
+            f"{PAPER_RAYS_PER_PIXEL:.2f}) | frame ms restir-pt / secondary / resampling (round-robin; in the runs) |",
             "|---|---|---|---|---|---|"]
     for f in figs:
         o = f["one_frame_mape"]
@@ -568,7 +593,9 @@ def _tables(figs) -> tuple[str, str, str, str]:
                     f"{c.get('ratio_calibrated', float('nan')):.3f}"
                     + (" (the scale has no effect: no emitting surface)" if c.get("effect") is False else "") + " | "
                     + (f"{f['probe_rays_per_pixel']:.2f}" if f["probe_rays_per_pixel"] is not None else "-")
-                    + " | " + " / ".join(f"{f['techniques'][n]['frame_ms']:.1f}" for n in METHODS) + " |")
+                    + " | " + " / ".join(f"{f['techniques'][n]['frame_ms']:.1f}" for n in METHODS) + " ("
+                    + " / ".join(f"{np.median([x['frame_ms_run'] for x in f['techniques'][n]['seeds']]):.1f}"
+                                 for n in METHODS) + ") |")
     fits = ["| scene | method | seed | frames measured (fitted) | MAPE at the last | a | b | frames to target | "
             "free fit a, b: frames |", "|---|---|---|---|---|---|---|---|---|"]
     for f in figs:
