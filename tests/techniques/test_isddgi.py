@@ -272,6 +272,23 @@ def test_probe_state_algorithm_2():
     # probe 0: front hits, 1/4 back < 0.3 -> ON; probe 1: 2/4 back -> OFF; probe 2: misses only -> OFF
     # (line 17's min over negative distances would have called probe 1's back faces "front"); 3: no rays
     assert on.tolist() == [True, False, False, False]
+    # DDGI's near-surface test on ragged rays (issue 26): spacing 1, probe 0 inside the grid (neighbourhood
+    # |t w| <= 1), probe 1 on its low-x boundary (unbounded towards -x)
+    from types import SimpleNamespace
+    from dyngi.techniques.isddgi.estimator import near_surface_hits, near_window
+    grid = SimpleNamespace(spacing_np=np.ones(3, np.float32), counts=(3, 3, 3),
+                           probe_coords=lambda pid: np.array([[1, 1, 1], [0, 1, 1]])[np.asarray(pid) - 5])
+    vol = SimpleNamespace(grid=grid)
+    s2 = 1 / np.sqrt(2)
+    dirs = np.array([[1, 0, 0], [s2, s2, 0], [-1, 0, 0], [-1, 0, 0], [0, 1, 0]], np.float32)
+    slot = np.array([0, 0, 1, 1, 1])
+    # probe 0: 1.2 along +x leaves the cell (far), 1.3 along the diagonal is inside (|1.3 * 0.707| <= 1);
+    # probe 1: a back face and a far -x hit (boundary: near), or only far hits
+    near = near_surface_hits(vol, [5, 6], slot, dirs, np.array([1.2, 1.3, -0.1, 7.0, 3.0]))
+    assert near.tolist() == [True, True]
+    near = near_surface_hits(vol, [5, 6], slot, dirs, np.array([1.2, np.inf, -0.1, np.inf, 3.0]))
+    assert near.tolist() == [False, False]
+    assert near_window(np.array([8, 32, 256])).tolist() == [32, 8, 1]
 
 
 def test_linear_mean_accumulator_removes_the_few_ray_gamma_bias(backend):
@@ -351,7 +368,8 @@ def test_isddgi_update_does_less_work_than_ddgi_with_the_same_stages(backend):
     stages (``trace probes``, ``shade probes``, ``blend``, ``states``: the stage table compares like with
     like), and on a steady frame isddgi traces fewer probe rays and its estimator does fewer ray x texel
     products (Algorithm 3: 256 sets per ray, both lobes, vs ddgi's rays x its interior irradiance and
-    distance texels). Counts, not timings. (The merge still touches more texels: 2 x 18^2 per traced probe
+    distance texels); on tunnel-gate it keeps no more probes active than ddgi (near-surface test). Counts,
+    not timings. (The merge still touches more texels: 2 x 18^2 per traced probe
     vs ddgi's 8^2 + 16^2 per active one; issue 26's texel-count item.)"""
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique
@@ -372,6 +390,19 @@ def test_isddgi_update_does_less_work_than_ddgi_with_the_same_stages(backend):
     assert stages["isddgi"] == stages["ddgi"] == {"trace probes", "shade probes", "blend", "states"}, stages
     assert 0 < rays["isddgi"] < 0.5 * rays["ddgi"], rays
     assert products["isddgi"] < 0.5 * products["ddgi"], products
+    # probe states (issue 26): on tunnel-gate (open space above and beside the tunnel) Algorithm 2 alone keeps
+    # ~2x ddgi's probes ON; with DDGI's near-surface test isddgi updates no more probes than ddgi
+    scene = load_scene("tunnel-gate")
+    t = scene.frame_time(0)
+    scene.at(t)
+    active = {}
+    for spec in ("isddgi", "isddgi:near_surface=false", "ddgi"):
+        tech = create_technique(f"{spec}:warmup=1", scene)
+        for i in range(2):
+            r = tech.step(Frame(i, t, scene.camera(t), (16, 12), seed=0))
+        active[spec] = (r.stats["active_probes"], r.stats.get("probes_traced"))
+    assert active["isddgi"][0] <= active["ddgi"][0], active
+    assert active["isddgi:near_surface=false"][0] > 1.5 * active["ddgi"][0], active    # the test has power
 
 
 @pytest.mark.slow

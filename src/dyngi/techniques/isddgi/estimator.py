@@ -26,6 +26,16 @@ lane, so bit-identical on reruns with no atomics); :func:`integrate_sets` is the
 classification). Line 17 takes the minimum over *all* distances, the negative back-face ones too, so one
 back-face hit would make ``closestFrontFaceDist`` negative and count as a front face; we take the minimum
 over front-face hits only (``d >= 0`` and finite; a miss is no front face).
+
+**Near-surface test** (issue 26; ours: Algorithm 2 alone kept 1.5-2x more probes ON than ``ddgi``): a probe
+is ON only if, in addition, one of its front-face hits lies inside its cell neighbourhood -- DDGI's
+classification (Majercik et al. 2021, Sec. 5; :mod:`dyngi.probes.states`), per ray here
+(:func:`near_surface_hits`), so a probe far from every surface (which no shading point near a surface
+reads with weight) is not updated. A probe traces only ``x_i`` (8-32) rays per frame, a rotating part of
+its 256 sets, so one frame's rays can miss its only nearby surface: the test holds over a window --
+the probe keeps the near flag while its last near hit is at most ``256 / x_i`` of its traced frames old
+(one full rotation of its uniform pattern, i.e. every set visited once; ours, see
+:func:`near_window`).
 """
 from __future__ import annotations
 
@@ -288,6 +298,32 @@ def to_texel_estimate(means: np.ndarray, weight: np.ndarray, count: np.ndarray) 
                         weight=upload(weight.ravel().astype(np.float32), mi.Float))
     dr.eval(est.ok)
     return est
+
+
+def near_surface_hits(volume, probe_ids, ray_slot, dirs: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """(S,) bool per traced probe slot (``probe_ids`` (S,) volume indices): one of its rays hit a front
+    face inside the probe's cell neighbourhood (``|t w_a| <= spacing_a`` on every axis, unbounded outwards
+    on the grid boundary): DDGI's near-surface classification test
+    (:func:`dyngi.probes.states._summaries_numpy`) on a ragged plan, one NumPy pass over the rays
+    (``ray_slot`` (R,), ``dirs`` (R, 3), ``dist`` (R,) signed distances)."""
+    from ...probes.states import _cell_extents
+    pid = np.asarray(probe_ids, np.int64)
+    S = len(pid)
+    lo, hi = _cell_extents(volume, pid)                       # (S, 3) each
+    slot = np.asarray(ray_slot, np.int64)
+    w = np.asarray(dirs, np.float32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ext = np.where(w > 0, hi[slot], lo[slot]) / np.abs(w)
+    t_exit = np.nan_to_num(ext, nan=np.inf, posinf=np.inf).min(1)
+    d = np.asarray(dist, np.float32)
+    near = (d > 0.0) & np.isfinite(d) & (d <= t_exit)
+    return np.bincount(slot, near.astype(np.float64), S) > 0
+
+
+def near_window(x: np.ndarray) -> np.ndarray:
+    """Traced frames a probe with ``x`` uniform rays keeps its near-surface flag after its last near hit:
+    ``256 / x`` (its uniform pattern's rotation period; ours)."""
+    return np.maximum(N_SETS // np.maximum(np.asarray(x, np.int64), 1), 1)
 
 
 def probe_states_alg2(info, dist: np.ndarray, backface_threshold: float = BACKFACE_THRESHOLD) -> np.ndarray:

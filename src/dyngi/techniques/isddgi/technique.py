@@ -23,8 +23,13 @@ dynamic_threshold : float = 0.8 change above which a ray is dynamic (ours)
 decay : float = 0.9             per-frame decay of the smoothed change (ours)
 hysteresis : float = 0.97, warmup : int = 8, irradiance_gamma, change_threshold, distance_power: as ``ddgi``
 relocate, classify : bool       relocation (Majercik et al. 2021, as ``ddgi``, but only every
-                                ``reclassify_interval`` frames: ours, its per-count grouping costs ~50 ms per frame
-                                on 2048 probes), classification by Algorithm 2 (every frame)
+                                ``reclassify_interval`` frames: ours, its per-count grouping is costly on
+                                thousands of probes), classification by Algorithm 2 (every frame)
+near_surface : bool = True      Algorithm 2 combined with DDGI's near-surface test (issue 26; ours): a probe
+                                whose rays found no front face inside its cell neighbourhood during the last
+                                ``256 / x_i`` of its traced frames (one rotation of its uniform pattern) is
+                                OFF, so isddgi does not update probes ``ddgi`` would not
+                                (:func:`~.estimator.near_surface_hits`); False: Algorithm 2 alone
 reclassify_interval : int = 8   inactive probes trace their uniform rays every this many frames (ours)
 
 Warm-up (ours, as ``ddgi``'s): ``warmup`` updates on frame 0 with one ray in every set (256 per probe)
@@ -73,7 +78,7 @@ from ...probes.pipeline import ProbePipeline
 from ...probes.trace import HIT_LOOKUPS
 from ..base import Frame, FrameResult, Param, StageTimer, register
 from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase, params_from
-from .estimator import BACKFACE_THRESHOLD, SetBlend, probe_states_alg2
+from .estimator import BACKFACE_THRESHOLD, SetBlend, near_surface_hits, near_window, probe_states_alg2
 from .planner import SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
 from .shading import KeyedHitShader
 
@@ -110,6 +115,8 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         "hit_lookup": Param("stochastic", "how probe-ray hits read the previous probes", choices=HIT_LOOKUPS),
         "relocate": Param(True, "move probes out of geometry (Majercik et al. 2021)"),
         "classify": Param(True, "probe states by Algorithm 2"),
+        "near_surface": Param(True, "Algorithm 2 and DDGI's near-surface test: a probe with no front-face hit in "
+                              "its cell neighbourhood for a rotation of its uniform rays is OFF (ours)"),
         "backface_threshold": Param(BACKFACE_THRESHOLD, "back-face ratio at or above which a probe is OFF (ours)",
                                     min=0.0, max=1.0),
         "reclassify_interval": Param(8, "frames between updates of inactive probes (ours)", min=1),
@@ -131,6 +138,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         self.pipeline = ProbePipeline(self.volume, self.planner, self.shader, self.blender, None, self.query,
                                       plan_stage="states")
         self._warmed = False
+        self._near_age = np.full(self.volume.n_probes, 255, np.uint8)   # traced frames since a near hit
         self.last_plan = None
         self._shadow_per_probe_ray = 1.0      # NEE shadow rays per probe ray (measured), for equal-ray budgets
         self._ms_per_probe_ray = None         # update ms per probe ray on the last frame, for equal-time budgets
@@ -173,6 +181,12 @@ class ISDDGITechnique(_ProbeTechniqueBase):
             if p["classify"]:
                 on = probe_states_alg2(plan.info, d, p["backface_threshold"])
                 pid = plan.probe_ids.astype(np.int64)
+                if p["near_surface"]:       # DDGI's near-surface test over a rotation window (estimator)
+                    near = near_surface_hits(vol, pid, plan.info.ray_slot, plan.info.ray_dir, d)
+                    age = np.where(near, 0, np.minimum(self._near_age[pid].astype(np.int64) + 1, 255))
+                    self._near_age[pid] = age.astype(np.uint8)
+                    x = plan.info.total if warm else self.planner.state.x[pid]
+                    on &= age < near_window(x)
                 old = st.states[pid].copy()
                 new = np.where(on, PROBE_ACTIVE, PROBE_INACTIVE).astype(np.uint8)
                 st.states[pid] = new
