@@ -110,7 +110,12 @@ def _part(name: str, cfg: dict, out_dir: str, quiet: bool = True) -> tuple[dict,
     """Part ``a:<scene>`` or ``b`` (a task of the job's executor, ``--cluster``): (its result, the NaN/Inf
     pixels per technique it saw)."""
     _NONFINITE.clear()
-    out = part_b(cfg, out_dir, quiet) if name == "b" else part_a(cfg, out_dir, name[2:], quiet)
+    if name == "b":
+        out = part_b(cfg, out_dir, quiet)
+    elif name.startswith("x:"):
+        out = part_x(cfg, out_dir, name[2:], quiet)
+    else:
+        out = part_a(cfg, out_dir, name[2:], quiet)
     return out, dict(_NONFINITE)
 
 
@@ -168,23 +173,37 @@ def part_a(cfg, out_dir, scene_name="sky-pit-sun-disc", quiet=True) -> dict:
                if k != "seed" and not k.startswith("per_frame")}
         agg["per_seed"] = per_seed
         out["techniques"][spec] = agg
-    if scene_name in cfg.get("extras_a", ()):
-        out["extras"] = {}
-        for spec in EXTRAS:      # first seed only (their own rows)
-            mse, msei = [], []
-
-            def on_image_x(i, img):
-                if i >= W:
-                    mse.append(_mse(img, ref))
-                    msei.append(_mse(img, ref, mask))
-
-            walls, _ = _run(sc, spec, F, res, lambda i: 0.0, on_image_x, seed=seeds[0])
-            out["extras"][spec] = {"mse_mean": float(np.mean(mse)), "mse_ind_mean": float(np.mean(msei)),
-                                   "mse_ind_median": float(np.median(msei)), "frame_ms": float(np.median(walls[W:]))}
     with open(os.path.join(out_dir, f"a_{scene_name}_mse.csv"), "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["technique", "seed", "frame", "mse", "mse_indirect"])
         w.writerows(rows)
+    return out
+
+
+def part_x(cfg, out_dir, scene_name, quiet=True) -> dict:
+    """Part (a''): :data:`EXTRAS` on one scene, first seed, part (a)'s frames and mask. A part of its own, run
+    after the others (our choice: in one process, a ``path`` kernel compiled between two scenes' ``nee-pt``
+    runs made Dr.Jit's LLVM backend abort on a duplicated callable, 'invalid redefinition of function')."""
+    from ...scene.library import make_builtin
+    from ..reference import reference_image
+
+    sc = make_builtin(scene_name)
+    res, F, W = cfg["res_a"], cfg["frames_a"], cfg["warmup_a"]
+    ref = reference_image(sc, 0.0, res, cfg["ref_spp"], 3).astype(np.float64)
+    ind = reference_image(sc, 0.0, res, cfg["ref_spp"], 3, indirect=True).astype(np.float64)
+    mask = ind @ _LUM > 0.5 * (ref @ _LUM)
+    out = {}
+    for spec in EXTRAS:
+        mse, msei = [], []
+
+        def on_image(i, img):
+            if i >= W:
+                mse.append(_mse(img, ref))
+                msei.append(_mse(img, ref, mask))
+
+        walls, _ = _run(sc, spec, F, res, lambda i: 0.0, on_image, seed=tuple(cfg.get("seeds_a", (0,)))[0])
+        out[spec] = {"mse_mean": float(np.mean(mse)), "mse_ind_mean": float(np.mean(msei)),
+                     "mse_ind_median": float(np.median(msei)), "frame_ms": float(np.median(walls[W:]))}
     return out
 
 
@@ -327,7 +346,8 @@ def reproduce_cdq(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
     cfg = CDQ_QUICK if quick else CDQ_FULL
     os.makedirs(out_dir, exist_ok=True)
     _NONFINITE.clear()
-    names = [f"a:{sn}" for sn in cfg["scenes_a"]] + ["b"]    # independent runs: tasks (--cluster)
+    names = [f"a:{sn}" for sn in cfg["scenes_a"]] + ["b"] + [f"x:{sn}" for sn in cfg.get("extras_a", ())]
+    # independent runs: tasks (--cluster); the extra rows last (part_x)
     got = cluster.run_named(names, _part, [(n, cfg, out_dir, quiet) for n in names], "reproduce cdq", quiet)
     if len(got) < len(names):     # the tables need every part
         raise DyngiError("reproduce cdq: " + "; ".join(cluster.failure_lines()))
@@ -336,6 +356,9 @@ def reproduce_cdq(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
         for k, v in got[n][1].items():
             _NONFINITE[k] = _NONFINITE.get(k, 0) + v
     a = [got[f"a:{sn}"][0] for sn in cfg["scenes_a"]]
+    for part in a:
+        if f"x:{part['scene']}" in got:
+            part["extras"] = got[f"x:{part['scene']}"][0]
     b = got["b"][0]
     rows = _rows(a, b)
     md = "\n".join([f"# reproduce cdq ({'quick' if quick else 'full'} run)", "", "CDQ: " + PAPER + ".",
