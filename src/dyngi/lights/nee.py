@@ -18,6 +18,11 @@ of ``wi`` (the importance of the light tree, SLL and VLC is the diffuse irradian
 Known bias: the triangles' radiance is the table's (the emitter at each triangle's centroid), exact for
 uniform emitters, an approximation for textured ones (:mod:`dyngi.sampling.emitter_triangles`).
 
+:class:`TracedNEE` adapts a :class:`LightNEE` to the light-sampling strategies' ``sample_traced`` interface
+(:func:`dyngi.sampling.lights.sample_traced`) for shading that is not a path walk: the primary-vertex NEE of
+the probe and VPL techniques (:func:`dyngi.probes.primary.shade_primary`) and the NEE at probe-ray hits
+(:class:`dyngi.probes.trace.DiffuseHitShader`).
+
 Learning samplers (the VLC): every NEE sample's light, visibility and octree leaf is scattered into
 per-lane buffers inside the walk's loop (the first ``RECORD_VERTICES`` vertices of each path) and
 handed to ``record`` in :meth:`end_frame`; path vertices are placed in the octree (VLC Sec. 6), which
@@ -30,12 +35,16 @@ import numpy as np
 from ..backend import dr, mi
 from ..errors import DyngiError
 from ..sampling.lights import EmitterSubsetSampling
+from ..sampling.rng import make_sampler
 from .base import INVALID, EmitterTable, FrameCtx, entry, make
 
 RECORD_VERTICES = 3
 """Path vertices per lane whose NEE samples a learning sampler records (the VLC paper's path has 2)."""
 P_TRI = 0.5
 """Probability of sampling the triangle lights when the scene also has other emitters (our choice)."""
+PRIMARY_NEE_STREAM = 0x7B1
+"""Random stream of the light-selection numbers of the primary-vertex NEE through a light sampler
+(:meth:`TracedNEE.stream`)."""
 
 
 def shading_normal(si):
@@ -108,6 +117,19 @@ class LightNEE:
         self._ms = ms
         self._walks: list = []
         self._verts = None
+        self._light_emitters = None     # per light: its emitter (built on the first sample_walk(emitters=True))
+
+    def light_emitters(self):
+        """Per light of the table: its Mitsuba emitter (an ``EmitterPtr`` array padded to >= 2 entries)."""
+        if self._light_emitters is None:
+            shape_of = np.repeat(np.arange(len(self._tri_emitters), dtype=np.uint32),
+                                 np.asarray(self.tris._counts, np.int64))
+            if shape_of.size < 2:
+                shape_of = np.concatenate([shape_of, np.zeros(2 - shape_of.size, np.uint32)])
+            ptrs = mi.EmitterPtr(self._tri_emitters) if self._tri_emitters else mi.EmitterPtr([None, None])
+            self._light_emitters = dr.gather(mi.EmitterPtr, ptrs, mi.UInt32(shape_of))
+            dr.eval(self._light_emitters)
+        return self._light_emitters
 
     # -- per-frame hooks ---------------------------------------------------------------------------
     def begin_frame(self, scene, frame, vertices_per_frame: int = 0) -> None:
@@ -157,8 +179,11 @@ class LightNEE:
     def _lk(self, leaf):
         return {"leaf": leaf} if (leaf is not None and getattr(self.sampler, "accepts_leaf", False)) else {}
 
-    def sample_walk(self, scene, si, sampler, active, depth=None):
-        """One NEE sample at ``si``: (ds, weight = Le * visibility / pdf, lanes that cast a shadow ray)."""
+    def sample_walk(self, scene, si, sampler, active, depth=None, emitters: bool = False):
+        """One NEE sample at ``si``: (ds, weight = Le * visibility / pdf, lanes that cast a shadow ray).
+
+        ``emitters``: also set ``ds.emitter`` (the sampled light's emitter), which a caller that routes light
+        by emitter needs (:class:`TracedNEE`); the path walk does not read it."""
         u2 = sampler.next_2d()
         u_sel = sampler.next_1d()
         active = mi.Bool(active)
@@ -188,6 +213,8 @@ class LightNEE:
             traced = ok
             ds.p, ds.n, ds.d, ds.dist = mi.Point3f(pl), mi.Normal3f(nl), wi, dr.sqrt(dist2)
             ds.pdf = dr.select(ok, pdf, 0.0)
+            if emitters:
+                ds.emitter = dr.gather(mi.EmitterPtr, self.light_emitters(), k, ok)
             if self.entry.learns and depth is not None:
                 rec = ok & (mi.UInt32(depth) < RECORD_VERTICES)
                 slot = self._lane * RECORD_VERTICES + mi.UInt32(depth)
@@ -205,6 +232,8 @@ class LightNEE:
             ds.dist = dr.select(other, ds_o.dist, ds.dist)
             ds.delta = dr.select(other, ds_o.delta, ds.delta)
             ds.pdf = dr.select(other, ds_o.pdf * q, ds.pdf)
+            if emitters:
+                ds.emitter = dr.select(other, ds_o.emitter, ds.emitter)
             weight = dr.select(other, w_o / q, weight)
             traced = dr.select(other, tr_o, traced)
         return ds, mi.Color3f(weight), traced
@@ -240,3 +269,56 @@ class LightNEE:
         ds_hit = mi.DirectionSample3f(scene, si, ref_si)
         hit = active & (si.emitter(scene, active) != None)   # noqa: E711
         return dr.select(hit, self.pdf_hit(scene, ref_si, si, ds_hit, hit), 0.0)
+
+
+class _Numbers:
+    """The two draws of :meth:`LightNEE.sample_walk`: the shading's 2D number, then a 1D one from ``stream``
+    (the strategies' interface hands over one 2D number per sample)."""
+
+    def __init__(self, u2, stream):
+        self.u2, self.stream = u2, stream
+
+    def next_2d(self):
+        return self.u2
+
+    def next_1d(self):
+        return self.stream.next_1d()
+
+
+class TracedNEE:
+    """A :class:`LightNEE` as a light-sampling strategy with ``sample_traced`` (the interface of
+    :func:`dyngi.sampling.lights.sample_traced`): one NEE sample of the light sampler per call, its point
+    from the caller's 2D number and its light-selection number from ``numbers.next_1d()`` (a per-lane
+    sampler: the caller's own, or a stream of its own, :meth:`stream`). The same estimator as the path
+    walk's NEE (``path:lights=...``, pbrt-v4's ``SampleLd``): unbiased for every sampler whose pmf is that of
+    its ``sample``. ``ds.emitter`` is set, so that a caller can route the sample by emitter (the probe
+    techniques' :meth:`~dyngi.probes.trace.LightRouting.nee_weight`).
+
+    ``record``: a learning sampler records each call's samples as path vertex 0 of a walk of its own
+    (:meth:`LightNEE.begin_walk`; handed over in :meth:`LightNEE.end_frame`); False: nothing is recorded.
+    With a ``receiver`` normal, samples below it get weight 0 (their shadow ray is still traced: the
+    direction is known only after the sample).
+    """
+
+    def __init__(self, nee: LightNEE, numbers, record: bool = False):
+        self.nee = nee
+        self.numbers = numbers
+        self.record = record
+
+    @classmethod
+    def stream(cls, nee: LightNEE, n: int, seed: int, frame: int, stream: int = PRIMARY_NEE_STREAM,
+               record: bool = False) -> "TracedNEE":
+        """The adapter with light-selection numbers from stream ``stream`` of ``(seed, frame)`` for ``n``
+        lanes (:func:`~dyngi.sampling.rng.make_sampler`: the per-frame seed is opaque, a new frame compiles
+        nothing)."""
+        return cls(nee, make_sampler(n, seed, frame, stream), record)
+
+    def sample_traced(self, scene, si, u2, active, receiver=None):
+        depth = None
+        if self.record and self.nee.entry.learns:
+            self.nee.begin_walk(dr.width(u2))
+            depth = 0
+        ds, w, traced = self.nee.sample_walk(scene, si, _Numbers(u2, self.numbers), active, depth, emitters=True)
+        if receiver is not None:
+            w = dr.select(dr.dot(receiver, ds.d) > 0.0, w, 0.0)
+        return ds, w, traced

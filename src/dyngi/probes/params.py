@@ -1,6 +1,9 @@
 """The probe techniques' parameters, declared once as data (``ddgi``'s table; the others change defaults).
 
-:data:`COMMON_SPECS` (grid, query biases, light routing, primary shading: every probe technique) and
+:data:`COMMON_SPECS` (grid, query biases, light routing, primary shading: every probe technique),
+:data:`LIGHT_SPECS` (the light sampler of the probe techniques' NEE; apart, because the DDGI+ volume's
+table, :func:`dyngi.probes.ddgi_plus.plus_params`, is built from :data:`COMMON_SPECS` and the DDGI
+Resampling family has a ``lights=`` of its own) and
 :data:`DDGI_SPECS` (DDGI's probe update, Majercik et al., JCGT 2019 and 2021) are plain keyword dicts
 ``{name: dict(default=, doc=, choices=, min=, max=)}``; the technique layer turns them into its
 ``Param`` entries (:mod:`dyngi.techniques.probe_base`), and the DDGI+ volume validates its parameters
@@ -9,6 +12,7 @@ against the same table (:func:`dyngi.probes.ddgi_plus.plus_params`). Keeping the
 """
 from __future__ import annotations
 
+from .. import lights as light_samplers
 from ..errors import DyngiError
 from .trace import DEFAULT_DIRECT, DEFAULT_TWO_SIDED, DIRECT_MODES, HIT_LOOKUPS, TWO_SIDED_RULES
 
@@ -56,6 +60,14 @@ COMMON_SPECS = {
     "glossy": spec(False, "add the glossy probe lookup (DDGI Resampling Eq. 6: one glossy-lobe BSDF sample, "
                     "the probe irradiance along it / pi) at the primary hit; False: diffuse indirect only, "
                     "as DDGI (dyngi.probes.primary)"),
+}
+
+
+LIGHT_SPECS = {
+    "lights": spec("scene", "light sampler of the NEE at the primary hit and at probe-ray hits (dyngi.lights "
+                   "through dyngi.lights.nee.TracedNEE; its samples weighted by the direct= routing, so NEE "
+                   "still carries only the light the probes do not; 'scene': Mitsuba's emitter sampling over "
+                   "exactly that light)", choices=("scene",) + light_samplers.names()),
 }
 
 

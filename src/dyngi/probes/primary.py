@@ -40,6 +40,7 @@ flat pane does not shift the image, a glass ball would).
 from __future__ import annotations
 
 from ..backend import dr, mi
+from ..lights.nee import PRIMARY_NEE_STREAM, TracedNEE
 from ..sampling.diffuse import diffuse_albedo
 from ..sampling.lights import sample_traced
 from ..sampling.passthrough import intersect_through_glass, scene_has_glass
@@ -62,7 +63,10 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     Direct light: ``direct_samples`` NEE samples per pixel over the light the
     probes do not carry (:func:`dyngi.probes.trace.nee_lights`), unless a
     ``lights`` strategy is given (its samples are then weighted by
-    :meth:`~dyngi.probes.trace.LightRouting.nee_weight`). DDGI itself shades
+    :meth:`~dyngi.probes.trace.LightRouting.nee_weight`). A :class:`~dyngi.lights.nee.LightNEE`
+    (``lights=`` of the probe techniques) is used through :class:`~dyngi.lights.nee.TracedNEE`, its
+    light-selection numbers from stream :data:`~dyngi.lights.nee.PRIMARY_NEE_STREAM` of ``(seed, frame)``
+    (opaque), its samples recorded for a learning sampler. DDGI itself shades
     direct light with shadow maps (noise-free); here it is Monte Carlo, so a
     many-light scene needs more samples (or a better light sampler) to look clean.
 
@@ -76,6 +80,8 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     lights = lights if custom else routing.nee
     w, h = res
     n = w * h
+    if getattr(lights, "walk_aware", False):     # a dyngi.lights sampler (LightNEE): as a sample_traced strategy
+        lights = TracedNEE.stream(lights, n, seed, frame, PRIMARY_NEE_STREAM, record=True)
     sampler = make_sampler(n, seed, frame, 101)
     idx = dr.arange(mi.UInt32, n)
     u = sampler.next_2d() if jitter else mi.Point2f(0.5, 0.5)

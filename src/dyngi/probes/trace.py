@@ -81,6 +81,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import unknown_choice
+from ..lights.nee import TracedNEE
 from ..sampling.diffuse import diffuse_albedo
 from ..sampling.lights import EmitterSubsetSampling, sample_traced
 from ..sampling.passthrough import intersect_through_glass, scene_has_glass
@@ -289,6 +290,12 @@ class DiffuseHitShader:
     ray's origin, the hit and front-face masks and the lanes that cast an NEE shadow ray (samples below
     the shading normal cast none: their diffuse contribution is 0). ``query`` is a
     :class:`~dyngi.probes.query.ProbeQuery` (or ``None`` for no multi-bounce).
+    ``lights``: ``None`` (NEE over the light the probes do not carry, :func:`nee_lights`), a light-sampling
+    strategy with ``sample_traced`` over any emitters, or a :class:`~dyngi.lights.nee.LightNEE` (a
+    ``dyngi.lights`` sampler, ``lights=`` of the probe techniques; used through
+    :class:`~dyngi.lights.nee.TracedNEE` with this shader's sampler, its samples recorded for a learning
+    sampler). A general strategy's samples are weighted by :meth:`LightRouting.nee_weight` (our choice: the
+    routing stays the ``direct`` mode's whatever the sampler, so a sampler changes the noise, not the mean).
     ``lookup``: how the multi-bounce term reads the probes -- ``'filtered'``
     (default: DDGI's 8 probes x bilinear texels at every hit) or
     ``'stochastic'`` (one texel of one probe with the expectation of the full
@@ -316,6 +323,8 @@ class DiffuseHitShader:
         albedo = diffuse_albedo(bsdf, si, front)
         # -- direct light by NEE (one light sample; no shadow ray below the shading normal) --
         lights = self.lights if self.lights is not None else routing.nee
+        if getattr(lights, "walk_aware", False):     # a dyngi.lights sampler: its selection number from `sampler`
+            lights = TracedNEE(lights, sampler, record=True)
         ds, w, shadow = sample_traced(lights, scene, si, sampler.next_2d(), front, receiver=n)
         cos = dr.maximum(dr.dot(n, ds.d), 0.0)
         if self.lights is not None:   # a general strategy may pick light the probes carry

@@ -42,6 +42,8 @@ two_sided : str = 'enclosed'    the two-sided rule for probe rays hitting the ba
                                 (adgi, isddgi, DDGI+) takes it
 jitter : bool = True            jitter primary rays inside the pixel (else pixel centres); True matches
                                 the reference's box pixel filter, so edge aliasing is not counted as GI error
+lights : str = 'scene'          light sampler of the NEE at the primary hit and at probe-ray hits ('scene':
+                                Mitsuba's emitter sampling; :mod:`dyngi.techniques.probe_base`)
 glossy : bool = False           primary hit adds Eq. 6's glossy probe lookup of DDGI Resampling (Majercik
                                 et al. 2022; :mod:`dyngi.probes.primary`); False: DDGI's diffuse-only shading
 
@@ -85,7 +87,7 @@ class DDGITechnique(_ProbeTechniqueBase):
         p = self.params
         self._setup_volume(p["irradiance_texels"], p["distance_texels"])
         self.directions = UniformSFDirections(p["rays_per_probe"])
-        self.shader = DiffuseHitShader(p["direct"], lookup=p["hit_lookup"])
+        self.shader = DiffuseHitShader(p["direct"], lights=self.light_nee, lookup=p["hit_lookup"])
         self.blender = HysteresisBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
                                        p["change_threshold"], p["brightness_threshold"], p["encoding"],
                                        p["estimator"])
@@ -103,6 +105,7 @@ class DDGITechnique(_ProbeTechniqueBase):
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
+        self._lights_begin(frame, t)
         mask = None if p["update_offscreen"] else probes_in_frustum(self.volume, frame.camera, frame.res)
         sig = self.scene.signature(frame.time) if hasattr(self.scene, "signature") else None
         moved = sig != self._last_signature and self._last_signature is not None
@@ -234,7 +237,8 @@ class ProbesReferenceTechnique(_ProbeTechniqueBase):
         self._setup_volume(p["texels"], p["texels"])
         self.irr_dirs = LobeDirections(p["texels"], p["rays_per_texel"], 1.0, stream=21)
         self.dist_dirs = LobeDirections(p["texels"], p["rays_per_texel"], p["distance_power"], stream=22)
-        self.shader = DiffuseHitShader(p["direct"], lookup="filtered")   # the reference filters exactly
+        self.shader = DiffuseHitShader(p["direct"], lights=self.light_nee,
+                                       lookup="filtered")   # the reference filters exactly
         self.blender = TrueAverage()
         # where the probes are is ddgi's decision (issue 22): a reference whose probes stay inside the slabs
         # a grid starts in is no reference for a volume that moves them out; every probe re-tests its state
@@ -245,8 +249,13 @@ class ProbesReferenceTechnique(_ProbeTechniqueBase):
                                       distance_planner=self.dist_dirs, state_rays="fixed", trace_inactive=True,
                                       streams=(31, 32))
 
+    def probe_rays_hint(self) -> int:
+        p = self.params
+        return 2 * p["texels"] ** 2 * p["rays_per_texel"]
+
     def step(self, frame: Frame) -> FrameResult:
         t = StageTimer()
+        self._lights_begin(frame, t)
         self.pipeline.update(self.scene, frame.index, frame.seed, timer=t)
         img, ind = self._primary(frame, t)
         return FrameResult(image=img, indirect=ind, stats=t.as_dict())

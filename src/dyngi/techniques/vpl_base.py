@@ -4,7 +4,7 @@ A subclass implements :meth:`VPLTechnique.update_vpls` (this frame's VPL set as
 positions, normals and shading weights ``flux = L / (I p)``); the base renders
 the frame: emission seen directly + direct light by NEE over every emitter
 (:func:`dyngi.probes.primary.shade_primary`, routing ``'nee'``, pixel-centre
-camera rays; through the ``lights=`` sampler when one is chosen: :class:`PrimaryNEE`)
+camera rays; through the ``lights=`` sampler when one is chosen: :class:`~dyngi.lights.nee.TracedNEE`)
 + the VPLs' indirect light ``albedo / pi * E_vpl``
 (:class:`dyngi.vpl.shading.VPLShader`). ``FrameResult.indirect`` is the VPL part:
 light that reflected at least once before the primary vertex (VPL radiosities
@@ -32,9 +32,8 @@ import numpy as np
 
 from .. import lights as light_samplers
 from ..backend import dr
-from ..lights.nee import LightNEE
+from ..lights.nee import PRIMARY_NEE_STREAM, LightNEE, TracedNEE  # noqa: F401  (stream re-exported)
 from ..probes.primary import shade_primary
-from ..sampling.rng import make_sampler
 from ..vpl.emission import EMISSION_SAMPLERS
 from ..vpl.shading import MODES, VPLShader, clamp_value
 from .base import Frame, FrameResult, Param, StageTimer, Technique, to_image
@@ -58,42 +57,6 @@ COMMON_PARAMS = {
 EMISSION_LIGHTS = Param("scene", "light sampler of the direct light's NEE and of the photons' lights ('scene': "
                         "Mitsuba's emitter sampling)", choices=("scene",) + EMISSION_SAMPLERS)
 """``lights=`` of the photon techniques (``ir``, ``tcas``): :mod:`dyngi.vpl.emission`."""
-
-
-PRIMARY_NEE_STREAM = 0x7B1
-"""Random stream of the light-selection numbers of the primary NEE through a light sampler."""
-
-
-class _Numbers:
-    """The two draws of :meth:`LightNEE.sample_walk`: the primary shading's 2D number, then a 1D one from
-    a per-pixel stream of its own (the shading hands the strategy one 2D number per sample)."""
-
-    def __init__(self, u2, stream):
-        self.u2, self.stream = u2, stream
-
-    def next_2d(self):
-        return self.u2
-
-    def next_1d(self):
-        return self.stream.next_1d()
-
-
-class PrimaryNEE:
-    """A :class:`~dyngi.lights.nee.LightNEE` as the primary shading's NEE strategy (``sample_traced``, the
-    light-sampling strategies' interface of :func:`dyngi.sampling.lights.sample_traced`): one NEE sample of
-    the light sampler per call, its light-selection number from stream :data:`PRIMARY_NEE_STREAM` of
-    ``(seed, frame)`` (opaque: a new frame compiles nothing). The same estimator as the path walk's NEE
-    (``path:lights=...``): unbiased for every sampler whose pmf is that of its ``sample``."""
-
-    def __init__(self, nee: LightNEE, n: int, seed: int, frame: int):
-        self.nee = nee
-        self.stream = make_sampler(n, seed, frame, PRIMARY_NEE_STREAM)
-
-    def sample_traced(self, scene, si, u2, active, receiver=None):
-        ds, w, traced = self.nee.sample_walk(scene, si, _Numbers(u2, self.stream), active)
-        if receiver is not None:
-            w = dr.select(dr.dot(receiver, ds.d) > 0.0, w, 0.0)
-        return ds, w, traced
 
 
 def scene_vpl_budget(scene) -> int:
@@ -142,8 +105,9 @@ class VPLTechnique(Technique):
         with t.stage("shading"):
             shader = VPLShader(self.scene, frame.res, frame.camera, pos, nrm, flux, p["shading"], self.gmax,
                                p["filter_normal_power"], p["filter_sigma_px"])
-            direct = (PrimaryNEE(self.lights, frame.res[0] * frame.res[1], frame.seed, frame.index)
-                      if self.lights is not None else None)
+            # the light sampler's NEE at the camera's hit, its selection numbers from a stream of its own
+            direct = (TracedNEE.stream(self.lights, frame.res[0] * frame.res[1], frame.seed, frame.index,
+                                       PRIMARY_NEE_STREAM) if self.lights is not None else None)
             L, ind, rays = shade_primary(self.scene, frame.camera, frame.res, shader, frame.seed, frame.index,
                                          "nee", False, lights=direct, direct_samples=p["direct_samples"])
             dr.eval(L, ind)
