@@ -33,3 +33,20 @@ def test_device_collapse_equals_host_collapse(backend, monkeypatch, scene):
             assert np.array_equal(x, y), k
     ll = a["leaf_lights"]
     assert np.array_equal(np.sort(ll[ll != lt.INVALID]), np.arange(tris.count))
+
+
+@pytest.mark.slow
+def test_steady_device_builds_compile_nothing(backend):
+    """A rebuild every frame (the paper's baseline) on the device launches only kernels it launched before (the
+    level inputs are evaluated up front: without that, kernel fusion varied between builds and every build
+    compiled anew)."""
+    from helpers import assert_steady_state_compiles_nothing
+
+    from dyngi.sampling.emitter_triangles import EmitterTriangles
+    from dyngi.sampling.lighttree import LightTreeSelector
+    from dyngi.scene.library import make_builtin
+
+    sc = make_builtin("warehouse-rooms")
+    sc.at(0.0)
+    tree = LightTreeSelector(EmitterTriangles(sc.mi_scene), build="device")
+    assert_steady_state_compiles_nothing(lambda f: tree.build(), frames=4, warmup=2, nonempty=True)

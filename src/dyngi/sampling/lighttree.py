@@ -214,6 +214,8 @@ def _build_binary_device(tlo, thi, cen, power, normal, read_back: bool = True):
     c_ax = [dr.zeros(F, M), dr.zeros(F, M), dr.full(F, 1.0, M)]
     c_cos = dr.full(F, -1.0, M)
     a, b, nb = 0, 1, 1
+    # evaluated up front, so that every level's kernels see the same inputs (a steady build compiles nothing)
+    dr.eval(perm, seg, pos, node, start, end, left, right, c_lo, c_hi, c_pw, c_ax, c_cos, TLO, THI, CEN, NRM, PW)
     while b > a:
         a_o, b_o = dr.opaque(U, a), dr.opaque(U, b)       # frame-/level-varying: no literal, no recompile
         act = (seg >= a_o) & (seg < b_o)
@@ -483,7 +485,8 @@ class LightTreeSelector:
         if build not in BUILDS:
             raise DyngiError(f"lighttree: build must be one of {', '.join(BUILDS)}, got '{build}'")
         # auto: the device build on CUDA; on the CPU the host build is the declared fast path (the device
-        # build's per-level kernels cost ~0.6 s there against ~15-30 ms for the NumPy levels, warehouse-lights)
+        # build's ~1000 small kernel launches per build cost several times the NumPy levels there,
+        # docs/benchmarks.md)
         self.device_build = build == "device" or (build == "auto" and "cuda" in mi.variant())
         self.tris = tris
         self.count = int(tris.count)
