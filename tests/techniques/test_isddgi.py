@@ -248,15 +248,16 @@ def test_integration_drjit_matches_numpy_and_holds_e_over_pi(backend):
     L = (0.5 + rng.random((R, 3))).astype(np.float32)
     d = (0.2 + rng.random(R)).astype(np.float32)
     d[::11] *= -0.2                                       # back faces: out of the irradiance
-    irr, irr_w, irr_n, mom, mom_w, mom_n = integrate_sets(plan.info, L, d, 1.0)
     Ldr = mi.Color3f(*[mi.Float(L[:, c].copy()) for c in range(3)])
-    ei, ed = integrate_sets_dr(plan, Ldr, mi.Float(d), 1.0)
-    n = 3 * N_SETS
-    vi = np.asarray(ei.value).reshape(3, n).T.reshape(3, N_SETS, 3)
-    vd = np.asarray(ed.value).reshape(2, n).T.reshape(3, N_SETS, 2)
-    assert np.allclose(vi, irr, rtol=2e-4, atol=1e-5)
-    assert np.allclose(vd, mom, rtol=2e-4, atol=1e-5)
-    assert np.array_equal(np.asarray(ei.count).reshape(3, N_SETS), (irr_w > 0).astype(np.uint32))
+    for side in (16, 6):          # irradiance per set, and at ddgi's 6x6 interior texels (the default)
+        irr, irr_w, irr_n, mom, mom_w, mom_n = integrate_sets(plan.info, L, d, 1.0, irr_side=side)
+        ei, ed = integrate_sets_dr(plan, Ldr, mi.Float(d), 1.0, irr_side=side)
+        T = side * side
+        vi = np.asarray(ei.value).reshape(3, 3 * T).T.reshape(3, T, 3)
+        vd = np.asarray(ed.value).reshape(2, 3 * N_SETS).T.reshape(3, N_SETS, 2)
+        assert np.allclose(vi, irr, rtol=2e-4, atol=1e-5)
+        assert np.allclose(vd, mom, rtol=2e-4, atol=1e-5)
+        assert np.array_equal(np.asarray(ei.count).reshape(3, T), (irr_w > 0).astype(np.uint32))
     # constant radiance: the self-normalised cosine mean is L in every set that received weight
     Lc = np.ones((R, 3), np.float32) * 0.7
     irr_c = integrate_sets(plan.info, Lc, np.abs(d), 1.0)[0]
@@ -367,10 +368,9 @@ def test_isddgi_update_does_less_work_than_ddgi_with_the_same_stages(backend):
     """Static Cornell box, 4^3 probes, defaults (``ddgi``: 256 rays per probe): both report the pipeline's
     stages (``trace probes``, ``shade probes``, ``blend``, ``states``: the stage table compares like with
     like), and on a steady frame isddgi traces fewer probe rays and its estimator does fewer ray x texel
-    products (Algorithm 3: 256 sets per ray, both lobes, vs ddgi's rays x its interior irradiance and
-    distance texels); on tunnel-gate it keeps no more probes active than ddgi (near-surface test). Counts,
-    not timings. (The merge still touches more texels: 2 x 18^2 per traced probe
-    vs ddgi's 8^2 + 16^2 per active one; issue 26's texel-count item.)"""
+    products (rays x interior irradiance and distance texels; isddgi stores ddgi's squares, so its merge
+    touches as many texels per probe); on tunnel-gate it keeps no more probes active than ddgi
+    (near-surface test). Counts, not timings."""
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique
     scene = load_scene("cornell-moving-box")
@@ -383,10 +383,10 @@ def test_isddgi_update_does_less_work_than_ddgi_with_the_same_stages(backend):
             r = tech.step(Frame(i, t, scene.camera(t), (16, 12), seed=0))
         stages[name] = set(r.stats["ms"]) - {"primary"}
         rays[name] = r.stats["rays"]["trace probes"]
-        vol = tech.volume
-        per_ray = (N_SETS if name == "isddgi" else
-                   (vol.irradiance_texels - 2) ** 2 + (vol.distance_texels - 2) ** 2)
-        products[name] = rays[name] * per_ray
+        vol = tech.volume       # both lobes over the interior texels; isddgi: ddgi's squares (issue 26)
+        products[name] = rays[name] * ((vol.irradiance_texels - 2) ** 2 + (vol.distance_texels - 2) ** 2)
+        if name == "isddgi":
+            assert (vol.irradiance_texels, vol.distance_texels) == (8, 16)
     assert stages["isddgi"] == stages["ddgi"] == {"trace probes", "shade probes", "blend", "states"}, stages
     assert 0 < rays["isddgi"] < 0.5 * rays["ddgi"], rays
     assert products["isddgi"] < 0.5 * products["ddgi"], products

@@ -1,11 +1,18 @@
 """IS-DDGI integration per direction set (Algorithm 3) and probe states (Algorithm 2) of Liu et al. 2023
 (supplement), on a ragged plan of :mod:`dyngi.techniques.isddgi.planner`.
 
-**Storage** (Algorithm 3; issue 13 item 1): irradiance and visibility are stored per direction set, i.e.
-the probe volume's irradiance and distance squares are ``18 x 18``: the 16x16 interior holds the 256 sets
-(set ``j`` = interior texel ``(j mod 16, j / 16)``) and the 1-texel octahedral border that
-:class:`~dyngi.probes.query.ProbeQuery`'s bilinear read needs (see :mod:`dyngi.sampling.octahedral`),
-so the standard query reads it unchanged.
+**Storage** (Algorithm 3; issues 13 item 1 and 26): irradiance and visibility (the distance moments) are
+stored at ``ddgi``'s sizes by default (``irradiance_texels = 8``, ``distance_texels = 16`` incl. the
+1-texel octahedral border that :class:`~dyngi.probes.query.ProbeQuery`'s bilinear read needs, see
+:mod:`dyngi.sampling.octahedral`: 6x6 and 14x14 interiors); each texel integrates all of the probe's rays
+exactly as a set would (Algorithm 3's integral with the texel's centre direction), and the 16x16 tile of
+sets is the unit of ray allocation only. ``18`` for either stores it per set (interior texel ``(j mod 16,
+j / 16)`` = set ``j``), Algorithm 3's ``irradiance_tex`` / ``visibility_tex`` read literally. Our reading:
+Table 1 lists every texture IS-DDGI adds to DDGI (allocation, hit information, directions, hit samples:
+~1 KB per probe plus 40 B per set) and no larger irradiance or visibility texture, and the lobes are
+broad next to a set (neighbouring sets' integrals differ little); per-set squares made the blend grow
+with texels x probes (the integration's lanes and the merge's per-texel steps) instead of with the rays
+(issue 26). Figures: docs/benchmarks.md.
 
 **Integration** (Algorithm 3, Sec. 4.2): every texel ``ds_ij`` integrates over *all* valid rays of its
 probe, as DDGI does: ``irr_ij = sum_r w_r <ds_ij, r>^+ L_r / sum_r w_r <ds_ij, r>^+`` with the per-ray
@@ -46,7 +53,7 @@ from ...probes.accumulator import BRIGHTNESS_DAMPING, CHANGE_HYSTERESIS_DROP, Hy
 from ...probes.blend import HysteresisBlend
 from ...probes.estimator import MIN_BLEND_WEIGHT, TexelEstimate, _int_power_dr
 from ...probes.volume import upload
-from .sets import N_SETS, set_directions
+from .sets import N_SETS
 
 MIN_BUCKET = 8
 CHUNK_ELEMENTS = 1 << 22        # probe x ray x texel elements per batched product (memory bound, ours)
@@ -69,15 +76,20 @@ def _power(c: np.ndarray, p: float) -> np.ndarray:
     return np.power(c, np.float32(p))
 
 
-def integrate_sets(info, radiance: np.ndarray, dist: np.ndarray, max_distance: float, power: float = 50.0):
+def integrate_sets(info, radiance: np.ndarray, dist: np.ndarray, max_distance: float, power: float = 50.0,
+                   irr_side: int = 16, dist_side: int = 16):
     """Per traced probe and set: irradiance sums/weights/counts and distance-moment sums/weights/counts.
 
     ``info`` an :class:`~dyngi.techniques.isddgi.planner.ISDDGIPlanInfo`; ``radiance`` (R, 3), ``dist`` (R,)
-    signed distances. Returns ``(irr (S,256,3) means, irr_w (S,256), irr_n (S,256), mom (S,256,2) means,
-    mom_w, mom_n)``; means are 0 where the weight is 0.
+    signed distances. Returns ``(irr (S,T,3) means, irr_w (S,T), irr_n (S,T), mom (S,256,2) means,
+    mom_w, mom_n)`` with ``T = irr_side^2`` irradiance texels (16: one per set); means are 0 where the
+    weight is 0.
     """
     S = len(info.total)
-    tdirs = set_directions().astype(np.float32)                   # (256, 3)
+    tdirs = texel_directions(dist_side).astype(np.float32)        # (TD, 3); 16: the sets
+    TD = len(tdirs)
+    tdirs_i = texel_directions(irr_side).astype(np.float32)       # (T, 3)
+    TI = len(tdirs_i)
     total = info.total.astype(np.int64)
     offsets = np.concatenate([[0], np.cumsum(total)])
     bucket = np.maximum(MIN_BUCKET, 1 << np.ceil(np.log2(np.maximum(total, 1))).astype(np.int64))
@@ -86,12 +98,12 @@ def integrate_sets(info, radiance: np.ndarray, dist: np.ndarray, max_distance: f
     d_abs = np.minimum(np.abs(dist), max_distance).astype(np.float32)
     front = (dist >= 0.0)
     L = np.asarray(radiance, np.float32)
-    irr = np.zeros((S, N_SETS, 3), np.float32)
-    irr_w = np.zeros((S, N_SETS), np.float32)
-    irr_n = np.zeros((S, N_SETS), np.int64)
-    mom = np.zeros((S, N_SETS, 2), np.float32)
-    mom_w = np.zeros((S, N_SETS), np.float32)
-    mom_n = np.zeros((S, N_SETS), np.int64)
+    irr = np.zeros((S, TI, 3), np.float32)
+    irr_w = np.zeros((S, TI), np.float32)
+    irr_n = np.zeros((S, TI), np.int64)
+    mom = np.zeros((S, TD, 2), np.float32)
+    mom_w = np.zeros((S, TD), np.float32)
+    mom_n = np.zeros((S, TD), np.int64)
     vals_d = np.stack([d_abs, d_abs * d_abs], -1)
     for B in np.unique(bucket[total > 0]):
         slots = np.flatnonzero((bucket == B) & (total > 0))
@@ -104,7 +116,8 @@ def integrate_sets(info, radiance: np.ndarray, dist: np.ndarray, max_distance: f
             w = np.where(valid, info.ray_weight[idx], 0.0).astype(np.float32)          # (s, B)
             cos = info.ray_dir[idx] @ tdirs.T                                           # (s, B, 256)
             cos = np.maximum(cos, 0.0)
-            wi = cos * (w * front[idx])[..., None]
+            cos_i = cos if irr_side == dist_side else np.maximum(info.ray_dir[idx] @ tdirs_i.T, 0.0)
+            wi = cos_i * (w * front[idx])[..., None]
             si = np.matmul(wi.transpose(0, 2, 1), L[idx])                               # (s, 256, 3)
             swi = wi.sum(1)
             irr_n[sl] = (wi > cut_i).sum(1)
@@ -120,10 +133,6 @@ def integrate_sets(info, radiance: np.ndarray, dist: np.ndarray, max_distance: f
     return irr, irr_w, irr_n, mom, mom_w, mom_n
 
 
-def _texel_dirs_dr():
-    return mi.Vector3f(*[mi.Float(np.ascontiguousarray(set_directions()[:, c], np.float32)) for c in range(3)])
-
-
 def _planar(channels, n: int):
     """Channel-planar flat Float (channel ``c`` of entry ``e`` at ``c * n + e``): one plain scatter per
     channel into one array, all in one kernel with the channels' own computation (an earlier gather/select
@@ -136,33 +145,42 @@ def _planar(channels, n: int):
     return out
 
 
-def antipodal_sets() -> np.ndarray:
-    """(256,) int64: the set whose centre direction is the opposite of set ``j``'s (an involution without
-    fixed points on the 16x16 octahedral grid: the octahedral fold maps texel centres to texel centres)."""
+def texel_directions(side: int = 16) -> np.ndarray:
+    """(side^2, 3) centre directions of a ``side x side`` octahedral tile (row-major; ``side`` 16: the sets,
+    :func:`~.sets.set_directions`)."""
+    from ...sampling.octahedral import oct_decode_np
+    c = (np.arange(side) + 0.5) / side * 2.0 - 1.0
+    py, px = np.meshgrid(c, c, indexing="ij")
+    return oct_decode_np(np.stack([px, py], -1)).reshape(-1, 3)
+
+
+def antipodal_sets(side: int = 16) -> np.ndarray:
+    """(side^2,) int64: the texel whose centre direction is the opposite of texel ``j``'s (an involution
+    without fixed points on an even octahedral grid: the octahedral fold maps texel centres to texel
+    centres); ``side`` 16: the sets."""
     from ...sampling.octahedral import oct_encode_np
-    p = (oct_encode_np(-set_directions()) * 0.5 + 0.5) * 16 - 0.5
-    return np.round(p[:, 1]).astype(np.int64) * 16 + np.round(p[:, 0]).astype(np.int64)
+    p = (oct_encode_np(-texel_directions(side)) * 0.5 + 0.5) * side - 0.5
+    return np.round(p[:, 1]).astype(np.int64) * side + np.round(p[:, 0]).astype(np.int64)
 
 
-def integrate_sets_dr(plan, radiance, dist, max_distance: float, power: float = 50.0):
-    """Dr.Jit version of :func:`integrate_sets` on the device arrays of ``plan`` (direction, weight) and the
-    traced ``radiance`` (Color3f) / ``dist`` (Float): returns (irradiance, distance) :class:`TexelEstimate`.
-
-    One lane per probe and *pair of antipodal sets* (ours, exact): a ray's cosine to set ``j'`` opposite
-    ``j`` is ``-cos_j``, so one loop iteration (the ray's gathers, its cosine and its ``|cos|^power``)
-    feeds both: the positive lobe to ``j``, the negative to ``j'`` -- half the lanes of one lane per set
-    (measured: integration ~2x faster on 2048 probes x ~30 rays)."""
+def _antipodal_sums(plan, radiance, dist, side: int, irradiance: bool, distance: bool, max_distance: float,
+                    power: float) -> dict:
+    """Per (slot, texel) of a ``side x side`` tile: the cosine-lobe sums (``e`` Color3f, ``we``) if
+    ``irradiance`` and the cosine-power moment sums (``m1``, ``m2``, ``wd``) if ``distance``, one lane per
+    (slot, pair of antipodal texels) looping over the slot's rays (see :func:`integrate_sets_dr`)."""
     S = len(plan.probe_ids)
-    n = S * N_SETS
-    half = N_SETS // 2
-    anti = antipodal_sets()
-    first = np.flatnonzero(np.arange(N_SETS) < anti)            # 128 sets, their antipodes the other 128
+    T = side * side
+    half = T // 2
+    anti = antipodal_sets(side)
+    first = np.flatnonzero(np.arange(T) < anti)                 # half the texels, their antipodes the others
     offsets = upload(np.asarray(plan.offsets, np.uint32), mi.UInt32)
     k = dr.arange(mi.UInt32, S * half)
     slot = k // half
     t = k - slot * half
+    tdirs = texel_directions(side)
+    tdirs_dr = mi.Vector3f(*[mi.Float(np.ascontiguousarray(tdirs[:, c], np.float32)) for c in range(3)])
     ta = dr.gather(mi.UInt32, upload(first.astype(np.uint32), mi.UInt32), t)
-    nt = dr.gather(mi.Vector3f, _texel_dirs_dr(), ta)
+    nt = dr.gather(mi.Vector3f, tdirs_dr, ta)
     r0 = dr.gather(mi.UInt32, offsets, slot)
     r1 = dr.gather(mi.UInt32, offsets, slot + 1)
     dmax = dr.opaque(mi.Float, max_distance)
@@ -170,57 +188,85 @@ def integrate_sets_dr(plan, radiance, dist, max_distance: float, power: float = 
     weight = plan.weight if plan.weight is not None else dr.full(mi.Float, 1.0, plan.n_rays)
     direction = plan.direction
 
-    def body(r, ea, wa, ma1, ma2, da, eb, wb, mb1, mb2, db):
+    def body(r, ea, wa, eb, wb, ma1, ma2, da, mb1, mb2, db):
         d = dr.gather(mi.Vector3f, direction, r)
         w = dr.gather(mi.Float, weight, r)
-        L = dr.gather(mi.Color3f, radiance, r)
         h = dr.gather(mi.Float, dist, r)
         c = dr.dot(d, nt)
         pos = c > 0.0
-        wf = dr.select(h >= 0.0, dr.abs(c) * w, 0.0)
-        wia = dr.select(pos, wf, 0.0)
-        wib = dr.select(pos, 0.0, wf)
-        ea = dr.fma(L, wia, ea)
-        wa += wia
-        eb = dr.fma(L, wib, eb)
-        wb += wib
-        a = dr.minimum(dr.abs(h), dmax)
         ac = dr.abs(c)
-        pw = dr.select(ac > cut, _int_power_dr(ac, power), 0.0) * w
-        pa = dr.select(pos, pw, 0.0)
-        pb = dr.select(pos, 0.0, pw)
-        ma1 = dr.fma(a, pa, ma1)
-        ma2 = dr.fma(a * a, pa, ma2)
-        da += pa
-        mb1 = dr.fma(a, pb, mb1)
-        mb2 = dr.fma(a * a, pb, mb2)
-        db += pb
-        return r + 1, ea, wa, ma1, ma2, da, eb, wb, mb1, mb2, db
+        if irradiance:
+            L = dr.gather(mi.Color3f, radiance, r)
+            wf = dr.select(h >= 0.0, ac * w, 0.0)
+            wia = dr.select(pos, wf, 0.0)
+            wib = dr.select(pos, 0.0, wf)
+            ea = dr.fma(L, wia, ea)
+            wa += wia
+            eb = dr.fma(L, wib, eb)
+            wb += wib
+        if distance:
+            a = dr.minimum(dr.abs(h), dmax)
+            pw = dr.select(ac > cut, _int_power_dr(ac, power), 0.0) * w
+            pa = dr.select(pos, pw, 0.0)
+            pb = dr.select(pos, 0.0, pw)
+            ma1 = dr.fma(a, pa, ma1)
+            ma2 = dr.fma(a * a, pa, ma2)
+            da += pa
+            mb1 = dr.fma(a, pb, mb1)
+            mb2 = dr.fma(a * a, pb, mb2)
+            db += pb
+        return r + 1, ea, wa, eb, wb, ma1, ma2, da, mb1, mb2, db
 
-    state = (mi.UInt32(r0), mi.Color3f(0.0), *[mi.Float(0.0) for _ in range(4)], mi.Color3f(0.0),
-             *[mi.Float(0.0) for _ in range(4)])
+    z = [mi.Float(0.0) for _ in range(8)]
+    state = (mi.UInt32(r0), mi.Color3f(0.0), z[0], mi.Color3f(0.0), z[1], *z[2:])
     out = dr.while_loop(state, lambda r, *a: r < r1, body,
-                        labels=("r", "ea", "wa", "ma1", "ma2", "da", "eb", "wb", "mb1", "mb2", "db"))
-    _, ea, wa, ma1, ma2, da, eb, wb, mb1, mb2, db = out
-    dr.eval(ea, wa, ma1, ma2, da, eb, wb, mb1, mb2, db)   # once: the gathers below would re-run the loop
-    # -- back to one entry per (slot, set): set j is lane (slot, pos[j]) side a, or its antipode's side b --
-    side_a = np.zeros(N_SETS, bool)
+                        labels=("r", "ea", "wa", "eb", "wb", "ma1", "ma2", "da", "mb1", "mb2", "db"))
+    _, ea, wa, eb, wb, ma1, ma2, da, mb1, mb2, db = out
+    keep = ([ea, wa, eb, wb] if irradiance else []) + ([ma1, ma2, da, mb1, mb2, db] if distance else [])
+    dr.eval(*keep)         # once: the gathers below would re-run the loop
+    # -- back to one entry per (slot, texel): texel j is lane (slot, pos[j]) side a, or its antipode's side b --
+    side_a = np.zeros(T, bool)
     side_a[first] = True
-    lane_of = np.zeros(N_SETS, np.int64)
+    lane_of = np.zeros(T, np.int64)
     lane_of[first] = np.arange(half)
     lane_of[anti[first]] = np.arange(half)
-    kk = dr.arange(mi.UInt32, n)
-    sl = kk // N_SETS
-    j = kk - sl * N_SETS
+    kk = dr.arange(mi.UInt32, S * T)
+    sl = kk // T
+    j = kk - sl * T
     lane = sl * half + dr.gather(mi.UInt32, upload(lane_of.astype(np.uint32), mi.UInt32), j)
     isa = dr.gather(mi.Bool, upload(side_a.astype(np.uint32), mi.UInt32) != 0, j)
 
     def pick(va, vb):
         return dr.select(isa, dr.gather(type(va), va, lane), dr.gather(type(vb), vb, lane))
 
-    e, we = pick(ea, eb), pick(wa, wb)
-    m1, m2, wd = pick(ma1, mb1), pick(ma2, mb2), pick(da, db)
-    dr.eval(e, we, m1, m2, wd)
+    res = {}
+    if irradiance:
+        res["e"], res["we"] = pick(ea, eb), pick(wa, wb)
+    if distance:
+        res["m1"], res["m2"], res["wd"] = pick(ma1, mb1), pick(ma2, mb2), pick(da, db)
+    dr.eval(*res.values())
+    return res
+
+
+def integrate_sets_dr(plan, radiance, dist, max_distance: float, power: float = 50.0, irr_side: int = 16,
+                      dist_side: int = 16):
+    """Dr.Jit version of :func:`integrate_sets` on the device arrays of ``plan`` (direction, weight) and the
+    traced ``radiance`` (Color3f) / ``dist`` (Float): returns (irradiance, distance) :class:`TexelEstimate`,
+    the distance moments per set (16 x 16), the irradiance per texel of an ``irr_side x irr_side`` tile (16:
+    per set, in the same loop; DDGI's 6: a second, 7x smaller loop, see :class:`SetBlend`).
+
+    One lane per probe and *pair of antipodal texels* (ours, exact): a ray's cosine to texel ``j'`` opposite
+    ``j`` is ``-cos_j``, so one loop iteration (the ray's gathers, its cosine and its ``|cos|^power``)
+    feeds both: the positive lobe to ``j``, the negative to ``j'`` -- half the lanes of one lane per texel
+    (measured: integration ~2x faster on 2048 probes x ~30 rays)."""
+    n = len(plan.probe_ids) * dist_side * dist_side
+    if irr_side == dist_side:
+        sums = _antipodal_sums(plan, radiance, dist, dist_side, True, True, max_distance, power)
+    else:
+        sums = _antipodal_sums(plan, radiance, dist, dist_side, False, True, max_distance, power)
+        sums.update(_antipodal_sums(plan, radiance, dist, irr_side, True, False, max_distance, power))
+    ni = len(plan.probe_ids) * irr_side * irr_side
+    e, we, m1, m2, wd = sums["e"], sums["we"], sums["m1"], sums["m2"], sums["wd"]
     oki, okd = we > 0.0, wd > 0.0
     # counts: 1 per texel that received weight (the accumulator only caps them; per-ray counts would
     # cost two more loop variables, measured ~3x slower)
@@ -228,9 +274,9 @@ def integrate_sets_dr(plan, radiance, dist, max_distance: float, power: float = 
     z = mi.Float(0.0)
     inv_i = dr.select(oki, dr.rcp(we), z)
     inv_d = dr.select(okd, dr.rcp(wd), z)
-    flat_i = _planar([e[0] * inv_i, e[1] * inv_i, e[2] * inv_i], n)
+    flat_i = _planar([e[0] * inv_i, e[1] * inv_i, e[2] * inv_i], ni)
     flat_d = _planar([m1 * inv_d, m2 * inv_d], n)
-    est_i = TexelEstimate(flat_i, ne, oki, n, 3, per_texel=False, weight=we)
+    est_i = TexelEstimate(flat_i, ne, oki, ni, 3, per_texel=False, weight=we)
     est_d = TexelEstimate(flat_d, nd, okd, n, 2, per_texel=False, weight=wd)
     dr.eval(flat_i, ne, oki, we, flat_d, nd, okd, wd)
     return est_i, est_d
@@ -284,7 +330,8 @@ class SetBlend(HysteresisBlend):
         """(irradiance, distance) :class:`~dyngi.probes.estimator.TexelEstimate` of a ragged IS-DDGI plan."""
         self.last_estimator = "sets"
         return integrate_sets_dr(results.plan, results.radiance, results.distance, volume.max_distance,
-                                 self.distance_power)
+                                 self.distance_power, irr_side=volume.irradiance_texels - 2,
+                                 dist_side=volume.distance_texels - 2)
 
 
 def to_texel_estimate(means: np.ndarray, weight: np.ndarray, count: np.ndarray) -> TexelEstimate:

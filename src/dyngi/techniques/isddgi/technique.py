@@ -1,8 +1,9 @@
 """IS-DDGI -- importance-based ray allocation per probe direction set (Liu, Huang, Rocha, Malmros, Zhang,
 "Importance-Based Ray Strategies for Dynamic Diffuse Global Illumination", I3D 2023; supplement).
 
-DDGI's probe volume with 256 direction sets per probe (a 16x16 octahedral tile, stored per set with a
-1-texel border: 18x18 irradiance and visibility squares) and, per frame, ``x_i`` uniform rays per probe
+DDGI's probe volume with 256 direction sets per probe (a 16x16 octahedral tile, the unit of ray allocation;
+irradiance and visibility stored at ``ddgi``'s 8x8 and 16x16 squares incl. border, see :mod:`.estimator`)
+and, per frame, ``x_i`` uniform rays per probe
 (rotating cells, random per-probe shift, adaptive ``x_i``) plus importance rays allocated to the
 (probe, set) pairs whose hits changed (balance-heuristic mixture, Secs. 4.3-4.4). Planner, change
 measure (paired visits) and adaptive rule: :mod:`.planner`; integration (Algorithm 3)
@@ -15,6 +16,8 @@ query and primary shading are ``ddgi``'s (:mod:`dyngi.techniques.probe_base`).
 Parameters (besides ``ddgi``'s common ones: probe_counts, biases, direct, jitter, ...)
 ----------
 x_init, x_min, x_max : int = 32, 8, 32     uniform rays per probe (powers of two <= 256; supplement's example 32)
+irradiance_texels : int = 8     irradiance square per probe incl. border: 8 (``ddgi``'s; ours) or 18 (per set)
+distance_texels : int = 16      distance square per probe incl. border: 16 (``ddgi``'s; ours) or 18 (per set)
 hold_frames : int = 16          frames a probe keeps its uniform count (ours)
 importance_rays : float = 16    importance rays per frame, per active probe (ours)
 variant : str = 'multi-rays'    'multi-rays' (<= 4 rays per set) | 'one-ray' (Table 1)
@@ -83,7 +86,6 @@ from .planner import SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
 from .shading import KeyedHitShader
 
 UPDATE_STAGES = ("trace probes", "shade probes", "blend", "states")     # ddgi's (the pipeline's) stages
-TEXELS = SETS_PER_SIDE + 2      # 16x16 sets + the 1-texel border the bilinear query reads
 
 
 def _pow2(name, default, doc):
@@ -115,6 +117,10 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         "hit_lookup": Param("stochastic", "how probe-ray hits read the previous probes", choices=HIT_LOOKUPS),
         "relocate": Param(True, "move probes out of geometry (Majercik et al. 2021)"),
         "classify": Param(True, "probe states by Algorithm 2"),
+        "irradiance_texels": Param(8, "irradiance texels per side incl. the border: 8 as ddgi (default; ours, see "
+                                   "the estimator), 18 one per direction set", choices=(8, 18)),
+        "distance_texels": Param(16, "distance texels per side incl. the border: 16 as ddgi (default; ours, see "
+                                 "the estimator), 18 one per direction set", choices=(16, 18)),
         "near_surface": Param(True, "Algorithm 2 and DDGI's near-surface test: a probe with no front-face hit in "
                               "its cell neighbourhood for a rotation of its uniform rays is OFF (ours)"),
         "backface_threshold": Param(BACKFACE_THRESHOLD, "back-face ratio at or above which a probe is OFF (ours)",
@@ -125,7 +131,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
         p = self.params
-        self._setup_volume(TEXELS, TEXELS)
+        self._setup_volume(p["irradiance_texels"], p["distance_texels"])
         self.planner = ISDDGIPlanner(self.volume.n_probes, p["x_init"], p["x_min"], p["x_max"], p["hold_frames"],
                                      p["importance_rays"], p["variant"], p["eps"], p["dynamic_threshold"],
                                      p["decay"], self.volume.max_distance)
