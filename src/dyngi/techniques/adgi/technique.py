@@ -248,6 +248,10 @@ class ADGITechnique(_ProbeTechniqueBase):
         "classify": Param(True, "deactivate probes inside geometry or far from surfaces (as relocate)"),
         "cull_unused": Param(True, "Sec. 4.9: the static and dynamic stages skip probes that no pixel's probe "
                              "cage used on the previous frame's primary pass"),
+        "cache_update": Param("convolve", "how a radiance sample updates the irradiance texels: 'convolve' (the "
+                              "radiance layer, convolved each frame) or 'closest-entry' (Algorithm 2 literally: the "
+                              "irradiance texel the sample falls in, Algorithm 3 in the encoded word; biased)",
+                              choices=("convolve", "closest-entry")),
         "change_cap": Param(True, "static samples in octants with f_d > 0 merge into the radiance texels with "
                             "the dynamic N_max (ours)"),
         "dynamic_share": Param(0.5, "share of an equal-ray/equal-time budget (after primary and pilot rays) "
@@ -275,6 +279,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         self.acc_dynamic = Algorithm3Accumulator(p["n_max_dynamic"])
         self._mean = MeanAccumulator()
         self.est_dist = ScatterEstimator(p["distance_power"], "bin")
+        self.est_irr = ScatterEstimator(p["distance_power"], "bin")     # closest-entry: one texel per sample
         self.heur = ADGIHeuristics(g, p["camera_threshold"] or None, p["beta"], p["mu"], p["theta"])
         self.hstate = self.heur.initial_state()
         # -- the planner: static chains over probe cells, dynamic ones over 3x3x3 proxies (grid units) --
@@ -521,18 +526,38 @@ class ADGITechnique(_ProbeTechniqueBase):
         both with Algorithm 3's batch rule; the probes are convolved to irradiance at the end of the frame."""
         vol = self.volume
         plan = irr_res.plan
-        self.radiance.merge(irr_res, n_max, lane_cap)
+        if self.params["cache_update"] == "closest-entry":
+            self._merge_closest(irr_res, acc, lane_cap)
+        else:
+            self.radiance.merge(irr_res, n_max, lane_cap)
         est_d = self.est_dist.distance(vol, dist_res if dist_res is not None else irr_res)
         if plan.weight is not None:      # the static plan's weight is a multiplicity: m samples of one ray
             est_d = dataclasses.replace(est_d, count=mi.UInt32(dr.round(est_d.weight)))
         self.pipeline.merge(None, est_d, plan.probe_ids, plan.counts, accumulator=acc, encoding=self.encoding)
         self._updated[plan.probe_ids[plan.counts > 0]] = True
 
+    def _merge_closest(self, res, acc, lane_cap=None) -> None:
+        """``cache_update='closest-entry'``: each sample's radiance updates the irradiance texel its direction
+        falls in (Algorithm 2's closest entry) with Algorithm 3's batch form through the encoding (the word
+        stores the texel's mean radiance, not a cosine integral: biased where radiance varies over the
+        hemisphere); with ``lane_cap`` the samples of changed octants merge with the dynamic N_max."""
+        plan = res.plan
+        w = mi.Float(1.0) + dr.zeros(mi.Float, plan.n_rays) if plan.weight is None else plan.weight
+        parts = [(w, acc)]
+        if lane_cap is not None:
+            changed = lane_cap < int(self.params["n_max_static"])
+            parts = [(dr.select(changed, 0.0, w), acc), (dr.select(changed, w, 0.0), self.acc_dynamic)]
+        for wp, a in parts:
+            sub = ProbeRayResults(res.radiance, res.distance, dataclasses.replace(plan, weight=wp))
+            est = self.est_irr.irradiance(self.volume, sub)
+            est = dataclasses.replace(est, count=mi.UInt32(dr.round(est.weight)))
+            self.pipeline.merge(est, None, plan.probe_ids, plan.counts, accumulator=a, encoding=self.encoding)
+
     def _convolve_updated(self) -> int:
         """The per-texel convolution pass (:mod:`.radiance`) for the probes updated this frame."""
         ids = np.flatnonzero(self._updated).astype(np.uint32)
         self._updated[:] = False
-        if len(ids):
+        if len(ids) and self.params["cache_update"] == "convolve":
             est = self.radiance.irradiance_estimate(ids)
             self.pipeline.merge(est, None, ids, accumulator=self._mean, encoding=self.encoding)
         return len(ids)
