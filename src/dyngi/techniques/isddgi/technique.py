@@ -78,7 +78,7 @@ from ...probes import ProbeStates
 from ...probes.grid import PROBE_ACTIVE, PROBE_INACTIVE
 from ...probes.params import DDGI_SPECS
 from ...probes.pipeline import ProbePipeline
-from ...probes.trace import HIT_LOOKUPS
+from ...probes.trace import HIT_LOOKUPS, vector_to_numpy
 from ..base import Frame, FrameResult, Param, StageTimer, register
 from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase, params_from
 from .estimator import BACKFACE_THRESHOLD, SetBlend, near_surface_hits, near_window, probe_states_alg2
@@ -188,7 +188,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
                 on = probe_states_alg2(plan.info, d, p["backface_threshold"])
                 pid = plan.probe_ids.astype(np.int64)
                 if p["near_surface"]:       # DDGI's near-surface test over a rotation window (estimator)
-                    near = near_surface_hits(vol, pid, plan.info.ray_slot, plan.info.ray_dir, d)
+                    near = near_surface_hits(vol, pid, plan.info.ray_slot, vector_to_numpy(plan.direction).T, d)
                     age = np.where(near, 0, np.minimum(self._near_age[pid].astype(np.int64) + 1, 255))
                     self._near_age[pid] = age.astype(np.uint8)
                     x = plan.info.total if warm else self.planner.state.x[pid]
