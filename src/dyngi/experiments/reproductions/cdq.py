@@ -3,8 +3,9 @@
 Three parts, each beside the paper's statements (issue 18 item 6):
 
 (a) **Fig. 8 (b)** on ``sky-pit-sun-disc`` (sun disc and sky in the environment, left out of NEE as
-    in Quake 2 RTX) and ``sky-pit-sun-disc-2deg`` (a 2-degree sun: at our ~500 samples per octree
-    leaf the 0.5-degree sun is hit ~0.01 times per leaf and frame, so it is barely learnt):
+    in Quake 2 RTX) and ``sky-pit-sun-disc-2deg`` (a 2-degree sun, 16x the solid angle: even at the
+    paper's samples per leaf a leaf finds the 0.5-degree sun a few times per hundred frames, and the
+    migration, which sees the last frame only, undoes a refinement without a new hit, so few leaves keep it):
     ``nee-pt:directions=cdq`` against ``nee-pt:directions=bsdf`` (``lights=vlc``,
     irrelevant here: the scene has no triangle lights). The scene is held at t = 0 (the sun stands
     still) for all frames; after ``warmup`` frames of adaptation, MSE at 1 spp against Mitsuba's
