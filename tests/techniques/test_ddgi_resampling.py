@@ -7,7 +7,9 @@
   same indirect light as the unpartitioned BSDF estimate (G_max = 0) and as resampling alone
   (G_max = 1e9), frozen probes, z-test on the per-frame image means;
 * the exact-radiance hook: ddgi-resampling with the probes replaced by path-traced radiance agrees with
-  Mitsuba's ``path`` (region and image-mean t-tests; a fast image-mean version and a slow one);
+  Mitsuba's ``path`` with the unbiased options, and the defaults' bias (Alg. 5 visibility reuse,
+  approximate supports of reused probe samples) stays bounded (region and image-mean t-tests; a fast
+  image-mean version and a slow one);
 * the leak on the thin-walled room (issue item 7) stays small (issue 22), when that scene exists.
 """
 from __future__ import annotations
@@ -102,7 +104,7 @@ def _indirect_means(scene, frames, seed, **params):
 def test_gmax_partition_sums_to_the_unpartitioned_estimate(backend):
     """Eq. 9 on cornell-static with frozen probes (hysteresis 1 after the warm-up), independent frames
     (no temporal reuse, no accumulation): the indirect image's mean and quadrant means with the partition
-    (G_max = 1/s^2) agree with the BSDF-only estimate (G_max = 0) and with resampling only (G_max = 1e9)
+    (the default constant G_max = 1) agree with the BSDF-only estimate (G_max = 0) and with resampling only (G_max = 1e9)
     -- Welch t-tests, Bonferroni over 2 x 5 statistics at alpha = 0.01. The same seed gives the same
     probes, so only the estimator differs."""
     scene = load_scene("cornell-static")
@@ -133,12 +135,18 @@ def _mitsuba(scene, spp, k, max_depth):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("reuse_visibility", [False, True])
-def test_exact_radiance_hook_converges_to_the_reference(backend, reuse_visibility):
+@pytest.mark.parametrize("mode", ["unbiased", "default"])
+def test_exact_radiance_hook_converges_to_the_reference(backend, mode):
     """ddgi-resampling with ``exact_radiance`` (S(x) path-traced, max depth D - 1 from the secondary
-    vertex) is unbiased: K independent accumulated runs (temporal and spatial reuse on) vs K Mitsuba
-    ``path`` renders of depth D agree on the mean of 6 image regions (3 x 2) and of all pixels that do
-    not see the light (Welch t-tests, Bonferroni over 7 at alpha = 0.01).
+    vertex): K independent accumulated runs (temporal and spatial reuse on) vs K Mitsuba ``path`` renders
+    of depth D, compared on the mean of 6 image regions (3 x 2) and of all pixels that do not see the
+    light (Welch t-tests, Bonferroni over 7 at alpha = 0.01).
+
+    ``unbiased``: shadow rays for reused probe samples (``reuse_visibility``) and no visibility in the
+    reservoirs (``visibility_reuse='none'``): every statistic must agree. ``default``: Alg. 5's visibility
+    reuse and approximate supports of reused probe samples are biased but bounded (the paper trades bias
+    for noise): a statistic may differ significantly only by under 15 % (measured: the floor's region
+    beside the tall box -8.6 %, p 3e-5; image mean +1.2 %), and the image mean by under 5 %.
 
     Not per pixel: the per-pixel run means are right-skewed (measured 2026-12-02, 10 runs x 24 frames:
     median skewness 0.46 vs 0.04 for Mitsuba's; the median per-pixel difference -2 % while the mean
@@ -146,10 +154,11 @@ def test_exact_radiance_hook_converges_to_the_reference(backend, reuse_visibilit
     28 of 432 pixels (expected <= 10) although the region means agree (p 0.33-0.60)."""
     scene = load_scene("cornell-static")
     D, K, frames = 5, 10, 24
+    extra = {"reuse_visibility": True, "visibility_reuse": "none"} if mode == "unbiased" else {}
     a = []
     for k in range(K):
         tech = create_technique("ddgi-resampling", scene, {**PROBES, "exact_radiance": True, "exact_depth": D - 1,
-                                                           "reuse_visibility": reuse_visibility})
+                                                           **extra})
         a.append(luminance(_run(tech, scene, frames, seed=300 + k)[-1].image))
     a = np.stack(a)
     b = np.stack([luminance(_mitsuba(scene, 16 * frames, k, D)) for k in range(K)])
@@ -165,7 +174,13 @@ def test_exact_radiance_hook_converges_to_the_reference(backend, reuse_visibilit
     stats_b.append(b[:, unlit].mean(1))
     for sa, sb in zip(stats_a, stats_b):
         p = sst.ttest_ind(sa, sb, equal_var=False).pvalue
-        assert p > 0.01 / len(stats_a), (sa.mean(), sb.mean(), p)
+        rel = sa.mean() / sb.mean() - 1.0
+        if mode == "unbiased":
+            assert p > 0.01 / len(stats_a), (sa.mean(), sb.mean(), p)
+        else:
+            assert p > 0.01 / len(stats_a) or abs(rel) < 0.15, (sa.mean(), sb.mean(), p)
+    if mode == "default":
+        assert abs(a.mean() / b.mean() - 1.0) < 0.05, (a.mean(), b.mean())
 
 
 @pytest.mark.slow   # CI budget: seconds on a cold cache; runs in CI's slow subset
