@@ -49,6 +49,7 @@ CASES = {
     "bsdf-roughplastic": ("bsdf", {"type": "roughplastic", "alpha": 0.2}),
     "cdq-mixture-diffuse-standin": ("cdq", None),
     "cdq-mixture-roughconductor": ("cdq", {"type": "roughconductor", "alpha": 0.3}),
+    "cdq-mixture-0.8-roughplastic": ("cdq", {"type": "roughplastic", "alpha": 0.2}, 0.8),   # nee-pt cdq_fraction
 }
 
 
@@ -56,8 +57,10 @@ CASES = {
 def test_directions_follow_their_pdf_chi2(backend, case):
     from mitsuba.chi2 import ChiSquareTest, SphericalDomain
     from dyngi import directions
-    name, material = CASES[case]
-    ds = directions.make(name, guide=_learned_cdq() if name == "cdq" else None)
+    name, material, *frac = CASES[case]
+    opts = {"fraction": frac[0]} if frac else {}
+    f = frac[0] if frac else 0.5
+    ds = directions.make(name, guide=_learned_cdq() if name == "cdq" else None, **opts)
     v = _vertex(material)
 
     def sample(s):
@@ -68,7 +71,7 @@ def test_directions_follow_their_pdf_chi2(backend, case):
         vv.active = mi.Bool(True)
         if vv.albedo is not None:
             vv.albedo = mi.Color3f(0.5)
-        u1 = dr.select(s.x < 0.5, 2.0 * s.x, 2.0 * s.x - 1.0)    # independent of the component choice
+        u1 = dr.select(s.x < f, s.x / f, (s.x - f) / (1.0 - f))    # independent of the component choice
         d = ds.sample(vv, s.x, u1, mi.Point2f(s.y, s.z), mi.Bool(True))
         return d.wo, dr.select(d.ok, mi.Float(1.0), mi.Float(0.0))      # failed samples carry no mass
 

@@ -72,8 +72,8 @@ def names() -> tuple:
     return tuple(sorted(REGISTRY))
 
 
-def make(name: str, guide=None):
-    """Direction sampler ``name``; unknown names raise."""
+def make(name: str, guide=None, **opts):
+    """Direction sampler ``name`` built with ``opts`` (e.g. the mixture's ``fraction``); unknown names raise."""
     if name not in names():
         raise DyngiError(f"unknown direction sampler '{name}'; valid values: {', '.join(names())}")
-    return REGISTRY[name][0](guide=guide)
+    return REGISTRY[name][0](guide=guide, **opts)

@@ -349,6 +349,9 @@ class NeePT(Technique):
         "merge_neighbours": Param(True, "VLC: merge the face neighbours' caches (Sec. 4.1)"),
         "cdq_bits": Param(128, "CDQ bit count (directions=cdq)", choices=(32, 64, 96, 128)),
         "cdq_stability": Param(0.1, "CDQ migration stability factor (Sec. 5.1)", min=1e-3, max=1.0),
+        "cdq_fraction": Param(0.5, "probability of drawing an indirect direction from the CDQ in the one-sample "
+                              "MIS mixture with the BSDF (directions=cdq; 0.5: the paper's Sec. 7 'brdf fraction of 50%')",
+                              min=0.0, max=1.0),
         "cdq_memory": Param(0.0, "CDQ statistics memory per frame (0 = paper: last frame only)", min=0.0, max=0.99),
         "explorer": Param("global", "VLC exploration strategy: the paper's global alias table, or a light tree "
                           "(our extension)", choices=("global", "lighttree")),
@@ -416,7 +419,8 @@ class NeePT(Technique):
             from ..sampling.cdq import CDQDirections
             self.cdq = CDQDirections(self.octree, bits=p["cdq_bits"], stability=p["cdq_stability"],
                                      memory=p["cdq_memory"])
-        self.directions = direction_samplers.make(p["directions"], guide=self.cdq)
+        opts = {"fraction": float(p["cdq_fraction"])} if p["directions"] == "cdq" else {}
+        self.directions = direction_samplers.make(p["directions"], guide=self.cdq, **opts)
         self.selector = _make_selector(p["lights"], self.tris, self.scene.mi_scene, self.bounds, self.octree, p,
                                        self.scene.meta.dynamic_shapes)
         self._record_hits = p["record_hits"] and p["lights"] == "vlc"
