@@ -19,10 +19,11 @@ i.e. a probe ray records, at its hit ``y`` (shader :class:`PlusHitShader`):
 * ``L_DDGI+(y -> probe)`` from the previous update's probes (Eq. 6): diffuse
   ``rho / pi * E(y, n)`` plus the glossy term (one glossy BSDF sample,
   :mod:`dyngi.probes.glossy`). The emission of ``y`` itself is the first item.
-  The probes are read at ``q = y - d w``, moved back along the probe ray (Sec. 3.5's view-path
-  self-shadow offset, which replaces DDGI's normal/view offset: the path here is the probe ray),
-  ``d = min(update_view_path_bias x s_min, t / 2)`` with ``s_min`` the smallest probe spacing
-  (default 0.2, as the secondary-vertex shading; our choice).
+  With ``update_view_path_bias`` > 0 the probes are read at ``q = y - d w``, moved back along the probe
+  ray (Sec. 3.5's view-path self-shadow offset, which replaces DDGI's normal/view offset: the path here
+  is the probe ray), ``d = min(update_view_path_bias x s_min, t / 2)`` with ``s_min`` the smallest probe
+  spacing. Default 0: at ``y`` with the query's own offsets (none for the DDGI Resampling family), our
+  choice by measurement (:data:`DEFAULT_UPDATE_VIEW_PATH_BIAS`).
 
 The probes then converge to ``L_DDGI+ ~= T_f L`` (Sec. 3.3), the *total*
 irradiance (direct from emitters and sky + indirect), not DDGI's
@@ -95,9 +96,10 @@ MODES = ("plus", "ddgi")
 ATTENUATIONS = ("ratio", "inverse-square", "none")
 DEFAULT_ATTENUATION = "ratio"
 DEFAULT_EMISSION_SCALE = 1.0
-DEFAULT_UPDATE_VIEW_PATH_BIAS = 0.2
-"""Sec. 3.5's offset at probe-ray hits, in smallest probe spacings (DDGI's ``view_bias``, the factor the
-secondary-vertex shading uses too; our choice)."""
+DEFAULT_UPDATE_VIEW_PATH_BIAS = 0.0
+"""Sec. 3.5's offset at probe-ray hits, in smallest probe spacings; 0 (none) by default, our choice by
+measurement: 0.2 (the secondary-vertex shading's factor) over-lights the two-storey stair hall by 13 %
+against Mitsuba (0 by 3 %) and does not lower the per-frame error (docs/benchmarks.md, issue 27)."""
 ATTENUATION_CLIP = 1.0
 """The probe boundary of the emission heuristic: the box probe +- ATTENUATION_CLIP x spacing (module docstring)."""
 
@@ -243,7 +245,8 @@ def plus_params():
         "update_view_path_bias": Param(DEFAULT_UPDATE_VIEW_PATH_BIAS, "Sec. 3.5 at probe-ray hits: the previous "
                                        "probes are read this many smallest probe spacings back along the probe "
                                        "ray (at most half of it) instead of at the hit with DDGI's normal/view "
-                                       "offsets; 0: at the hit with the query's offsets", min=0.0, max=10.0),
+                                       "offsets; 0 (default, measured): at the hit with the query's offsets",
+                                       min=0.0, max=10.0),
     })
     return out
 
