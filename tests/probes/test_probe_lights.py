@@ -44,6 +44,24 @@ def _render(sc, cam, spec: str, params: dict, seed: int):
     return r.image, r.indirect
 
 
+MEAN_TEST = {"probe_counts": "4", "rays_per_probe": 32, "warmup": 2, "direct": "nee", "jitter": False,
+             "direct_samples": 32}
+"""``ddgi``'s settings of the mean test (and of the table in docs/benchmarks.md)."""
+
+
+def sampler_runs(scene: str, kinds, seeds, **params) -> dict:
+    """kind -> (images K x H x W x 3, indirect images) of ``ddgi`` with :data:`MEAN_TEST` (+ ``params``) and
+    ``lights=kind``, one fresh technique per seed, frame 0 at 32x18."""
+    sc = load_scene(scene)
+    sc.at(0.0)
+    cam = sc.camera(0.0)
+    out = {}
+    for k in kinds:
+        runs = [_render(sc, cam, "ddgi", {**MEAN_TEST, **params, "lights": k}, s) for s in seeds]
+        out[k] = (np.stack([r[0] for r in runs]), np.stack([r[1] for r in runs]))
+    return out
+
+
 @pytest.mark.slow
 def test_light_samplers_render_the_mean_of_the_default(backend):
     """maze (13 lights, area and point), ``ddgi`` with ``direct=nee`` (NEE covers every light, the probes
@@ -57,21 +75,12 @@ def test_light_samplers_render_the_mean_of_the_default(backend):
     gives another image (the sampler is in use) and ``ddgi`` hands the same sampler to its probe-ray shader."""
     from stats import z_test_images
 
-    sc = load_scene("maze")
-    sc.at(0.0)
-    cam = sc.camera(0.0)
-    base = {"probe_counts": "4", "rays_per_probe": 32, "warmup": 2, "direct": "nee", "jitter": False,
-            "direct_samples": 32}
-    t = create_technique("ddgi", sc, {**base, "lights": "power"})
+    t = create_technique("ddgi", load_scene("maze"), {**MEAN_TEST, "lights": "power"})
     assert t.light_nee is not None and t.shader.lights is t.light_nee
-    seeds = range(12)
-    runs = {k: [_render(sc, cam, "ddgi", {**base, "lights": k}, s) for s in seeds]
-            for k in ("scene", "power", "lighttree")}
-    ref_img = np.stack([r[0] for r in runs["scene"]])
-    ref_ind = np.stack([r[1] for r in runs["scene"]])
+    runs = sampler_runs("maze", ("scene", "power", "lighttree"), range(12))
+    ref_img, ref_ind = runs["scene"]
     for kind in ("power", "lighttree"):
-        img = np.stack([r[0] for r in runs[kind]])
-        ind = np.stack([r[1] for r in runs[kind]])
+        img, ind = runs[kind]
         ok, info = z_test_images(img, ref_img)
         assert ok, (kind, "image", info)
         _, info = z_test_images(ind, ref_ind)
@@ -112,3 +121,38 @@ def test_steady_frames_with_a_light_sampler_compile_nothing(backend, kind):
         t.step(Frame(f, f / 30.0, sc.camera(f / 30.0), (32, 18), seed=1))
 
     assert_steady_state_compiles_nothing(step, 7, 4, nonempty=True)
+
+
+def _table(seeds: int = 12) -> None:
+    """Prints the z-test table of docs/benchmarks.md ("lights= on the probe techniques"):
+    ``python tests/probes/test_probe_lights.py``."""
+    import time
+
+    from stats import luminance, z_test_images
+
+    for scene, params, kinds in (("maze", {}, ("power", "lighttree", "vlc", "sll", "uniform")),
+                                 ("glossy-floor", {"direct": "sun", "direct_samples": 8}, ("power", "lighttree"))):
+        t0 = time.time()
+        runs = sampler_runs(scene, ("scene",) + kinds, range(seeds), **params)
+        ref_img, ref_ind = runs["scene"]
+        print(f"{scene} {params or ''} ({seeds} seeds, {time.time() - t0:.0f} s)")
+        print("| sampler | image mean rel. diff | image p (Welch) | pixels rejected / max | min p / Sidak | "
+              "indirect mean rel. diff | indirect p | verdict |")
+        for k in kinds:
+            ok, a = z_test_images(runs[k][0], ref_img)
+            _, b = z_test_images(runs[k][1], ref_ind)
+            print(f"| {k} | {a['rel_mean_diff']:.4f} | {a['p_mean']:.2f} | {a['rejected']} / {a['max_rejected']} | "
+                  f"{a['min_p']:.1e} / {a['sidak_threshold']:.1e} | {b['rel_mean_diff']:.4f} | {b['p_mean']:.2f} | "
+                  f"{'pass' if ok and b['p_mean'] >= 0.01 else 'FAIL'} |")
+        print("mean luminance (scene):", float(luminance(ref_img).mean()), float(luminance(ref_ind).mean()))
+
+
+if __name__ == "__main__":
+    import os
+    import sys
+
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    from dyngi import backend as _b
+
+    _b.set_device("cpu")
+    _table()
