@@ -39,7 +39,7 @@ Warm-up (ours, as ``ddgi``'s): ``warmup`` updates on frame 0 with one ray in eve
 and no hysteresis; afterwards the change measure forgets their samples (the probes they read changed).
 
 Stages: ``ddgi``'s (the probe pipeline's), so that a stage table compares like with like: ``trace probes``,
-``shade probes``, ``blend``, ``states``. ``states`` holds relocation, Algorithm 2, the change measure *and
+``shade probes``, ``blend``, ``states``. ``states`` holds relocation, Algorithm 2 with the near-surface test, the change measure *and
 the allocation* (ours: the plan turns the per-probe allocation state -- Table 1's per-probe bytes -- into
 this frame's rays; ``ddgi``'s rotation of its direction set costs nothing comparable, so there is no
 ``plan`` stage that ``ddgi`` would lack); the stat ``plan_ms`` gives the allocation alone. The allocation
