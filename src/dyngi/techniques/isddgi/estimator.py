@@ -251,9 +251,10 @@ def _antipodal_sums(plan, radiance, dist, side: int, irradiance: bool, distance:
 def integrate_sets_dr(plan, radiance, dist, max_distance: float, power: float = 50.0, irr_side: int = 16,
                       dist_side: int = 16):
     """Dr.Jit version of :func:`integrate_sets` on the device arrays of ``plan`` (direction, weight) and the
-    traced ``radiance`` (Color3f) / ``dist`` (Float): returns (irradiance, distance) :class:`TexelEstimate`,
-    the distance moments per set (16 x 16), the irradiance per texel of an ``irr_side x irr_side`` tile (16:
-    per set, in the same loop; DDGI's 6: a second, 7x smaller loop, see :class:`SetBlend`).
+    traced ``radiance`` (Color3f) / ``dist`` (Float): returns (irradiance, distance) :class:`TexelEstimate`
+    per interior texel of an ``irr_side`` / ``dist_side`` square (16: one texel per set; ``ddgi``'s 6 / 14
+    are the technique's defaults, see the module docstring). Equal sides share one loop; otherwise one
+    loop per square.
 
     One lane per probe and *pair of antipodal texels* (ours, exact): a ray's cosine to texel ``j'`` opposite
     ``j`` is ``-cos_j``, so one loop iteration (the ray's gathers, its cosine and its ``|cos|^power``)
