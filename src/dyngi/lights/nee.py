@@ -126,8 +126,10 @@ class LightNEE:
                                  np.asarray(self.tris._counts, np.int64))
             if shape_of.size < 2:
                 shape_of = np.concatenate([shape_of, np.zeros(2 - shape_of.size, np.uint32)])
-            ptrs = mi.EmitterPtr(self._tri_emitters) if self._tri_emitters else mi.EmitterPtr([None, None])
-            self._light_emitters = dr.gather(mi.EmitterPtr, ptrs, mi.UInt32(shape_of))
+            if self._tri_emitters:
+                self._light_emitters = dr.gather(mi.EmitterPtr, mi.EmitterPtr(self._tri_emitters), mi.UInt32(shape_of))
+            else:
+                self._light_emitters = dr.zeros(mi.EmitterPtr, 2)
             dr.eval(self._light_emitters)
         return self._light_emitters
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from .. import lights as light_samplers
 from ..backend import dr
-from ..lights.nee import PRIMARY_NEE_STREAM, LightNEE, TracedNEE  # noqa: F401  (stream re-exported)
+from ..lights.nee import PRIMARY_NEE_STREAM, LightNEE, TracedNEE
 from ..probes.primary import shade_primary
 from ..vpl.emission import EMISSION_SAMPLERS
 from ..vpl.shading import MODES, VPLShader, clamp_value
