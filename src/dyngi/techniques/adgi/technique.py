@@ -273,7 +273,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         self._setup_volume(p["irradiance_texels"], p["distance_texels"])
         g = self.grid
         self.counts = tuple(int(c) for c in g.counts)
-        self.shader = PilotShader(p["direct"], lookup=p["hit_lookup"])
+        self.shader = PilotShader(p["direct"], lights=self.light_nee, lookup=p["hit_lookup"])
         self.encoding = get_encoding(p["encoding"])     # Table 3: visibility rounds to nearest
         self.acc_static = Algorithm3Accumulator(p["n_max_static"])
         self.acc_dynamic = Algorithm3Accumulator(p["n_max_dynamic"])
@@ -289,7 +289,8 @@ class ADGITechnique(_ProbeTechniqueBase):
         self.blender.encoding = self.encoding             # the warm-up stores through the same encoding
         # the pipeline: its own update is the warm-up's (ddgi's); the stages P, S, D call its trace and merge
         self.pipeline = ProbePipeline(self.volume, UniformSFDirections(p["warmup_rays"]),
-                                      DiffuseHitShader(p["direct"], lookup=p["hit_lookup"]), self.blender,
+                                      DiffuseHitShader(p["direct"], lights=self.light_nee,
+                                                       lookup=p["hit_lookup"]), self.blender,
                                       ProbeStates(p["relocate"], p["classify"]), self.query, reclassify_interval=0)
         self.updater = self.pipeline       # (older name)
         self._warmed = False
@@ -338,6 +339,7 @@ class ADGITechnique(_ProbeTechniqueBase):
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
+        self._lights_begin(frame, t)        # lights=: the sampler's per-frame hook before the first probe ray
         if not self._warmed:
             self._warmed = True
             self.pipeline.warm_up(self.scene, p["warmup"], frame.seed, None, t)
