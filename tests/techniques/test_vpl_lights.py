@@ -107,7 +107,7 @@ def test_radiosity_through_a_light_sampler_has_the_same_mean(backend):
 @pytest.mark.slow
 def test_direct_light_through_a_light_sampler_has_the_same_mean(backend):
     """maze at 32x18 (13 lights, area and point), ``ir`` with one VPL budget: the direct light at the camera's
-    hit (image - indirect) through ``lights=power`` (:class:`~dyngi.techniques.vpl_base.PrimaryNEE`, the
+    hit (image - indirect) through ``lights=power`` (:class:`~dyngi.lights.nee.TracedNEE`, the
     light sampler's NEE) against Mitsuba's emitter sampling (``lights=scene``), 16 seeds each of 16 NEE
     samples per pixel: per-pixel two-sample z-test (|z| < 4.5, about Sidak's bound for 1728
     pixel-channels at alpha 0.01) and the image means (|z| < 4; a sampler whose weights were 10 % high gave
