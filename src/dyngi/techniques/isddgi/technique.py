@@ -135,7 +135,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         self.planner = ISDDGIPlanner(self.volume.n_probes, p["x_init"], p["x_min"], p["x_max"], p["hold_frames"],
                                      p["importance_rays"], p["variant"], p["eps"], p["dynamic_threshold"],
                                      p["decay"], self.volume.max_distance)
-        self.shader = KeyedHitShader(p["direct"], lookup=p["hit_lookup"])
+        self.shader = KeyedHitShader(p["direct"], lights=self.light_nee, lookup=p["hit_lookup"])
         self.blender = SetBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
                                 p["change_threshold"], float("inf"), "fp32", "scatter")
         self.relocator = ProbeStates(relocate=True, classify=False) if p["relocate"] else None
@@ -242,6 +242,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
 
     def step(self, frame: Frame) -> FrameResult:
         t = StageTimer()
+        self._lights_begin(frame, t)        # lights=: the sampler's per-frame hook before the first probe ray
         if not self._warmed:
             self._warm_up(frame, t)
         info = self.update(frame.index, frame.seed, t, frame=frame)
