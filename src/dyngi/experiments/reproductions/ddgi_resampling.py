@@ -114,7 +114,7 @@ QUICK = {"scenes": ("room-door", "villa-sun", "pink-room", "living-room"), "res"
          "ref_spp": 1024, "ref_spp_max": 32768, "seeds": 3, "warm_frames": 16, "steady_frames": 4,
          "calib_frames": 12}
 FULL = {"scenes": ("room-door", "villa-sun", "pink-room", "cornell-static", "living-room", "glossy-floor"),
-        "res": (320, 180), "max_frames": 256, "ref_spp": 2048, "ref_spp_max": 16384, "seeds": 3,
+        "res": (320, 180), "max_frames": 256, "ref_spp": 2048, "ref_spp_max": 32768, "seeds": 3,
         "warm_frames": 48, "steady_frames": 8, "calib_frames": 24}
 
 
