@@ -19,7 +19,7 @@ STATIC = {"cornell-static", "furnace"}
 DARK = {"sealed-rooms"}   # issue 22: the camera is inside a sealed room, which Mitsuba renders exactly black
 PAPER_STAND_INS = {"tunnel-gate", "atrium-sun", "corridor-rooms", "maze", "warehouse-lights", "sky-pit",
                    "covered-lights", "glossy-floor", "rotating-hidden-light",
-                   "cornell-moving-light", "cornell-moving-box"}
+                   "cornell-moving-light", "cornell-moving-box", "room-door", "villa-sun", "pink-room"}
 RES = (48, 36)
 
 _CACHE: dict[str, Scene] = {}
