@@ -10,7 +10,8 @@ Resampling family; issue 24). The target is a parameter of each reuse stage.
    ``p_hat(y) = lum(Lg(y)) * cos+(n, wi)`` (:func:`target`; ``|cos|`` on transmissive surfaces): the
    unshadowed contribution without the BSDF, so any neighbour's or the previous frame's target is
    exact and needs only a G-buffer's position and normal. **Visibility reuse** (Bitterli Alg. 5,
-   ``visibility_reuse``, default ``'candidate'``, measured: docs/benchmarks.md, issue 27's section): one
+   ``visibility_reuse``; default ``'none'`` here, ``'candidate'`` in ``ddgi-resampling``'s unified reservoir;
+   measured: docs/benchmarks.md, issue 27's sections): one
    shadow ray to the chosen candidate before any reuse, ``W = 0`` (and no weight in merges) if occluded;
    ``'final'`` writes the final shadow ray's visibility into the stored reservoir instead (no extra ray);
    ``'none'``: neither.
@@ -77,9 +78,10 @@ PARAM_SPECS = {
     "radius": dict(default=30.0, doc="spatial reuse radius in pixels of a 1920-pixel-wide image (Bitterli "
                    "et al.: 30 px at 1080p), scaled with the image width (at least MIN_RADIUS_PX)",
                    min=1.0, max=1e5),
-    "visibility_reuse": dict(default="candidate", doc="visibility in the reservoirs (Bitterli Alg. 5): 'candidate' "
+    "visibility_reuse": dict(default="none", doc="visibility in the reservoirs (Bitterli Alg. 5): 'candidate' "
                              "a shadow ray to the initial candidate before reuse (W = 0 if occluded), 'final' "
-                             "the final shadow ray's visibility written back into the stored reservoir, 'none'",
+                             "the final shadow ray's visibility written back into the stored reservoir, 'none' (the default: in a room "
+                             "lit through windows 'candidate' left the image 12-17% dark, docs/benchmarks.md)",
                              choices=VISIBILITY_REUSE),
     "combine": dict(default="mis", doc="reservoir combination: unbiased 'mis' or '1/z', or 'biased'",
                     choices=COMBINE_MODES),
@@ -214,7 +216,7 @@ class ReSTIRDI:
 
     def __init__(self, scene, candidates: int = 32, temporal: bool = True, m_cap: float = 20.0, spatial: int = 3,
                  radius: float = 30.0, combine: str = "mis", target_fn=target, cand=None, lights: str = "scene",
-                 visibility_reuse: str = "candidate"):
+                 visibility_reuse: str = "none"):
         if visibility_reuse not in VISIBILITY_REUSE:
             raise unknown_choice("visibility_reuse", visibility_reuse, VISIBILITY_REUSE)
         self.visibility_reuse = visibility_reuse

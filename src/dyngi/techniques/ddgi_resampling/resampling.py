@@ -112,6 +112,11 @@ def _resampling_params():
     out = dict(SECONDARY_PARAMS)
     out["m_cap"] = Param(M_CAP, "temporal M cap in multiples of the candidates per pixel (restir-pt: 20; "
                          "see the module docstring)", min=0.0, max=1e4)
+    # Alg. 5 in the unified reservoir by default here (per-frame MAPE villa-sun 0.30 vs 1.08 with 'none'), though
+    # in a room lit through windows it leaves the image ~10% dark (living-room; docs/benchmarks.md); the
+    # ReSTIR DI component's own default is 'none'
+    out["visibility_reuse"] = Param("candidate", SECONDARY_PARAMS["visibility_reuse"].doc.split(", 'none' (")[0]
+                                    + ", 'none'", choices=SECONDARY_PARAMS["visibility_reuse"].choices)
     out.update({
         "gmax": Param(1.0, "bound G_max of the resampled geometry term cos_y/r^2 (Eq. 9), in the units "
                       "gmax_scale sets; 0: all probe light by the BSDF sample", min=0.0, max=1e9),
