@@ -21,14 +21,10 @@ pit at 96x54, 15 + 40 frames: measured CDQ/BSDF 0.11 / 0.061 / 0.10 (p = 0.016);
 @pytest.mark.slow
 def test_cdq_at_the_papers_samples_per_leaf_beats_bsdf_in_the_pit(backend):
     from dyngi.scene.library import make_builtin
-    from sampling.test_learned_gains import _frame_mse, _one_sided_below
+    from sampling.test_learned_gains import _mse_ratios, _one_sided_below
 
     sc = make_builtin("sky-pit-sun-disc-2deg")
-    ratios = []
-    for seed in range(3):
-        v_cdq = _frame_mse(sc, "nee-pt:directions=cdq:leaf_samples=4096", (96, 54), 15, 40, seed)
-        v_bsdf = _frame_mse(sc, "nee-pt:directions=bsdf", (96, 54), 15, 40, seed)
-        ratios.append(v_cdq / v_bsdf)
+    ratios = _mse_ratios(sc, "nee-pt:directions=cdq:leaf_samples=4096", "nee-pt:directions=bsdf", (96, 54), 15, 40)
     ok, p = _one_sided_below(ratios, PIT_FACTOR)
     assert ok, f"CDQ/BSDF MSE ratios {ratios} not below 1/{PIT_FACTOR} (one-sided p = {p:.3g})"
     assert np.all(np.asarray(ratios) < 1.0), ratios

@@ -98,6 +98,12 @@ def _frame_mse(scene, spec: str, res, warmup: int, frames: int, seed: int) -> fl
     return float(np.mean(mse))
 
 
+def _mse_ratios(scene, spec: str, baseline: str, res, warmup: int, frames: int, seeds=range(3)) -> list:
+    """Per seed, ``spec``'s mean frame MSE over ``baseline``'s (:func:`_frame_mse`, same frames and seed)."""
+    return [_frame_mse(scene, spec, res, warmup, frames, s) / _frame_mse(scene, baseline, res, warmup, frames, s)
+            for s in seeds]
+
+
 def _one_sided_below(ratios, factor: float, alpha: float = 0.05) -> tuple[bool, float]:
     """One-sided t-test on log ratios: is the mean log(ratio) below log(1/factor)? (reject = pass)."""
     lr = np.log(np.asarray(ratios, np.float64))
@@ -110,11 +116,7 @@ def _one_sided_below(ratios, factor: float, alpha: float = 0.05) -> tuple[bool, 
 def test_vlc_lowers_variance_against_uniform(backend):
     from dyngi.scene import load_scene
     sc = load_scene("warehouse-rooms")
-    ratios = []
-    for seed in range(3):
-        v_vlc = _frame_mse(sc, "nee-pt:lights=vlc", (48, 27), 6, 10, seed)
-        v_uni = _frame_mse(sc, "nee-pt:lights=uniform", (48, 27), 6, 10, seed)
-        ratios.append(v_vlc / v_uni)
+    ratios = _mse_ratios(sc, "nee-pt:lights=vlc", "nee-pt:lights=uniform", (48, 27), 6, 10)
     ok, p = _one_sided_below(ratios, VLC_FACTOR)
     assert ok, f"VLC/uniform MSE ratios {ratios} not below 1/{VLC_FACTOR} (one-sided p = {p:.3g})"
 
@@ -144,10 +146,6 @@ def skylight_room():
 def test_cdq_lowers_variance_against_bsdf(backend):
     sc = skylight_room()
     res = (96, 72)       # ~20k vertices per frame: leaves fine enough to tell the skylight's direction apart
-    ratios = []
-    for seed in range(3):
-        v_cdq = _frame_mse(sc, "nee-pt:directions=cdq", res, 20, 10, seed)
-        v_bsdf = _frame_mse(sc, "nee-pt:directions=bsdf", res, 20, 10, seed)
-        ratios.append(v_cdq / v_bsdf)
+    ratios = _mse_ratios(sc, "nee-pt:directions=cdq", "nee-pt:directions=bsdf", res, 20, 10)
     ok, p = _one_sided_below(ratios, CDQ_FACTOR)
     assert ok, f"CDQ/BSDF MSE ratios {ratios} not below 1/{CDQ_FACTOR} (one-sided p = {p:.3g})"

@@ -79,7 +79,7 @@ from ...probes.lookup import diffuse_radiance
 from ...sampling.diffuse import diffuse_albedo
 from ...sampling.reservoir import Reservoir
 from ...sampling.rng import make_sampler
-from ...transport.restir_di import initial_candidates, target
+from ...transport.restir_di import VISIBILITY_REUSE, initial_candidates, target
 from ..base import Frame, FrameResult, Param, StageTimer, register
 from .control_variate import NearestRayCV, cube_bin
 from .shading import _SHADE_STREAM, SECONDARY_PARAMS, SecondaryShading, camera_footprint
@@ -115,8 +115,10 @@ def _resampling_params():
     # Alg. 5 in the unified reservoir by default here (per-frame MAPE villa-sun 0.30 vs 1.08 with 'none'), though
     # in a room lit through windows it leaves the image ~10% dark (living-room; docs/benchmarks.md); the
     # ReSTIR DI component's own default is 'none'
-    out["visibility_reuse"] = Param("candidate", SECONDARY_PARAMS["visibility_reuse"].doc.split(", 'none' (")[0]
-                                    + ", 'none'", choices=SECONDARY_PARAMS["visibility_reuse"].choices)
+    out["visibility_reuse"] = Param("candidate", "visibility in the unified reservoir (Bitterli Alg. 5): 'candidate' a "
+                                    "shadow ray to the initial emitter candidate before reuse (W = 0 if occluded), "
+                                    "'final' the final shadow ray's visibility written back into the stored "
+                                    "reservoir, 'none'", choices=VISIBILITY_REUSE)
     out.update({
         "gmax": Param(1.0, "bound G_max of the resampled geometry term cos_y/r^2 (Eq. 9), in the units "
                       "gmax_scale sets; 0: all probe light by the BSDF sample", min=0.0, max=1e9),
