@@ -87,8 +87,11 @@ class MetropolisIR(VPLTechnique):
             L, n_rays = path_radiance_device(self.scene.mi_scene, cand["pos"], cand["nrm"], sampler, ok,
                                              int(p["max_depth"]) - 1, self.lights)
             c = dr.select(ok, luminance(cand["mailbox_albedo"] * L), 0.0)
+            # one kernel for the hits and the walk (cand too: a lazy hit would be re-traced in every later
+            # kernel); the ray count after it -- a reduction evaluates its input at once, so summing the
+            # lazy ``n_rays`` first would trace all the paths twice
+            dr.eval(cand, L, c, n_rays)
             rays = dr.sum(n_rays) + dr.count(cand["okx"]) + n
-            dr.eval(cand, L, c, rays)      # cand too: a lazy hit would be re-traced in every later kernel
         t.add_rays("paths", rays)
         with t.stage("resampling"):
             m = dr.maximum(mi.Float(dr.count(ok)), 1.0)

@@ -71,6 +71,7 @@ def estimate_radiosity_device(mscene, pos, nrm, seeds, spp: int, max_depth: int,
                                         lights, True, split=False)
     si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=act)
     L = L - mi.Color3f(si.emitter(mscene).eval(si, act))
+    dr.eval(L, n_rays)     # the walk once: each reduction below would otherwise evaluate (re-trace) it anew
     chans = []
     for i in range(3):
         c = dr.select(act & dr.isfinite(L[i]), dr.maximum(L[i], 0.0), 0.0)

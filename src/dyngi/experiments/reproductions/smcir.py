@@ -24,6 +24,13 @@ VPL set that replacements produce, so each sequence states both rows' brightness
 reference's, over all frames) -- the bias of the paper's own estimator (tests/techniques/test_smcir_bias.py).
 Table 2's stage breakdown comes from smcir's per-stage ms.
 
+Each (sequence, seed) saves its figures in ``OUT/SEQ/seedN/figures.json`` as it ends and a later run
+with the same settings reads them back (:func:`run_pair`): a full run can be resumed, or split over
+processes (``benchmarks/smcir_full.py``) and gathered by one more ``dyngi reproduce smcir --out OUT``. The
+references (image and tracked pixels) do not depend on the technique seed: they are rendered once per
+sequence and frame and cached on disk (:mod:`dyngi.experiments.reference`), so seeds 2 and 3 cost only the
+techniques' frames.
+
 The full configuration (:data:`SMCIR_FULL`, the command's default: five sequences, 160x90, 60 frames,
 the paper's VPL counts, mir at 256:1, 3 seeds) is the issue-29 size; ``--quick``: two sequences, 4
 frames at 32x24, one seed, few warm-up iterations. The Python API takes a ``config`` to run a scaled
@@ -98,6 +105,64 @@ def run_scene(scene_name: str, cfg: dict, out_dir: str, quiet: bool = True, refe
                       "nonfinite_pixels": int(s.get("nonfinite_pixels", 0)),
                       "nonfinite_frames": int(s.get("nonfinite_frames", 0))}
     return out
+
+
+FIGURES_FILE = "figures.json"
+
+
+def _pair_key(scene_name: str, cfg: dict, seed: int, reference: str, untextured: bool, tracked: bool) -> dict:
+    """What identifies one (sequence, seed) run's figures: a saved file is reused only when all of it matches."""
+    return {"scene": scene_name, "seed": int(seed), "res": list(cfg["res"]), "frames": int(cfg["frames"]),
+            "ref_spp": int(cfg["ref_spp"]), "specs": list(cfg["specs"]), "reference": reference,
+            "untextured": bool(untextured), "tracked": bool(tracked)}
+
+
+def run_pair(scene_name: str, cfg: dict, out_root: str, seed: int, quiet: bool = True, reference: str = "path",
+             untextured: bool = False, tracked: bool = True) -> tuple[dict, bool]:
+    """(figures, was_saved): :func:`run_scene` on ``out_root/SEQ/seedN``, its figures saved there as
+    ``figures.json`` as soon as it ends, and read back instead of rerun when that file exists with the same
+    settings (our choice: a full run is hours on a small CPU, so it can be resumed or split over processes;
+    the references themselves are cached on disk by scene state, shared by every seed)."""
+    import json
+    import time
+
+    out_dir = os.path.join(out_root, scene_name, f"seed{int(seed)}")
+    path = os.path.join(out_dir, FIGURES_FILE)
+    key = _pair_key(scene_name, cfg, seed, reference, untextured, tracked)
+    try:
+        with open(path) as f:
+            saved = json.load(f)
+        if saved.get("key") == key:
+            return saved["figures"], True
+    except (OSError, ValueError, KeyError):
+        pass
+    t0 = time.time()
+    figs = run_scene(scene_name, cfg, out_dir, quiet, reference, untextured, tracked, seed)
+    tmp = path + f".{os.getpid()}.tmp"
+    with open(tmp, "w") as f:
+        json.dump({"key": key, "wall_s": time.time() - t0, "figures": figs}, f, indent=1,
+                  default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+    os.replace(tmp, path)
+    return figs, False
+
+
+def _pair_walls(out_root: str, pairs) -> dict:
+    """``{'SEQ/seedN': seconds}``: each (sequence, seed) run's own wall time, as its figures.json saved it."""
+    import json
+
+    out = {}
+    for sc, sd in pairs:
+        try:
+            with open(os.path.join(out_root, sc, f"seed{int(sd)}", FIGURES_FILE)) as f:
+                out[f"{sc}/seed{int(sd)}"] = float(json.load(f)["wall_s"])
+        except (OSError, ValueError, KeyError):
+            pass
+    return out
+
+
+def _pair_figures(*args) -> dict:
+    """:func:`run_pair`'s figures alone (one task of the reproduction)."""
+    return run_pair(*args)[0]
 
 
 def _method_label(specs, method):
@@ -259,12 +324,13 @@ def reproduce_smcir(out_dir: str, quick: bool = False, quiet: bool = True, refer
         raise DyngiError(f"the smcir reproduction needs {', '.join(METHODS)} among its techniques and >= 1 seed")
     t0 = time.time()
     pairs = [(sc, int(sd)) for sc in cfg["scenes"] for sd in cfg["seeds"]]   # independent runs: tasks (--cluster)
-    got = cluster.run_named([f"{sc}/seed{sd}" for sc, sd in pairs], run_scene,
-                            [(sc, cfg, os.path.join(out_dir, sc, f"seed{sd}"), quiet, reference, untextured, tracked,
-                              sd) for sc, sd in pairs], "reproduce smcir", quiet)
+    got = cluster.run_named([f"{sc}/seed{sd}" for sc, sd in pairs], _pair_figures,
+                            [(sc, cfg, out_dir, sd, quiet, reference, untextured, tracked) for sc, sd in pairs],
+                            "reproduce smcir", quiet)
     figs = {sc: [got[f"{sc}/seed{int(sd)}"] for sd in cfg["seeds"]] for sc in cfg["scenes"]   # all seeds or none
             if all(f"{sc}/seed{int(sd)}" in got for sd in cfg["seeds"])}
     wall = time.time() - t0
+    pair_walls = _pair_walls(out_dir, pairs)
     rows = _rows(figs, cfg)
     _plot(figs, cfg, out_dir)
     ref_text = ("clamped path-traced (Sec. 5.4) indirect reference" if reference == "clamped" else
@@ -277,11 +343,13 @@ def reproduce_smcir(out_dir: str, quick: bool = False, quiet: bool = True, refer
                     f"seeds {', '.join(map(str, cfg['seeds']))}, indirect light only against the {ref_text} "
                     f"(max depth 5, {cfg['ref_spp']} spp; {tr_text}), equal VPL budget; per-sequence, per-seed "
                     "reports in the sub-folders. Visibility is ray-traced (our substitution for 128x128 "
-                    f"paraboloid shadow maps). Wall time {wall / 60:.1f} min.", "", paper_table(rows), "",
+                    f"paraboloid shadow maps). Wall time {wall / 60:.1f} min (this call); the (sequence, seed) runs "
+                    f"took {sum(pair_walls.values()) / 60:.1f} min together when they ran (figures.json).", "",
+                    paper_table(rows), "",
                     *cluster.failure_notes()])
     return write_summary(out_dir, md, {
         "paper.json": {"experiment": "smcir", "quick": quick, "paper": PAPER, "figures": figs,
-                       "config": {k: cfg[k] for k in CONFIG_KEYS}, "wall_s": wall,
+                       "config": {k: cfg[k] for k in CONFIG_KEYS}, "wall_s": wall, "pair_wall_s": pair_walls,
                        "ranking": {sc: ranking(figs[sc], cfg["specs"]) for sc in figs},
                        "reference": reference, "untextured": bool(untextured), "tracked": bool(tracked),
                        "rows": [{"quantity": q, "paper": p, "ours": o} for q, p, o in rows]},

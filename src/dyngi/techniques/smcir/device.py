@@ -15,7 +15,7 @@ from ...vpl.smc import resample_with_replacement_device
 from ...vpl.smc_device import (camera_sees_device, estimate_radiosity_device, quantile_device, ranks,
                                sample_without_replacement_device, segment_clear_device, stream_seeds_device)
 from ..base import Frame, StageTimer
-from .common import _S_CAND, _S_RESAMPLE, _S_SEEDS, _S_VALID, CANDIDATE_K, WARMUP_FRAME_BASE, lighting_signature
+from .common import _S_CAND, _S_RESAMPLE, _S_SEEDS, _S_VALID, CANDIDATE_K, begin_iteration, lighting_signature, warm_up
 
 
 class DeviceAlgorithm1:
@@ -151,10 +151,7 @@ class DeviceAlgorithm1:
         """One iteration of Algorithm 1 (lines 3-19) on the device; its counts are width-1 device arrays
         (read by the caller after the image)."""
         p, st, I = self.params, self._dev, self.budget
-        cand, c = self._candidates_device(frame, key, t)
-        if self._light_sig != lighting_signature(self.scene, frame.time):
-            self._light_sig = None
-        invalid = self._invalid_device(frame, key, c, t)
+        cand, invalid = begin_iteration(self, frame, key, t, self._candidates_device, self._invalid_device)
         with t.stage("candidates"):
             # -- line 8: candidate densities (k = 1) against the current VPLs; Eq. 6 intensities --
             n_used = dr.count(st.used)
@@ -203,11 +200,7 @@ class DeviceAlgorithm1:
     def _update_vpls_device(self, frame: Frame, t: StageTimer):
         p = self.params
         if not self._initialised:
-            # INITIALIZEVPLs: candidates fill the budget, then the warm-up iterations (Sec. 3.2)
-            with t.stage("warmup"):
-                wt = StageTimer()
-                for i in range(p["warmup"] + 1):
-                    self.iterate_device(frame, WARMUP_FRAME_BASE + i, wt)
+            warm_up(frame, t, p["warmup"], self.iterate_device)     # INITIALIZEVPLS (Sec. 3.2)
             self._initialised = True
         info = self.iterate_device(frame, frame.index, t)
         st = self._dev

@@ -14,7 +14,7 @@ from ...vpl.points import camera_sees, candidates_to_host, raw_candidates_device
 from ...vpl.radiosity import RENDER_STREAM, estimate_radiosity, stream_seeds
 from ...vpl.smc import clamp_size, grow_invalid, m_min, resample_without_replacement
 from ..base import Frame, StageTimer
-from .common import _S_CAND, _S_RESAMPLE, _S_SEEDS, _S_VALID, CANDIDATE_K, WARMUP_FRAME_BASE, lighting_signature
+from .common import _S_CAND, _S_RESAMPLE, _S_SEEDS, _S_VALID, CANDIDATE_K, begin_iteration, lighting_signature, warm_up
 
 
 class HostAlgorithm1:
@@ -139,11 +139,7 @@ class HostAlgorithm1:
     def iterate(self, frame: Frame, key: int, t: StageTimer) -> dict:
         """One iteration of Algorithm 1 (lines 3-19) for ``frame``'s camera; returns its counts."""
         p, st = self.params, self._host_store
-        cand, pts = self._candidates(frame, key, t)
-        # candidate radiosities were traced with the lighting of this frame; survivors' follow in _reestimate
-        if self._light_sig != lighting_signature(self.scene, frame.time):
-            self._light_sig = None
-        invalid = self._invalid(frame, key, pts, t)
+        cand, invalid = begin_iteration(self, frame, key, t, self._candidates, self._invalid)
         with t.stage("candidates"):
             used = np.flatnonzero(st.used)
             n_c = len(cand["pos"])
@@ -171,15 +167,9 @@ class HostAlgorithm1:
 
     def _update_vpls_host(self, frame: Frame, t: StageTimer):
         p = self.params
-        info = {}
         st = self._host_store
         if st.count == 0:
-            # INITIALIZEVPLs: candidates fill the budget, then the warm-up iterations (Sec. 3.2)
-            with t.stage("warmup"):
-                wt = StageTimer()
-                self.iterate(frame, WARMUP_FRAME_BASE, wt)
-                for i in range(p["warmup"]):
-                    self.iterate(frame, WARMUP_FRAME_BASE + 1 + i, wt)
+            warm_up(frame, t, p["warmup"], self.iterate)     # INITIALIZEVPLS (Sec. 3.2)
         info = self.iterate(frame, frame.index, t)
         flux = st.flux(max(st.count, 1))
         info.update({"vpls_used": st.count, "vpl_budget": self.budget})
