@@ -163,6 +163,32 @@ def antipodal_sets(side: int = 16) -> np.ndarray:
     return np.round(p[:, 1]).astype(np.int64) * side + np.round(p[:, 0]).astype(np.int64)
 
 
+_SIDE_TABLES: dict = {}
+
+
+def _side_tables(side: int) -> dict:
+    """Device constants of a ``side x side`` tile's antipodal pairing (built once per side and variant):
+    ``dirs_first`` the centre directions of the first texel of each pair, ``lane_of`` (T,) the pair of each
+    texel, ``side_a`` (T,) whether a texel is its pair's first."""
+    key = (side, mi.variant())
+    if key not in _SIDE_TABLES:
+        T = side * side
+        half = T // 2
+        anti = antipodal_sets(side)
+        first = np.flatnonzero(np.arange(T) < anti)          # half the texels, their antipodes the others
+        tdirs = texel_directions(side)[first].astype(np.float32)
+        side_a = np.zeros(T, np.uint32)
+        side_a[first] = 1
+        lane_of = np.zeros(T, np.uint32)
+        lane_of[first] = np.arange(half)
+        lane_of[anti[first]] = np.arange(half)
+        tab = {"dirs_first": mi.Vector3f(*[upload(np.ascontiguousarray(tdirs[:, c]), mi.Float) for c in range(3)]),
+               "lane_of": upload(lane_of, mi.UInt32), "side_a": upload(side_a, mi.UInt32) != 0}
+        dr.eval(tab["dirs_first"], tab["side_a"])
+        _SIDE_TABLES[key] = tab
+    return _SIDE_TABLES[key]
+
+
 def _antipodal_sums(plan, radiance, dist, side: int, irradiance: bool, distance: bool, max_distance: float,
                     power: float) -> dict:
     """Per (slot, texel) of a ``side x side`` tile: the cosine-lobe sums (``e`` Color3f, ``we``) if
@@ -171,16 +197,12 @@ def _antipodal_sums(plan, radiance, dist, side: int, irradiance: bool, distance:
     S = len(plan.probe_ids)
     T = side * side
     half = T // 2
-    anti = antipodal_sets(side)
-    first = np.flatnonzero(np.arange(T) < anti)                 # half the texels, their antipodes the others
+    tab = _side_tables(side)
     offsets = upload(np.asarray(plan.offsets, np.uint32), mi.UInt32)
     k = dr.arange(mi.UInt32, S * half)
     slot = k // half
     t = k - slot * half
-    tdirs = texel_directions(side)
-    tdirs_dr = mi.Vector3f(*[mi.Float(np.ascontiguousarray(tdirs[:, c], np.float32)) for c in range(3)])
-    ta = dr.gather(mi.UInt32, upload(first.astype(np.uint32), mi.UInt32), t)
-    nt = dr.gather(mi.Vector3f, tdirs_dr, ta)
+    nt = dr.gather(mi.Vector3f, tab["dirs_first"], t)
     r0 = dr.gather(mi.UInt32, offsets, slot)
     r1 = dr.gather(mi.UInt32, offsets, slot + 1)
     dmax = dr.opaque(mi.Float, max_distance)
@@ -225,16 +247,11 @@ def _antipodal_sums(plan, radiance, dist, side: int, irradiance: bool, distance:
     keep = ([ea, wa, eb, wb] if irradiance else []) + ([ma1, ma2, da, mb1, mb2, db] if distance else [])
     dr.eval(*keep)         # once: the gathers below would re-run the loop
     # -- back to one entry per (slot, texel): texel j is lane (slot, pos[j]) side a, or its antipode's side b --
-    side_a = np.zeros(T, bool)
-    side_a[first] = True
-    lane_of = np.zeros(T, np.int64)
-    lane_of[first] = np.arange(half)
-    lane_of[anti[first]] = np.arange(half)
     kk = dr.arange(mi.UInt32, S * T)
     sl = kk // T
     j = kk - sl * T
-    lane = sl * half + dr.gather(mi.UInt32, upload(lane_of.astype(np.uint32), mi.UInt32), j)
-    isa = dr.gather(mi.Bool, upload(side_a.astype(np.uint32), mi.UInt32) != 0, j)
+    lane = sl * half + dr.gather(mi.UInt32, tab["lane_of"], j)
+    isa = dr.gather(mi.Bool, tab["side_a"], j)
 
     def pick(va, vb):
         return dr.select(isa, dr.gather(type(va), va, lane), dr.gather(type(vb), vb, lane))

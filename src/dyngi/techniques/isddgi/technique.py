@@ -81,6 +81,7 @@ from ...probes.pipeline import ProbePipeline
 from ...probes.trace import HIT_LOOKUPS, vector_to_numpy
 from ..base import Frame, FrameResult, Param, StageTimer, register
 from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase, params_from
+from .device_planner import IMPLS, DeviceISDDGIPlanner, DevicePlanInfo
 from .estimator import BACKFACE_THRESHOLD, SetBlend, near_surface_hits, near_window, probe_states_alg2
 from .planner import SETS_PER_SIDE, VARIANTS, ISDDGIPlanner
 from .shading import KeyedHitShader
@@ -126,15 +127,19 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         "backface_threshold": Param(BACKFACE_THRESHOLD, "back-face ratio at or above which a probe is OFF (ours)",
                                     min=0.0, max=1.0),
         "reclassify_interval": Param(8, "frames between updates of inactive probes (ours)", min=1),
+        "impl": Param("device", "where the allocation, change measure and probe states run: 'device' (Dr.Jit "
+                      "kernels, the default) or 'host' (NumPy, the former CPU path)", choices=IMPLS),
     }
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
         p = self.params
         self._setup_volume(p["irradiance_texels"], p["distance_texels"])
-        self.planner = ISDDGIPlanner(self.volume.n_probes, p["x_init"], p["x_min"], p["x_max"], p["hold_frames"],
-                                     p["importance_rays"], p["variant"], p["eps"], p["dynamic_threshold"],
-                                     p["decay"], self.volume.max_distance)
+        cls = DeviceISDDGIPlanner if p["impl"] == "device" else ISDDGIPlanner
+        self.planner = cls(self.volume.n_probes, p["x_init"], p["x_min"], p["x_max"], p["hold_frames"],
+                           p["importance_rays"], p["variant"], p["eps"], p["dynamic_threshold"],
+                           p["decay"], self.volume.max_distance)
+        self._mean_x = float(p["x_init"])
         self.shader = KeyedHitShader(p["direct"], lights=self.light_nee, lookup=p["hit_lookup"])
         self.blender = SetBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
                                 p["change_threshold"], float("inf"), "fp32", "scatter")
@@ -166,6 +171,11 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         n_rays = None if frame is None else self._budget_probe_rays(frame, len(ids))
         if n_rays is not None:
             info["budget_probe_rays"] = n_rays
+        device = isinstance(self.planner, DeviceISDDGIPlanner)
+        host_pl = self.planner.host if device else self.planner
+        pulled = device and n_rays is not None and self.planner.force_uniform is None
+        if pulled:          # a budget plans on the host: its state follows (ours; see device_planner)
+            self._near_age = self.planner.pull()
         # plan (importance hints), trace with keyed shading, per-set estimate + hysteresis merge: the pipeline
         self.pipeline.update(self.scene, frame_index, seed, timer=t, probe_ids=ids, importance=live[ids],
                              n_rays=n_rays)
@@ -176,14 +186,19 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         res = self.pipeline.last_results
         # -- states: relocation on re-test frames, Algorithm 2, the change measure (ours: this step's) --
         with t.stage("states"):
-            L, d = res.host()
+            on_device = isinstance(plan.info, DevicePlanInfo)
             if self.relocator is not None and wake:      # relocation on re-test frames only (ours: cost)
                 before = st.offsets.copy()
                 fin = self.pipeline.begin_states(plan, res, self.relocator)
                 if fin is not None:
                     fin()
                 # a moved probe's stored samples are no reference for its next rays (ours)
-                self.planner.forget(np.flatnonzero(np.any(st.offsets != before, axis=1)))
+                moved = np.flatnonzero(np.any(st.offsets != before, axis=1))
+                (self.planner if on_device else host_pl).forget(moved)
+            if on_device:
+                info.update(self._states_device(plan, res, warm, adapt))
+                return info
+            L, d = res.host()
             if p["classify"]:
                 on = probe_states_alg2(plan.info, d, p["backface_threshold"])
                 pid = plan.probe_ids.astype(np.int64)
@@ -191,7 +206,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
                     near = near_surface_hits(vol, pid, plan.info.ray_slot, vector_to_numpy(plan.direction).T, d)
                     age = np.where(near, 0, np.minimum(self._near_age[pid].astype(np.int64) + 1, 255))
                     self._near_age[pid] = age.astype(np.uint8)
-                    x = plan.info.total if warm else self.planner.state.x[pid]
+                    x = plan.info.total if warm else host_pl.state.x[pid]
                     on &= age < near_window(x)
                 old = st.states[pid].copy()
                 new = np.where(on, PROBE_ACTIVE, PROBE_INACTIVE).astype(np.uint8)
@@ -200,8 +215,42 @@ class ISDDGITechnique(_ProbeTechniqueBase):
                 if np.any(old != new):
                     vol.sync(("positions", "states"))
             lum = luminance(L.T)                         # L: (3, n) channel-planar
-            info.update(self.planner.observe(plan, lum, d, adapt=adapt))
+            info.update(host_pl.observe(plan, lum, d, adapt=adapt))
+            self._mean_x = float(np.mean(host_pl.state.x))
+            if pulled:
+                self.planner.push(self._near_age)
         return info
+
+    def _states_device(self, plan, res, warm: bool, adapt: bool) -> dict:
+        """The ``states`` step on the device (:class:`~.device_planner.DeviceISDDGIPlanner`): Algorithm 2 with the
+        near-surface test, then the change measure and the allocation state; one read of the new ON flags and
+        the statistics (``S + 4`` integers)."""
+        from ...backend import dr, mi
+        p, vol = self.params, self.volume
+        st = vol.state
+        S = plan.info.S
+        pl = self.planner
+        on = None
+        if p["classify"]:
+            on = pl.probe_states(vol, plan, res.distance, warm, p["backface_threshold"], p["near_surface"])
+        obs = pl.observe(plan, mi.luminance(res.radiance), res.distance, adapt=adapt)
+        buf = dr.zeros(mi.UInt32, S + 4)
+        if on is not None:
+            dr.scatter(buf, mi.UInt32(on), dr.arange(mi.UInt32, S))
+        for i, k in enumerate(("dynamic_rays", "changed_probes", "check_rays")):
+            dr.scatter(buf, mi.UInt32(obs[k]), mi.UInt32(S + i))
+        dr.scatter(buf, mi.UInt32(dr.sum(mi.UInt32(1) << pl.log2x)), mi.UInt32(S + 3))
+        host = np.asarray(buf).astype(np.int64)          # the states step's one read
+        self._mean_x = float(host[S + 3]) / max(vol.n_probes, 1)
+        if on is not None:
+            pid = plan.probe_ids.astype(np.int64)
+            old = st.states[pid].copy()
+            new = np.where(host[:S] != 0, PROBE_ACTIVE, PROBE_INACTIVE).astype(np.uint8)
+            st.states[pid] = new
+            st.updates[pid[(old == PROBE_INACTIVE) & (new == PROBE_ACTIVE)]] = 0
+            if np.any(old != new):
+                vol.sync(("positions", "states"))
+        return {"dynamic_rays": int(host[S]), "changed_probes": int(host[S + 1]), "check_rays": int(host[S + 2])}
 
     # -- comparison budgets (ours) -------------------------------------------------------
     def _budget_probe_rays(self, frame: Frame, n_probes: int) -> int | None:
@@ -254,5 +303,5 @@ class ISDDGITechnique(_ProbeTechniqueBase):
             stats["time_budget_ms"] = float(frame.time_budget_ms)
         stats["probe_trace_ms"] = stats["ms"].get("trace probes", 0.0)
         stats["active_probes"] = int(np.count_nonzero(self.volume.state.states))
-        stats["mean_uniform_per_probe"] = float(np.mean(self.planner.state.x))
+        stats["mean_uniform_per_probe"] = self._mean_x
         return FrameResult(image=img, indirect=ind, stats=stats)

@@ -1,0 +1,432 @@
+"""IS-DDGI's planner on the device (issue 26): the allocation, importance draws, per-set caps, the ray
+layout and the change measure as Dr.Jit kernels over device state (Liu et al., I3D 2023, supplement
+Secs. 2.1 and 4.2-4.4; Table 1's Multi-Rays / One-Ray limits).
+
+:class:`DeviceISDDGIPlanner` is the device twin of :class:`~.planner.ISDDGIPlanner` (whose docstring
+describes every choice; the formulas are the same): its per-probe and per-set state (Table 1's
+allocation bytes, the smoothed change ``f_ij`` / ``F_i``, the stored hit samples and reference keys, the
+adaptive ``x_i`` and the near-surface age) are Dr.Jit arrays, and one frame runs
+
+1. **uniform rays** (Fig. 1's cells and rotation): one lane per (traced probe, cell) up to the largest
+   uniform count, masked where ``c >= x_i`` -- the same integer hashes as the host's :func:`~.sets.uniform_keys`
+   (32-bit wrap-around; ``K = 256 / x_i`` divides 2^32, so the rotation's ``mod K`` agrees);
+2. **importance draws** (Secs. 4.3-4.4): the allocation pdf over (probe, set) pairs of the traced probes
+   (:func:`~.device.allocation_pdf_dr`; zero for probes without change), its prefix sum and one binary
+   search per draw (:func:`~.device.sample_pairs_dr`), ``importance_rays x`` (probes with ``F_i > 0``)
+   draws, the count computed on the device (the draw kernel runs at the capacity ``importance_rays x S``,
+   masked);
+3. **per-set cap** with atomic counters (``dr.scatter_inc``): uniform rays first (slot 0 of their set),
+   then each draw takes the next slot and is dropped at the limit. Draws of one set are
+   indistinguishable (same pair, same frame key), so which ones the atomics keep does not change the
+   rays: the plan is deterministic;
+4. **layout**: the capped per-set counts' exclusive prefix sum gives each ray its place (rays grouped by
+   probe, sets in order, the uniform ray first: the host plan's order), and one kernel computes the
+   ray hash (a check visit repeats its set's reference key), Algorithm 1's jittered direction, the weight
+   ``Omega_j / n_ij`` and the shading key -- bit-identical to the host planner's rays for the same
+   uniform plan (tested).
+
+**Host reads.** The probe pipeline's :class:`~dyngi.probes.rays.RayPlan` holds its CSR offsets on the host
+and the volume its probe states, so a frame reads back two small buffers: after step 3 the per-probe ray
+counts and three plan statistics (``S + 3`` integers), and after the states step the new ON/OFF flags
+and four statistics (``S + 4``); no per-ray or per-set array comes back. Relocation frames (every
+``reclassify_interval``) read the rays' distances as ``ddgi``'s relocation does.
+
+The change measure and the state update after the trace (:meth:`observe`; the paired visits, peak hold,
+neighbour share, ``F_i`` and the adaptive rule of :meth:`~.planner.ISDDGIPlanner.observe`) and Algorithm 2
+with the near-surface test (:meth:`probe_states`) run as kernels over the rays and the traced probes.
+
+Budgets (``n_rays``; comparison budgets, ours) use the host planner on a host copy of the state
+(:meth:`pull` / :meth:`push`: the budget's exact counts and redraws are host code). Float32 sums
+throughout (ours; the host twin uses float64 for ``F_i``).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ...backend import dr, mi
+from ...probes.rays import RayPlan
+from ...probes.volume import upload
+from ...sampling.rng import mix_seed
+from .device import allocation_pdf_dr, change_measure_dr, uniform_numbers_dr
+from .planner import ISDDGIPlanner, ISDDGIState
+from .sets import (CELL_STREAM, CHANGE_EPS, N_SETS, NEIGHBOUR_SHARE, RAYS_LIMIT, SETS_PER_SIDE, SHADE_STREAM,
+                   SHIFT_STREAM, _NB, _hash_u32_dr)
+
+IMPLS = ("device", "host")
+
+
+def _op(cls, v):
+    return dr.opaque(cls, v)
+
+
+class DevicePlanInfo:
+    """Device bookkeeping of one plan (per ray, Dr.Jit; per traced probe slot, ``total`` on the host).
+
+    S : int; total : (S,) int64 (host; read back once); total_dr : (S,) UInt32
+    slot, set, pair (``probe * 256 + set``, the volume's probe index), k (index inside its set) : UInt32
+    paired : Bool (the set's uniform ray), check : Bool (a paired ray repeating its set's reference),
+    rkey : UInt32 (the ray's random key); stats : dict of host ints."""
+
+    def __init__(self, S, total, total_dr, pid_dr, slot, dset, pair, k, paired, check, rkey):
+        self.S = int(S)
+        self.total, self.total_dr, self.pid_dr = total, total_dr, pid_dr
+        self.slot, self.set, self.pair, self.k = slot, dset, pair, k
+        self.paired, self.check, self.rkey = paired, check, rkey
+        self.dropped = 0
+        self.stats: dict = {}
+
+    def _table(self, mask=None):
+        key = np.asarray(self.slot, np.int64) * N_SETS + np.asarray(self.set, np.int64)
+        if mask is not None:
+            key = key[np.asarray(mask, bool)]
+        return np.bincount(key, minlength=self.S * N_SETS).reshape(self.S, N_SETS)
+
+    # host tables for tests and diagnostics (they read back; the frame itself never builds them)
+    @property
+    def counts(self) -> np.ndarray:
+        """(S, 256) rays per set (rayHitInfo ``num_ij``)."""
+        return self._table()
+
+    @property
+    def uniform(self) -> np.ndarray:
+        return self._table(self.paired) > 0
+
+    @property
+    def importance(self) -> np.ndarray:
+        return self._table(~np.asarray(self.paired, bool))
+
+
+class DeviceISDDGIPlanner:
+    """The device planner (module docstring); the parameters are :class:`~.planner.ISDDGIPlanner`'s, whose
+    host instance :attr:`host` serves budgets and holds the constants."""
+
+    name = "isddgi"
+
+    def __init__(self, n_probes: int, *args, **kwargs):
+        self.host = ISDDGIPlanner(n_probes, *args, **kwargs)
+        self.P = int(n_probes)
+        self.force_uniform: int | None = None
+        self._omega = upload(self.host.omega.astype(np.float32), mi.Float)
+        self._nb = upload(((_NB[:, 1] + 1) * 3 + (_NB[:, 0] + 1)).astype(np.uint32), mi.UInt32)
+        self._reset()
+
+    # -- state -------------------------------------------------------------------------------
+    def _reset(self) -> None:
+        h, P = self.host, self.P
+        PS = P * N_SETS
+        self.log2x = dr.full(mi.UInt32, int(np.log2(h.x_init)), P)
+        self.hold = dr.full(mi.UInt32, h.hold_frames, P)
+        self.f = dr.zeros(mi.Float, PS)
+        self.F = dr.zeros(mi.Float, P)
+        self.sample_lum = dr.zeros(mi.Float, PS)
+        self.sample_dist = dr.zeros(mi.Float, PS)
+        self.has_sample = dr.full(mi.Bool, False, PS)
+        self.open_ref = dr.full(mi.Bool, False, PS)
+        self.ref_key = dr.zeros(mi.UInt32, PS)
+        self.near_age = dr.full(mi.UInt32, 255, P)
+        dr.eval(self.log2x, self.hold, self.f, self.F, self.sample_lum, self.sample_dist, self.has_sample,
+                self.open_ref, self.ref_key, self.near_age)
+
+    def pull(self) -> np.ndarray:
+        """Copy the device state into :attr:`host`'s (host reads; budgets); returns the near-surface ages."""
+        st, P = self.host.state, self.P
+        st.log2_x[:] = np.asarray(self.log2x).astype(np.uint8)
+        st.hold[:] = np.asarray(self.hold).astype(np.uint8)
+        st.f[:] = np.asarray(self.f).reshape(P, N_SETS)
+        st.F[:] = np.asarray(self.F)
+        st.sample_lum[:] = np.asarray(self.sample_lum).reshape(P, N_SETS)
+        st.sample_dist[:] = np.asarray(self.sample_dist).reshape(P, N_SETS)
+        st.has_sample[:] = np.asarray(self.has_sample).reshape(P, N_SETS)
+        st.open_ref[:] = np.asarray(self.open_ref).reshape(P, N_SETS)
+        st.ref_key[:] = np.asarray(self.ref_key).reshape(P, N_SETS)
+        return np.minimum(np.asarray(self.near_age), 255).astype(np.uint8)
+
+    def push(self, near_age: np.ndarray) -> None:
+        """Upload :attr:`host`'s state (after a budget frame) and the near-surface ages."""
+        st = self.host.state
+        self.log2x = upload(st.log2_x.astype(np.uint32), mi.UInt32)
+        self.hold = upload(st.hold.astype(np.uint32), mi.UInt32)
+        self.f = upload(st.f.ravel(), mi.Float)
+        self.F = upload(st.F.astype(np.float32), mi.Float)
+        self.sample_lum = upload(st.sample_lum.ravel(), mi.Float)
+        self.sample_dist = upload(st.sample_dist.ravel(), mi.Float)
+        self.has_sample = upload(st.has_sample.ravel().astype(np.uint32), mi.UInt32) != 0
+        self.open_ref = upload(st.open_ref.ravel().astype(np.uint32), mi.UInt32) != 0
+        self.ref_key = upload(st.ref_key.ravel(), mi.UInt32)
+        self.near_age = upload(np.asarray(near_age, np.uint32), mi.UInt32)
+        dr.eval(self.has_sample, self.open_ref)
+
+    # -- the pipeline's warm-up hooks ---------------------------------------------------------
+    def begin_warmup(self) -> None:
+        self.force_uniform = N_SETS
+        self.host.force_uniform = N_SETS
+
+    def end_warmup(self) -> None:
+        """As the host's: the change measure forgets the warm-up (its bounces are no scene change)."""
+        self.force_uniform = None
+        self.host.force_uniform = None
+        PS = self.P * N_SETS
+        self.f = dr.zeros(mi.Float, PS)
+        self.F = dr.zeros(mi.Float, self.P)
+        self.has_sample = dr.full(mi.Bool, False, PS)
+        self.open_ref = dr.full(mi.Bool, False, PS)
+        dr.eval(self.has_sample, self.open_ref)
+
+    def forget(self, probes) -> None:
+        """Drop the stored samples (references) of ``probes`` (host ids; relocated probes)."""
+        probes = np.asarray(probes, np.uint32)
+        if not len(probes):
+            return
+        k = dr.arange(mi.UInt32, len(probes) * N_SETS)
+        idx = dr.gather(mi.UInt32, upload(probes, mi.UInt32), k >> 8) * N_SETS + (k & 255)
+        dr.scatter(self.has_sample, mi.Bool(False), idx)
+        dr.scatter(self.open_ref, mi.Bool(False), idx)
+        dr.eval(self.has_sample, self.open_ref)
+
+    # -- planning ------------------------------------------------------------------------------
+    def plan(self, frame: int, seed: int, probe_ids, previous=None, importance: np.ndarray | None = None,
+             n_rays: int | None = None) -> RayPlan:
+        """This frame's rays for ``probe_ids`` (see :meth:`ISDDGIPlanner.plan`); a budget (``n_rays``) plans
+        on the host (:meth:`pull`; the caller pushes after its observe)."""
+        if n_rays is not None and self.force_uniform is None:
+            return self.host.plan(frame, seed, probe_ids, previous, importance, n_rays)
+        t0 = time.perf_counter()
+        h = self.host
+        pid = np.asarray(probe_ids, np.uint32)
+        S = len(pid)
+        pid_dr = upload(pid, mi.UInt32)
+        # -- 1. uniform rays: one lane per (slot, cell) up to the capacity, masked where c >= x_i --
+        XC = self.force_uniform or h.x_max
+        k = dr.arange(mi.UInt32, S * XC)
+        xc = _op(mi.UInt32, XC)
+        slot = k // xc
+        c = k - slot * xc
+        probe = dr.gather(mi.UInt32, pid_dr, slot)
+        if self.force_uniform is None:
+            lx = dr.gather(mi.UInt32, self.log2x, probe)
+        else:
+            lx = _op(mi.UInt32, int(np.log2(self.force_uniform)))
+        valid_u = c < (mi.UInt32(1) << lx)
+        K = mi.UInt32(N_SETS) >> lx
+        sh = _hash_u32_dr(probe + SHIFT_STREAM)
+        perm = _hash_u32_dr(sh * 0x9E3779B1 + c + CELL_STREAM)
+        off = (_op(mi.UInt32, int(frame) & 0xFFFFFFFF) + sh + perm) & (K - 1)
+        pair_u = slot * N_SETS + K * c + off
+        counts = dr.zeros(mi.UInt32, S * N_SETS)
+        dr.scatter_inc(counts, pair_u, valid_u)
+        dr.eval(counts)
+        has_uni = counts != 0                    # before the draws: the sets with a uniform ray
+        dr.eval(has_uni)
+        # -- 2. importance draws over the allocation pdf of the traced probes --
+        NI = int(np.ceil(h.importance_rays * S)) if self.force_uniform is None else 0
+        if NI > 0:
+            imp = (dr.full(mi.Bool, True, S) if importance is None
+                   else upload(np.asarray(importance, np.uint32), mi.UInt32) != 0)
+            Fs = dr.select(imp, dr.gather(mi.Float, self.F, pid_dr), 0.0)
+            n_cand = dr.sum(mi.UInt32(Fs > 0.0))
+            n_imp = mi.UInt32(dr.round(mi.Float(n_cand) * _op(mi.Float, h.importance_rays)))
+            kk = dr.arange(mi.UInt32, S * N_SETS)
+            fv = dr.gather(mi.Float, self.f, dr.gather(mi.UInt32, pid_dr, kk >> 8) * N_SETS + (kk & 255))
+            pdf = allocation_pdf_dr(Fs, fv, h.eps)
+            cdf = dr.cumsum(pdf)
+            dr.eval(cdf)
+            total = dr.gather(mi.Float, cdf, mi.UInt32(S * N_SETS - 1))
+            u = uniform_numbers_dr(NI, mix_seed(seed, frame, 0x15DD62)) * total
+            pair_i = dr.binary_search(0, S * N_SETS - 1, lambda q: dr.gather(mi.Float, cdf, q) <= u)
+            pair_i = mi.UInt32(dr.minimum(pair_i, S * N_SETS - 1))
+            valid_i = (dr.arange(mi.UInt32, NI) < n_imp) & (dr.gather(mi.Float, pdf, pair_i) > 0.0)
+            dr.eval(pair_i, valid_i)
+            # -- 3. per-set cap: atomic counters, the uniform ray first --
+            si = dr.scatter_inc(counts, pair_i, valid_i)
+            keep_i = valid_i & (si < _op(mi.UInt32, h.limit))
+            dr.eval(si, keep_i, counts)
+            n_drawn, n_kept = dr.sum(mi.UInt32(valid_i)), dr.sum(mi.UInt32(keep_i))
+        else:
+            n_drawn = n_kept = mi.UInt32(0)
+        capped = dr.minimum(counts, _op(mi.UInt32, h.limit))
+        totals = dr.block_sum(capped, N_SETS)
+        start = dr.prefix_sum(capped)                       # exclusive
+        buf = dr.zeros(mi.UInt32, S + 3)
+        dr.scatter(buf, totals, dr.arange(mi.UInt32, S))
+        dr.scatter(buf, dr.sum(mi.UInt32(valid_u)), mi.UInt32(S))
+        dr.scatter(buf, n_kept, mi.UInt32(S + 1))
+        dr.scatter(buf, n_drawn, mi.UInt32(S + 2))
+        host = np.asarray(buf).astype(np.int64)            # the plan's one read: counts per probe, statistics
+        tot = host[:S]
+        R = int(tot.sum())
+        # -- 4. layout: each ray's place from the prefix sum --
+        ray_pair = dr.zeros(mi.UInt32, R)
+        ray_k = dr.zeros(mi.UInt32, R)
+        pos_u = dr.gather(mi.UInt32, start, pair_u, valid_u)
+        dr.scatter(ray_pair, pair_u, pos_u, valid_u)
+        if NI > 0:
+            pos_i = dr.gather(mi.UInt32, start, pair_i, keep_i) + si
+            dr.scatter(ray_pair, pair_i, pos_i, keep_i)
+            dr.scatter(ray_k, si, pos_i, keep_i)
+        dr.eval(ray_pair, ray_k)
+        rslot = ray_pair >> 8
+        dset = ray_pair & 255
+        rprobe = dr.gather(mi.UInt32, pid_dr, rslot)
+        gp = rprobe * N_SETS + dset
+        paired = ray_k == 0
+        if NI > 0:     # a set with only importance rays has no uniform ray: its ray 0 is a draw
+            paired &= dr.gather(mi.Bool, has_uni, ray_pair)
+        check = paired & dr.gather(mi.Bool, self.open_ref, gp)
+        fkey = _op(mi.UInt32, mix_seed(seed, frame, 0x1DD61))
+        key = dr.select(check, dr.gather(mi.UInt32, self.ref_key, gp), fkey)
+        hsh = _hash_u32_dr(rprobe * (N_SETS * RAYS_LIMIT) + dset * RAYS_LIMIT + ray_k + key)
+        hsh = _hash_u32_dr(hsh ^ key)
+        npair = dr.gather(mi.UInt32, capped, ray_pair)
+        direction, weight, shade_key = _rays_from_hash(hsh, dset, npair, self._omega)
+        offsets = np.concatenate([[0], np.cumsum(tot)])
+        const = int(tot[0]) if S and np.all(tot == tot[0]) and tot[0] > 0 else None
+        plan = RayPlan(rprobe, direction, const, None, pid, offsets, rslot, weight)
+        info = DevicePlanInfo(S, tot, totals, pid_dr, rslot, dset, gp, ray_k, paired, check, key)
+        dr.eval(paired, check, key)
+        info.dropped = int(host[S + 2] - host[S + 1])
+        info.stats = {"uniform_rays": int(host[S]), "importance_rays": int(host[S + 1]),
+                      "importance_dropped": info.dropped}
+        plan.info = info
+        plan.shade_key = shade_key
+        info.stats["plan_ms"] = (time.perf_counter() - t0) * 1e3
+        return plan
+
+    # -- feedback --------------------------------------------------------------------------------
+    def observe(self, plan: RayPlan, lum, dist, adapt: bool = True) -> dict:
+        """The host :meth:`~.planner.ISDDGIPlanner.observe` on the device: ``lum``, ``dist`` (R,) Float in
+        ray order. Returns device scalars (width-1 arrays) ``dynamic_rays``, ``changed_probes`` and
+        ``check_rays`` for the caller's one read."""
+        h, info = self.host, plan.info
+        S = info.S
+        pid_dr, slot, gp, dset = info.pid_dr, info.slot, info.pair, info.set
+        paired, check = info.paired, info.check
+        g, F_est, n_meas = change_measure_dr(lum, dist, slot, gp, paired, check, self.sample_lum, self.sample_dist,
+                                             self.has_sample, S, h.max_distance, h.tau)
+        # -- references: a reference visit opens one (a first visit only on the even checkerboard squares) --
+        hs_old = dr.gather(mi.Bool, self.has_sample, gp, paired)
+        even = (((dset & 15) + (dset >> 4)) & 1) == 0
+        openv = ~check & (hs_old | even)
+        dmax = _op(mi.Float, h.max_distance)
+        dcl = dr.minimum(dr.abs(dist), dmax)
+        dr.eval(openv, dcl)
+        dr.scatter(self.open_ref, openv, gp, paired)
+        dr.scatter(self.sample_lum, lum, gp, paired)
+        dr.scatter(self.sample_dist, dcl, gp, paired)
+        dr.scatter(self.ref_key, info.rkey, gp, paired)
+        dr.scatter(self.has_sample, mi.Bool(True), gp, paired)
+        # -- smoothed change per set: decay over the traced probes, peak hold, the 8 neighbours' share --
+        kk = dr.arange(mi.UInt32, S * N_SETS)
+        q = dr.gather(mi.UInt32, pid_dr, kk >> 8) * N_SETS + (kk & 255)
+        fd = dr.gather(mi.Float, self.f, q) * _op(mi.Float, h.decay)
+        dr.eval(fd)
+        dr.scatter(self.f, fd, q)
+        dr.eval(self.f)
+        fv = dr.maximum(g, dr.gather(mi.Float, self.f, gp, paired))
+        fv = dr.select(fv < CHANGE_EPS * 0.1, 0.0, fv)
+        dr.eval(fv)
+        dr.scatter(self.f, fv, gp, paired)
+        dr.eval(self.f)
+        R = dr.width(g)
+        if R:
+            kn = dr.arange(mi.UInt32, R * len(_NB))
+            r = kn // len(_NB)
+            nb = dr.gather(mi.UInt32, self._nb, kn - r * len(_NB))       # (dy + 1) * 3 + dx + 1
+            gr = dr.gather(mi.Float, g, r)
+            jr = dr.gather(mi.UInt32, dset, r)
+            nx = dr.clip(mi.Int32(jr & 15) + mi.Int32(nb % 3) - 1, 0, SETS_PER_SIDE - 1)
+            ny = dr.clip(mi.Int32(jr >> 4) + mi.Int32(nb // 3) - 1, 0, SETS_PER_SIDE - 1)
+            idx = (dr.gather(mi.UInt32, gp, r) & ~mi.UInt32(255)) + mi.UInt32(ny * SETS_PER_SIDE + nx)
+            dr.scatter_reduce(dr.ReduceOp.Max, self.f, gr * NEIGHBOUR_SHARE, idx, gr > 0.0)
+            dr.eval(self.f)
+        # -- F_i (Sec. 4.3) --
+        Fn = dr.maximum(F_est, _op(mi.Float, h.decay) * dr.gather(mi.Float, self.F, pid_dr))
+        Fn = dr.select(Fn < CHANGE_EPS, 0.0, Fn)
+        dr.eval(Fn)
+        dr.scatter(self.F, Fn, pid_dr)
+        # -- adaptive uniform rays --
+        dyn = dr.zeros(mi.UInt32, S)
+        dr.scatter_reduce(dr.ReduceOp.Add, dyn, mi.UInt32(1), slot, g > 0.0)
+        changed = dyn > 0
+        if adapt:
+            lo, hi = int(np.log2(h.x_min)), int(np.log2(h.x_max))
+            lx = dr.gather(mi.UInt32, self.log2x, pid_dr)
+            hold = dr.gather(mi.UInt32, self.hold, pid_dr)
+            expire = ~changed & (hold <= 1)
+            lx = dr.select(changed, dr.minimum(lx + 1, _op(mi.UInt32, hi)),
+                           dr.select(expire & (lx > _op(mi.UInt32, lo)), lx - 1, lx))
+            hold = dr.select(changed | expire, _op(mi.UInt32, h.hold_frames), hold - 1)
+            dr.eval(lx, hold)
+            dr.scatter(self.log2x, lx, pid_dr)
+            dr.scatter(self.hold, hold, pid_dr)
+        dr.eval(self.F, self.log2x, self.hold, self.open_ref, self.sample_lum, self.sample_dist, self.ref_key,
+                self.has_sample)
+        return {"dynamic_rays": dr.sum(dyn), "changed_probes": dr.sum(mi.UInt32(changed)),
+                "check_rays": mi.UInt32(dr.sum(n_meas))}
+
+    def probe_states(self, volume, plan: RayPlan, dist, warm: bool, backface_threshold: float,
+                     near_surface: bool):
+        """Algorithm 2 (front-face minimum over front faces, :func:`~.estimator.probe_states_alg2`) and, with
+        ``near_surface``, DDGI's near-surface test over the rotation window (:func:`~.estimator.near_surface_hits`,
+        :func:`~.estimator.near_window`) on the device: (S,) Bool ON per traced slot. Runs before
+        :meth:`observe` (the window uses this frame's ``x_i``)."""
+        from ...probes.states import _cell_extents
+        info = plan.info
+        S, slot = info.S, info.slot
+        back = dr.zeros(mi.UInt32, S)
+        front = dr.zeros(mi.UInt32, S)
+        fin = dr.isfinite(dist)
+        dr.scatter_reduce(dr.ReduceOp.Add, back, mi.UInt32(1), slot, dist < 0.0)
+        dr.scatter_reduce(dr.ReduceOp.Add, front, mi.UInt32(1), slot, (dist >= 0.0) & fin)
+        tot = info.total_dr
+        on = (front > 0) & (mi.Float(back) < _op(mi.Float, backface_threshold) * mi.Float(tot)) & (tot > 0)
+        if near_surface:
+            lo, hi = _cell_extents(volume, np.asarray(plan.probe_ids, np.int64))
+            ext = upload(np.concatenate([lo, hi], 1).astype(np.float32).ravel(), mi.Float)     # (S, 6)
+            w = plan.direction
+            t_exit = mi.Float(np.inf)
+            for a in range(3):
+                e = dr.gather(mi.Float, ext, slot * 6 + dr.select(w[a] > 0.0, a + 3, a))
+                aw = dr.abs(w[a])
+                t_exit = dr.minimum(t_exit, dr.select(aw > 0.0, e / aw, np.inf))
+            near = (dist > 0.0) & fin & (dist <= t_exit)
+            ns = dr.zeros(mi.UInt32, S)
+            dr.scatter_reduce(dr.ReduceOp.Add, ns, mi.UInt32(1), slot, near)
+            dr.eval(ns)
+            pid_dr = info.pid_dr
+            age = dr.gather(mi.UInt32, self.near_age, pid_dr)
+            age = dr.select(ns > 0, 0, dr.minimum(age + 1, 255))
+            dr.eval(age)
+            dr.scatter(self.near_age, age, pid_dr)
+            x = tot if warm else (mi.UInt32(1) << dr.gather(mi.UInt32, self.log2x, pid_dr))
+            window = dr.maximum(mi.UInt32(N_SETS) // dr.maximum(x, 1), 1)
+            on &= age < window
+        dr.eval(on, self.near_age)
+        return on
+
+    def mean_uniform(self):
+        """Device scalar: the mean ``x_i`` over all probes (stat ``mean_uniform_per_probe``)."""
+        return dr.sum(mi.Float(mi.UInt32(1) << self.log2x)) / max(self.P, 1)
+
+
+def _rays_from_hash(h, dset, npair, omega):
+    """Algorithm 1's jittered direction in set ``dset``'s octahedral texel, ``Omega_j / n_ij`` and the shading
+    key from the ray hash (:func:`~.sets._device_rays`'s formulas)."""
+    from ...sampling.octahedral import oct_decode
+    if not dr.width(h):
+        return mi.Vector3f(), mi.Float(), mi.UInt32()
+    h2 = _hash_u32_dr(h + 0x9E3779B9)
+    scale = 1.0 / 16777216.0
+    u0 = mi.Float(h >> 8) * scale
+    u1 = mi.Float(h2 >> 8) * scale
+    px = (mi.Float(dset & 15) + u0) * (2.0 / SETS_PER_SIDE) - 1.0
+    py = (mi.Float(dset >> 4) + u1) * (2.0 / SETS_PER_SIDE) - 1.0
+    direction = dr.normalize(oct_decode(mi.Point2f(px, py)))
+    weight = dr.gather(mi.Float, omega, dset) / mi.Float(dr.maximum(npair, 1))
+    key = _hash_u32_dr(h ^ SHADE_STREAM)
+    dr.eval(direction, weight, key)
+    return mi.Vector3f(direction), weight, key
+
+
+__all__ = ["DeviceISDDGIPlanner", "DevicePlanInfo", "IMPLS", "ISDDGIState"]
