@@ -23,6 +23,10 @@ keep their value and count.
   ``s = min(m, cap - n)`` -- exactly the sequential updates when the samples are equal.
 * :class:`MeanAccumulator` -- the plain mean of this frame's samples, no history
   (ADGI's fp32 reference, Sec. 5; :class:`~dyngi.probes.blend.TrueAverage`).
+
+:func:`merge_into_volume` merges the probes of a host plan and counts their updates on the host;
+:func:`merge_slots_into_volume` merges the slots of a masked plan (device probe ids) and counts them in
+a device array, so that a frame never waits for the host (ours).
 """
 from __future__ import annotations
 
@@ -214,6 +218,32 @@ def merge_into_volume(volume, est_irr, est_dist, accumulator, encoding, probe_id
     dr.eval(dev.irradiance, dev.distance, dev.irradiance_count, dev.distance_count)
     st.device_is_newer(pull_from(dev))
     st.updates[pid if rays is None else pid[np.asarray(rays) > 0]] += 1
+
+
+def merge_slots_into_volume(volume, est_irr, est_dist, accumulator, encoding, slot_probe, slot_valid,
+                            history) -> None:
+    """:func:`merge_into_volume` for estimates over device *slots* (a masked
+    :class:`~dyngi.probes.rays.RayPlan`'s ``probe_ids`` / ``slot_valid``; ours): no host array is read or
+    written. ``history`` (UInt32 per probe, on the device) replaces the host update counts: a probe with
+    0 has no history (the accumulator takes its first estimate directly) and every used slot adds 1 to its
+    probe's (``dr.scatter_reduce``). Unused slots scatter nothing."""
+    dev = volume.device
+    S = dr.width(slot_probe)
+    fresh_dr = dr.gather(mi.UInt32, history, slot_probe) == 0
+    parts = []
+    for kind, est in (("irradiance", est_irr), ("distance", est_dist)):
+        if est is not None:
+            T = volume.irradiance_texels if kind == "irradiance" else volume.distance_texels
+            val, cnt, gidx = merge(volume, kind, est, accumulator, encoding, slot_probe, fresh_dr, S)
+            used = dr.gather(mi.Bool, slot_valid, dr.arange(mi.UInt32, S * T * T) // dr.opaque(mi.UInt32, T * T))
+            parts.append((kind, (val, cnt, gidx, used)))
+    dr.eval(*[x for _, (v, c, _, u) in parts for x in (v, c, u)])
+    for kind, (val, cnt, gidx, used) in parts:
+        dr.scatter(getattr(dev, kind), val, gidx, used)
+        dr.scatter(getattr(dev, kind + "_count"), cnt, gidx, used)
+    dr.scatter_reduce(dr.ReduceOp.Add, history, mi.UInt32(1), slot_probe, slot_valid, mode=dr.ReduceMode.Local)
+    dr.eval(dev.irradiance, dev.distance, dev.irradiance_count, dev.distance_count, history)
+    volume.state.device_is_newer(pull_from(dev))
 
 
 def pull_from(dev):

@@ -30,7 +30,9 @@ it; a technique with its own per-update step (IS-DDGI's set integration) passes 
 
 Techniques that run several traces per frame (ADGI's pilot, static and dynamic stages) call the
 stages :meth:`trace`, :meth:`trace_distances`, :meth:`merge` and :meth:`classify` themselves; they
-never call the tracing or merging functions directly.
+never call the tracing or merging functions directly. :meth:`merge_slots` is :meth:`merge` for a masked
+plan (:meth:`RayPlan.masked <dyngi.probes.rays.RayPlan.masked>`): its slots and the probes' update
+counts stay on the device (ADGI's device path, a frame without a host read).
 """
 from __future__ import annotations
 
@@ -38,12 +40,13 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from .accumulator import merge_into_volume
+from .accumulator import merge_into_volume, merge_slots_into_volume
 from .protocols import check_part
 from .rays import FixedSFDirections
 from .states import ProbeStates
 from .trace import trace_probe_distances, trace_probe_rays, vector_to_numpy
-from .volume import ProbeVolume
+from .volume import ProbeVolume, upload
+from ..backend import mi
 from ..timing import StageTimer, maybe_stage
 
 UPDATE_STAGES = ("trace probes", "shade probes", "blend", "states")   # the timer stages of one update
@@ -100,6 +103,7 @@ class ProbePipeline:
         self.plan_stage = plan_stage
         self.last_results = None
         self.last_plan = None
+        self._history = None      # device update counts of merge_slots (None: the host's are current)
 
     # ``directions``: the planner's older name (techniques swap it for budgets)
     @property
@@ -156,6 +160,33 @@ class ProbePipeline:
         b = self.blender
         merge_into_volume(self.volume, est_irr, est_dist, accumulator or b.accumulator, encoding or b.encoding,
                           probe_ids, rays)
+
+    # -- the device path: merges of masked plans, with the update counts on the device --
+    @property
+    def history(self):
+        """Per probe (UInt32, on the device) its update count, for :meth:`merge_slots`: uploaded from the
+        host counts on first use and after :meth:`history_to_host` / :meth:`history_from_host`."""
+        if self._history is None:
+            self._history = upload(self.volume.state.updates.astype(np.uint32), mi.UInt32)
+        return self._history
+
+    def history_to_host(self) -> None:
+        """Copy the device update counts into the host's (a host read: before a host pass, e.g. relocation
+        and classification, that resets the counts of woken probes); then :meth:`history_from_host`."""
+        if self._history is not None:
+            self.volume.state.updates[:] = np.asarray(self._history, np.int64)
+
+    def history_from_host(self) -> None:
+        """Drop the device counts: the next :meth:`merge_slots` uploads the host's again."""
+        self._history = None
+
+    def merge_slots(self, est_irr, est_dist, slot_probe, slot_valid, accumulator=None, encoding=None) -> None:
+        """:meth:`merge` for estimates over the device slots of a masked plan (``plan.probe_ids`` /
+        ``plan.slot_valid``): no host read (:func:`~dyngi.probes.accumulator.merge_slots_into_volume`). The
+        update counts live on the device meanwhile (:attr:`history`)."""
+        b = self.blender
+        merge_slots_into_volume(self.volume, est_irr, est_dist, accumulator or b.accumulator,
+                                encoding or b.encoding, slot_probe, slot_valid, self.history)
 
     def classify(self, scene, probe_ids: np.ndarray, frame: int, seed: int, timer=None) -> dict:
         """Relocation / classification of ``probe_ids`` from ``classify_rays`` fixed rays (stage ``states``)."""

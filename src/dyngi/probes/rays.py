@@ -19,6 +19,14 @@ is its fast path: ``shared_directions`` set and a constant ``rays_per_probe``,
 which lets the estimator be one dense matrix product on the CPU (see
 :mod:`dyngi.probes.estimator`).
 
+A **masked** plan (:meth:`RayPlan.masked`; ours, for a frame that never reads back to the host) has a
+fixed width set on the host (e.g. the ray budget) and a per-ray ``valid`` mask instead of a compacted
+ragged list: its ``probe_ids`` is then a Dr.Jit ``UInt32`` of *slots* (``slot_valid`` says which are
+used: each probe with a valid ray owns one slot, numbered by a device prefix sum over the probes), the
+invalid rays have weight 0 (no estimator counts them) and the tracer masks them out; the rays cast are
+``dr.count(valid)``, a device value. :func:`compact` packs the chosen lanes of a wider array into such a
+fixed width on the device (``dr.compress`` without its host read).
+
 * :class:`UniformSFDirections` -- DDGI (Majercik et al., JCGT 2019, Sec. 3.1):
   ``n`` spherical-Fibonacci directions under one fresh uniformly random
   rotation per frame, shared by every probe.
@@ -55,6 +63,8 @@ class RayPlan:
     weight : Float | None       per-ray sample weight (``1 / pdf``, any constant factor); ``None`` = 1
     texel : UInt32 | None       interior texel (row-major in the ``(T-2)^2`` interior) each ray belongs
                                 to, for plans that sample per texel (``texel_res`` = that ``T``)
+    valid : Bool | None         a masked plan (:meth:`masked`): the rays traced; ``probe_ids`` is then a
+                                Dr.Jit UInt32 per slot and ``slot_valid`` the slots in use (no host copy)
     """
 
     probe: "mi.UInt32"
@@ -67,8 +77,14 @@ class RayPlan:
     weight: "mi.Float" = None
     texel: "mi.UInt32" = None
     texel_res: int | None = None
+    valid: "mi.Bool" = None
+    slot_valid: "mi.Bool" = None
 
     def __post_init__(self):
+        if self.valid is not None:      # a masked plan: everything stays on the device
+            if self.slot is None or self.slot_valid is None:
+                raise DyngiError("a masked RayPlan needs its slots (use RayPlan.masked)")
+            return
         self.probe_ids = np.asarray(self.probe_ids)
         P = len(self.probe_ids)
         if self.offsets is None:
@@ -84,13 +100,50 @@ class RayPlan:
                 self.slot = upload(np.repeat(np.arange(P, dtype=np.uint32), self.counts), mi.UInt32)
 
     @property
+    def is_masked(self) -> bool:
+        return self.valid is not None
+
+    @property
     def counts(self) -> np.ndarray:
-        """(P_traced,) rays per traced probe."""
+        """(P_traced,) rays per traced probe (host plans only)."""
+        if self.valid is not None:
+            raise DyngiError("a masked RayPlan has no host counts (its slots are on the device)")
         return np.diff(self.offsets)
 
     @property
     def n_rays(self) -> int:
-        return int(self.offsets[-1])
+        """Rays of a host plan; lanes (an upper bound of the rays) of a masked one."""
+        return dr.width(self.direction) if self.valid is not None else int(self.offsets[-1])
+
+    def rays_cast(self):
+        """Rays traced: an int for a host plan, a device ``dr.count(valid)`` (UInt32, width 1) for a masked one."""
+        return dr.count(self.valid) if self.valid is not None else self.n_rays
+
+    @staticmethod
+    def masked(probe, direction, valid, n_probes: int, weight=None) -> "RayPlan":
+        """A masked plan (module docstring) of ``dr.width(direction)`` lanes: lane ``i`` traces from probe
+        ``probe[i]`` along ``direction[i]`` where ``valid[i]``. Slots: each probe with a valid lane gets the
+        rank ``r`` of its id among those probes (a device prefix sum over the ``n_probes`` probes, so slots
+        follow probe order as a host plan's would); there are ``min(n_probes, lanes)`` slots, ``probe_ids[r]``
+        the probe of slot ``r`` and ``slot_valid[r]`` whether it is used. ``weight`` (a multiplicity or
+        ``1 / pdf``; None = 1) is 0 on invalid lanes. No host read."""
+        W = dr.width(direction)
+        P = int(n_probes)
+        S = max(min(P, W), 1)
+        valid = mi.Bool(valid)
+        has = dr.zeros(mi.UInt32, P)
+        dr.scatter(has, mi.UInt32(1), probe, valid)
+        rank = dr.prefix_sum(has)                           # exclusive: the slot of each probe that has rays
+        slot = dr.select(valid, dr.gather(mi.UInt32, rank, probe, valid), 0)
+        slot_probe = dr.zeros(mi.UInt32, S)
+        dr.scatter(slot_probe, dr.arange(mi.UInt32, P), rank, has != 0)
+        used = dr.sum(has)                                   # width 1, on the device
+        slot_valid = dr.arange(mi.UInt32, S) < dr.gather(mi.UInt32, used, dr.zeros(mi.UInt32, S))
+        w = mi.Float(1.0) if weight is None else mi.Float(weight)
+        w = dr.select(valid, w, 0.0)
+        dr.eval(slot, slot_probe, slot_valid, w)
+        return RayPlan(mi.UInt32(probe), direction, None, None, slot_probe, None, slot, w, valid=valid,
+                       slot_valid=slot_valid)
 
     @staticmethod
     def ragged(probe_ids, counts, direction, weight=None, pdf=None, texel=None, texel_res=None) -> "RayPlan":
@@ -112,6 +165,22 @@ class RayPlan:
             weight = dr.rcp(mi.Float(pdf))
         constant = int(counts[0]) if len(counts) and np.all(counts == counts[0]) and counts[0] > 0 else None
         return RayPlan(probe, direction, constant, None, pids, offsets, slot, weight, texel, texel_res)
+
+
+def compact(active, capacity: int):
+    """``dr.compress`` into a fixed ``capacity`` without a host read: ``(index UInt32, ok Bool)`` of width
+    ``capacity``; the first ``min(dr.count(active), capacity)`` entries are the indices of the active lanes
+    in increasing order (``ok`` True), the others 0 (``ok`` False). Lanes past the capacity are dropped."""
+    C = max(int(capacity), 1)
+    a = mi.Bool(active)
+    pos = dr.prefix_sum(mi.UInt32(a))                     # exclusive: the output position of each lane
+    idx = dr.zeros(mi.UInt32, C)
+    fits = a & (pos < dr.opaque(mi.UInt32, C))     # opaque: the capacity may change per frame
+    dr.scatter(idx, dr.arange(mi.UInt32, dr.width(a)), pos, fits)
+    n = dr.count(a)
+    ok = dr.arange(mi.UInt32, C) < dr.gather(mi.UInt32, mi.UInt32(n), dr.zeros(mi.UInt32, C))
+    dr.eval(idx, ok)
+    return idx, ok
 
 
 def upload(array: np.ndarray, cls):

@@ -380,12 +380,19 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
     mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
     volume.geometry = mscene      # relocation checks its moves against the geometry the rays saw
     n = dr.width(plan.direction)
+    masked = plan.valid is not None      # a masked plan: only its valid lanes trace (no host read)
+    active = plan.valid if masked else mi.Bool(True)
     with maybe_stage(timer, "trace probes"):
         origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
         ray = mi.Ray3f(origin, plan.direction)
         glass = scene_has_glass(mscene)
         if glass:   # clear surfaces pass the ray (attenuated); one kernel with the shading
-            si, throughput, t_hit, _ = intersect_through_glass(mscene, ray, mi.Bool(True))
+            si, throughput, t_hit, _ = intersect_through_glass(mscene, ray, active)
+        elif masked:
+            pi = mscene.ray_intersect_preliminary(ray, coherent=False, active=active)
+            dr.eval(pi)
+            si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
+            t_hit = si.t
         else:
             pi = mscene.ray_intersect_preliminary(ray, coherent=False)
             # only the hits are stored: the shade kernel recomputes the rays (two gathers) instead of
@@ -395,14 +402,14 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
             si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
             t_hit = si.t
         sampler = make_sampler(n, seed, frame, stream)
-        L, hit, front, shadow = shader.shade(mscene, ray, si, sampler, query, mi.Bool(True))
+        L, hit, front, shadow = shader.shade(mscene, ray, si, sampler, query, active)
         if glass:
             L = L * throughput
         signed_front = probe_hit_front(mscene, volume, ray, si, t_hit, hit, glass)
         dist = dr.select(hit, dr.select(signed_front, t_hit, -BACKFACE_DISTANCE_SCALE * t_hit), dr.inf)
         L = dr.select(dr.isfinite(L), L, 0.0)   # guard: a NaN/Inf sample must never enter the cache
     if timer is not None:
-        timer.add_rays("trace probes", n)
+        timer.add_rays("trace probes", plan.rays_cast() if masked else n)
     with maybe_stage(timer, "shade probes"):
         dr.eval(L, dist, shadow)     # the shadow-ray mask too: one kernel whether or not rays are counted
     if timer is not None:
@@ -417,8 +424,12 @@ def trace_probe_distances(scene, volume, plan: RayPlan) -> "mi.Float":
     origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
     ray = mi.Ray3f(origin, plan.direction)
     glass = scene_has_glass(mscene)
+    masked = plan.valid is not None
     if glass:     # clear surfaces are no geometry for classification either
-        si, _, t_hit, _ = intersect_through_glass(mscene, ray, mi.Bool(True))
+        si, _, t_hit, _ = intersect_through_glass(mscene, ray, plan.valid if masked else mi.Bool(True))
+    elif masked:  # a masked plan: only its valid lanes trace
+        si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=False, active=plan.valid)
+        t_hit = si.t
     else:
         si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=False)
         t_hit = si.t

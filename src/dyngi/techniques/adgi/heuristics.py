@@ -198,7 +198,11 @@ class HeuristicState:
     def zeros(n_probes: int) -> "HeuristicState":
         n = int(n_probes) * OCTANTS
         z = [dr.zeros(mi.Float, n) for _ in range(8)]
-        return HeuristicState(*z, dr.full(mi.Float, 1.0, int(n_probes)), dr.zeros(mi.UInt32, int(n_probes)))
+        fc, stamp = dr.full(mi.Float, 1.0, int(n_probes)), dr.zeros(mi.UInt32, int(n_probes))
+        # evaluated, not literal zeros: a literal folds into the first frames' kernels, which then differ
+        # from the steady ones (a recompile on frames 3-4)
+        dr.make_opaque(*z, fc, stamp)
+        return HeuristicState(*z, fc, stamp)
 
     def fc_entries(self):
         return dr.gather(mi.Float, self.fc, dr.arange(mi.UInt32, dr.width(self.fv)) // OCTANTS)

@@ -24,13 +24,24 @@ The hints: ``vin`` (per probe, 1 in V_in), ``fs`` / ``fd`` (per probe octant, fr
 ``rays`` (the stage's ray allowance or None) and ``shadow_rate`` (measured NEE shadow rays per probe
 ray). :attr:`last_samples` is the stage's sample (static) or proxy-octant (dynamic) count. The
 technique traces each plan along ``w`` (radiance) and ``-w`` (:func:`negated`, the distance rays).
+
+Two implementations of the same sampling (``device``, ours): the host one sizes ragged plans
+(``dr.compress`` and a host sort of the probe ids: one read per plan); the device one
+(``device=True``) returns masked plans (:meth:`RayPlan.masked <dyngi.probes.rays.RayPlan.masked>`) of a
+width fixed on the host -- static: the chains' samples, at most what the stage's allowance ``rays_max``
+pays for; dynamic: the lanes a budget pays for, or without one 1.5x the last frame's lanes (a power of
+two, at least 8 proxy octants' worth; :meth:`ADGIChainPlanner.dynamic_capacity`) -- and takes the
+stage's exact cap as a device value (``limit``: samples, or rays for D). The counts (:attr:`last_samples`,
+the unique share, the lanes D wanted) stay device values until :meth:`ADGIChainPlanner.finish_frame` reads
+them after the frame's image. A change of guide that needs more dynamic lanes than the capacity is traced,
+highest guide first, up to it, and fully from the next frame.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ...backend import dr, mi
-from ...probes.rays import RayPlan
+from ...probes.rays import RayPlan, compact
 from ...probes.volume import upload
 from ...sampling.metropolis import ChainState, MetropolisChains
 from ...sampling.octahedral import direction_to_texel_coords, texel_directions
@@ -58,7 +69,7 @@ def sorted_plan(probe, direction, weight, n_probes: int) -> RayPlan:
 def negated(plan: RayPlan) -> RayPlan:
     """The same plan along ``-w`` (the shadow rays of Sec. 4.8)."""
     return RayPlan(plan.probe, -plan.direction, plan.rays_per_probe, None, plan.probe_ids, plan.offsets,
-                   plan.slot, plan.weight)
+                   plan.slot, plan.weight, valid=plan.valid, slot_valid=plan.slot_valid)
 
 
 def multiplicity(accepted, n_chains: int, samples_per_chain: int):
@@ -143,18 +154,22 @@ class ADGIChainPlanner:
         self.last_samples = 0
         self._first = 0              # the first static chain to run under a budget (rotates, ours)
         self._unique = 1.0           # traced / kept samples of the last budgeted static frame (measured)
+        self.device = False          # masked plans, no host read (set by the technique's ``impl``)
+        self._pending = {}           # device counts of this frame, read by finish_frame()
+        self._dyn_lanes = 0          # lanes the last frame's dynamic stage wanted (device path, measured)
 
     def plan(self, frame: int, seed: int, probe_ids=None, previous=None, stage: str = "static", vin=None,
-             fs=None, fd=None, rays=None, shadow_rate: float = 1.0) -> RayPlan | None:
+             fs=None, fd=None, rays=None, shadow_rate: float = 1.0, rays_max=None, limit=None) -> RayPlan | None:
         """This stage's rays (None: no sample this frame). ``probe_ids`` is unused: the chains choose the
-        probes (those of ``vin``)."""
+        probes (those of ``vin``). Device path only: ``rays_max`` (host) bounds the plan's width under a
+        budget, ``limit`` (device UInt32) is the stage's exact cap (module docstring)."""
         if stage == "static":
-            return self._static_plan(frame, seed, vin, fs, fd, rays, shadow_rate)
+            return self._static_plan(frame, seed, vin, fs, fd, rays, shadow_rate, rays_max, limit)
         if stage == "dynamic":
             if self.dynamic_state is None:
                 self.last_samples = 0
                 return None
-            return self._dynamic_plan(frame, seed, vin, fd, rays, shadow_rate)
+            return self._dynamic_plan(frame, seed, vin, fd, rays, shadow_rate, rays_max, limit)
         from ...errors import unknown_choice
         raise unknown_choice("ADGI planner stage", stage, STAGES)
 
@@ -237,7 +252,8 @@ class ADGIChainPlanner:
         L = self._mip_level
         return mi.UInt32((iy >> L) * self._mip_n + (ix >> L))
 
-    def _static_plan(self, frame: int, seed: int, vin_dr, fs, fd, rays, shadow_rate: float):
+    def _static_plan(self, frame: int, seed: int, vin_dr, fs, fd, rays, shadow_rate: float, rays_max=None,
+                     limit=None):
         """S (Sec. 4.8): run the static chains (the first ``n_run`` under a ray budget), one ray per sample
         with ``h > 0``; ``fs`` is f_s from the 6-10-10 word (Sec. 4.3)."""
         vol = self.volume
@@ -272,6 +288,8 @@ class ADGIChainPlanner:
         # a repeated state (rejected move) is traced once, weighted by its multiplicity
         mult = multiplicity(s.accepted, n_run, self.static.samples_per_chain)
         ok = (s.value > 0.0) & (mult > 0)
+        if self.device:
+            return self._static_masked(s, mult, ok, fd, n_run, rays, shadow_rate, rays_max, limit)
         if rays is not None:     # never more samples than the budget pays for (lane order: early iterations first)
             cap = int(max(rays // (2.0 + shadow_rate), 0))
             ok &= dr.prefix_sum(mi.UInt32(ok)) < dr.opaque(mi.UInt32, cap)
@@ -295,7 +313,56 @@ class ADGIChainPlanner:
             self._unique = min(max(n / kept, 0.05), 1.0)
         return plan
 
-    def _dynamic_plan(self, frame: int, seed: int, vin_dr, fd, rays, shadow_rate: float):
+    def _static_masked(self, s, mult, ok, fd, n_run: int, rays, shadow_rate: float, rays_max, limit):
+        """The device path's static plan (module docstring): the same samples as the host path's, capped on
+        the device (``limit`` samples, else the host cap of ``rays``), packed into a masked plan of at most
+        the samples ``rays_max`` pays for; no host read."""
+        width = n_run * self.static.samples_per_chain
+        if rays is not None:
+            cap = limit if limit is not None else dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
+            ok &= dr.prefix_sum(mi.UInt32(ok)) < cap
+            bound = rays if rays_max is None else rays_max
+            width = min(width, int(max(bound // (2.0 + shadow_rate), 0)) + 1)
+        idx, lane_ok = compact(ok, width)
+        x = dr.gather(mi.Vector3f, s.position, idx)
+        w = dr.gather(mi.Vector3f, s.direction, idx)
+        m = dr.select(lane_ok, mi.Float(dr.gather(mi.UInt32, mult, idx)), 0.0)
+        probe = self._probe_of(x, self.counts)
+        snap = dr.gather(mi.Float, fd, probe * OCTANTS + octant_of(w), lane_ok) > 0.0
+        ti, _ = self._texel_of(w)
+        w = dr.select(snap, dr.gather(mi.Vector3f, self._texel_dirs, ti), w)
+        n = dr.count(lane_ok)
+        self.last_samples = n
+        self._pending["static"] = (n, dr.sum(m), None if rays is None else
+                                   (limit if limit is not None else mi.UInt32(int(max(rays // (2.0 + shadow_rate),
+                                                                                       0)))))
+        return RayPlan.masked(probe, w, lane_ok, self.volume.n_probes, weight=m)
+
+    def dynamic_capacity(self, rays_max, shadow_rate: float) -> int:
+        """Lanes of the device path's dynamic plan: under a budget what ``rays_max`` pays for; without one
+        1.5x the lanes the last frame wanted, rounded up to a power of two, at least 8 proxy octants' worth
+        (ours; module docstring)."""
+        per_octant = PROXY ** 3 * dr.width(self._strata.x)
+        if rays_max is not None:
+            return max(int(rays_max // (2.0 + shadow_rate)) + 1, 1)
+        want = max(int(1.5 * self._dyn_lanes), 8 * per_octant)
+        return 1 << (want - 1).bit_length()
+
+    def finish_frame(self) -> None:
+        """Read this frame's device counts (after the frame's image: no extra wait): :attr:`last_samples` as
+        ints, the static stage's unique share (for the next budget) and the lanes the dynamic stage wanted."""
+        st = self._pending.pop("static", None)
+        if st is not None:
+            n, kept, cap = (float(np.asarray(v).ravel()[0]) if v is not None else None for v in st)
+            if kept > 0 and (cap is None or n < cap):
+                self._unique = min(max(n / kept, 0.05), 1.0)
+        dyn = self._pending.pop("dynamic", None)
+        if dyn is not None:
+            self._dyn_lanes = int(np.asarray(dyn).ravel()[0])
+        self._pending.clear()
+
+    def _dynamic_plan(self, frame: int, seed: int, vin_dr, fd, rays, shadow_rate: float, rays_max=None,
+                      limit=None):
         """D (Sec. 4.9): run the dynamic chains on the proxy table; every proxy octant they visit traces
         ``dynamic_rays`` strata per probe of it in V_in. Under a budget: whole octants, those with the highest
         proxy-table value (the guide) first, while ``rays`` last (:func:`budget_keep`, on the device; ours:
@@ -328,6 +395,8 @@ class ADGIChainPlanner:
         mark = dr.zeros(mi.UInt32, n_entries)
         ent = self._probe_of(s.position, self.proxies) * OCTANTS + octant_of(s.direction)
         dr.scatter(mark, mi.UInt32(1), ent, s.value > 0.0)
+        if self.device:
+            return self._dynamic_masked(table, mark, vin_dr, rays, shadow_rate, rays_max, limit)
         marked = dr.compress(mark != 0)          # its width is the count of marked octants
         n_marked = self.last_samples = dr.width(marked)
         if n_marked == 0:
@@ -364,3 +433,47 @@ class ADGIChainPlanner:
             return None
         return sorted_plan(dr.gather(mi.UInt32, probe, keep), dr.gather(mi.Vector3f, d, keep), None,
                            vol.n_probes)
+
+    def _dynamic_masked(self, table, mark, vin_dr, rays, shadow_rate: float, rays_max, limit):
+        """The device path's dynamic plan (module docstring): the marked proxy octants packed on the device
+        (at most one per chain sample), their lanes, whole octants kept highest guide first while the cap
+        lasts (``limit`` rays' worth under a budget, the plan's width without one), packed into a masked plan
+        of :meth:`dynamic_capacity` lanes; no host read."""
+        nx, ny, nz = self.counts
+        px, py, pz = self.proxies
+        n_entries = px * py * pz * OCTANTS
+        E = max(min(n_entries, self.dynamic_state.n * self.dynamic.samples_per_chain), 1)
+        marked, m_ok = compact(mark != 0, E)
+        self.last_samples = dr.count(m_ok)
+        R = dr.width(self._strata.x)
+        per_m = 27 * R
+        lane = dr.arange(mi.UInt32, E * per_m)
+        m = lane // per_m
+        rest = lane - m * per_m
+        sub = rest // R
+        r = rest - sub * R
+        ent = dr.gather(mi.UInt32, marked, m)
+        q = ent // OCTANTS
+        oo = ent - q * OCTANTS
+        i = mi.Int32(q % px) * PROXY + mi.Int32(sub % PROXY)
+        j = mi.Int32((q // px) % py) * PROXY + mi.Int32((sub // PROXY) % PROXY)
+        k = mi.Int32(q // (px * py)) * PROXY + mi.Int32(sub // (PROXY * PROXY))
+        inside = (i < nx) & (j < ny) & (k < nz) & dr.gather(mi.Bool, m_ok, m)
+        probe = mi.UInt32(dr.select(inside, i + nx * (j + ny * k), 0))
+        ok = inside & (dr.gather(mi.Float, vin_dr, probe, inside) > 0.0)
+        d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(oo)
+        dr.eval(probe, d, ok)
+        self._pending["dynamic"] = dr.count(ok)
+        width = self.dynamic_capacity(rays_max if rays is not None else None, shadow_rate)
+        per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), per_m)
+        key = guide_level(dr.select(m_ok, dr.gather(mi.Float, table, marked), 0.0), GUIDE_LEVELS)
+        if rays is not None:
+            budget = limit if limit is not None else dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
+            budget = dr.minimum(mi.UInt32(budget), dr.opaque(mi.UInt32, width))
+        else:
+            budget = dr.opaque(mi.UInt32, width)
+        keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
+        ok &= dr.gather(mi.Bool, keep_m, m)
+        idx, lane_ok = compact(ok, width)
+        return RayPlan.masked(dr.gather(mi.UInt32, probe, idx), dr.gather(mi.Vector3f, d, idx), lane_ok,
+                              self.volume.n_probes)

@@ -36,6 +36,13 @@ from ...sampling.octahedral import direction_to_texel_coords, texel_directions, 
 from .moving_average import batch_update
 
 
+def _ids(probe_ids):
+    """Probe ids as a device UInt32: uploaded from the host, or as they are (a masked plan's slots)."""
+    if isinstance(probe_ids, np.ndarray) or isinstance(probe_ids, (list, tuple)):
+        return upload(np.asarray(probe_ids, np.uint32), mi.UInt32)
+    return mi.UInt32(probe_ids)
+
+
 class RadianceCache:
     """Per probe and interior radiance texel: Algorithm-3 mean radiance (``value``, Color3f interleaved) and
     its count (``count``); see the module docstring.
@@ -77,6 +84,8 @@ class RadianceCache:
         entry = plan.slot * self.n_tex + self.texel_of(plan.direction)
         L = results.radiance
         front = results.distance >= 0.0        # back faces: no radiance sample (as the estimator)
+        if plan.valid is not None:             # a masked plan: its invalid lanes are no samples
+            front &= plan.valid
         wt = mi.Float(1.0) if plan.weight is None else plan.weight      # the plan's weight: a multiplicity
         sums, sw, cnt = fixed_point_sum([L.x, L.y, L.z], wt + dr.zeros(mi.Float, plan.n_rays), entry, n, front)
         if plan.weight is not None:      # a sample of multiplicity m counts as m samples (Algorithm 3)
@@ -84,7 +93,7 @@ class RadianceCache:
         k = dr.arange(mi.UInt32, n)
         slot = k // self.n_tex
         t = k - slot * self.n_tex
-        probe = dr.gather(mi.UInt32, upload(np.asarray(plan.probe_ids, np.uint32), mi.UInt32), slot)
+        probe = dr.gather(mi.UInt32, _ids(plan.probe_ids), slot)
         gidx = probe * self.n_tex + t
         old = dr.gather(mi.Color3f, self.value, gidx)
         n_old = dr.gather(mi.UInt32, self.count, gidx)
@@ -117,21 +126,22 @@ class RadianceCache:
             return self.irradiance_estimate_host(probe_ids)
         return self.irradiance_estimate_device(probe_ids)
 
-    def irradiance_estimate_device(self, probe_ids: np.ndarray) -> TexelEstimate:
-        """The convolution pass for ``probe_ids`` on the device (no host read): a TexelEstimate of their
+    def irradiance_estimate_device(self, probe_ids) -> TexelEstimate:
+        """The convolution pass for ``probe_ids`` (host ids, or a device UInt32: ADGI's device path) on the
+        device (no host read): a TexelEstimate of their
         interior irradiance texels (E/pi), one lane per (probe, irradiance texel) summing over the radiance
         texels that hold a sample in one symbolic loop (``W`` renormalised over them; an irradiance texel
         with none: ``ok`` False, it keeps its value). Counts: the radiance count of the same texel when
         ``R`` equals the irradiance resolution, else 1. :meth:`irradiance_estimate_host` is the NumPy
         reference."""
-        pids = np.asarray(probe_ids, np.uint32)
+        pids = _ids(probe_ids)
         nt = self.W.shape[1]
-        n = len(pids) * nt
+        n = dr.width(pids) * nt
         lane = dr.arange(mi.UInt32, n)
         ntt = dr.opaque(mi.UInt32, nt)
         slot = lane // ntt
         t = lane - slot * ntt
-        base = dr.gather(mi.UInt32, upload(pids, mi.UInt32), slot) * self.n_tex
+        base = dr.gather(mi.UInt32, pids, slot) * self.n_tex
         n_tex = self.n_tex
 
         def cond(r, num, den):

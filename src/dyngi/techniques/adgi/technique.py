@@ -135,6 +135,8 @@ from ...backend import dr, mi
 from ...errors import DyngiError
 from ...probes import DiffuseHitShader, HysteresisBlend, ProbeStates, RayPlan, ScatterEstimator, UniformSFDirections
 from ...probes.accumulator import MeanAccumulator, pull_from
+from ...probes.estimator import is_cpu_backend
+from ...probes.rays import compact
 from ...probes.encoding import get_encoding
 from ...probes.lookup import diffuse_radiance
 from ...probes.pipeline import ProbePipeline
@@ -150,6 +152,7 @@ from .moving_average import N_MAX_DYNAMIC, N_MAX_STATIC, Algorithm3Accumulator
 from .planner import ADGIChainPlanner, negated
 from .radiance import RadianceCache
 
+IMPLS = ("auto", "device", "host")
 
 
 class PilotShader(DiffuseHitShader):
@@ -261,6 +264,9 @@ class ADGITechnique(_ProbeTechniqueBase):
                                      "warm-up (fixed rays; 0: warm-up only)", min=0),
         "guide_mip": Param(1, "mip level of the irradiance feedback g in the static guide (Sec. 3.2/4.8; "
                            "0: the texel itself)", min=0, max=3),
+        "impl": Param("auto", "'device': masked fixed-width plans, no host read in the probe update; 'host': "
+                      "ragged plans sized on the host (reads back); 'auto': device on a GPU, host on the CPU",
+                      choices=IMPLS),
     }
     BUDGETS = ("equal-rays", "equal-time")
 
@@ -304,6 +310,17 @@ class ADGITechnique(_ProbeTechniqueBase):
                                       self.volume.irradiance_texels)
         self._updated = np.zeros(vol_n, bool)
         self._used = dr.full(mi.Float, 1.0, vol_n)     # probes the last primary pass read (all, before one ran)
+        # -- the device path (impl): masked plans, counts on the device, read after the frame's image --
+        self.device = p["impl"] == "device" or (p["impl"] == "auto" and not is_cpu_backend())
+        self.planner.device = self.device
+        self._updated_dev = dr.zeros(mi.UInt32, vol_n)   # probes merged this frame (device path)
+        self._slots_merged = 0                            # slots merged this frame (host: the convolve width)
+        self._frame_dev = []        # this frame's device ray counts before the budget: (count, lower, estimate)
+        self._rates = []            # (probe rays, NEE shadow rays) of this frame's traces, device values
+        self._dyn_prev = False      # the last frame's "some f_d > 0" (device path, read after its image)
+        self._static_limit = self._dynamic_limit = None   # device caps of S and D under a ray budget
+        self._static_rays_max = self._dynamic_rays_max = None
+        self._avail_dev = None
 
     def memory_per_probe(self) -> dict:
         """Bytes per probe by part: the irradiance and visibility texels as their encoded words (Table 3:
@@ -337,8 +354,17 @@ class ADGITechnique(_ProbeTechniqueBase):
 
     # -- one frame ------------------------------------------------------------------------------
     def step(self, frame: Frame) -> FrameResult:
-        p = self.params
         t = StageTimer()
+        stats = self.update_probes(frame, t)
+        img, ind = self._primary(frame, t)
+        return self.finish_frame(t, stats, img, ind)
+
+    def update_probes(self, frame: Frame, t: StageTimer) -> dict:
+        """One frame's probe update, stages P, S, D (and the warm-up / relocation passes when due); returns
+        its stats (device values on the device path). On the device path (``impl``) a frame without the
+        warm-up or a relocation/classification pass reads nothing back to the host here (tests/techniques/
+        adgi/test_device_path.py); the counts are read by :meth:`finish_frame`, after the image."""
+        p = self.params
         self._lights_begin(frame, t)        # lights=: the sampler's per-frame hook before the first probe ray
         if not self._warmed:
             self._warmed = True
@@ -369,7 +395,10 @@ class ADGITechnique(_ProbeTechniqueBase):
                 res = self.pipeline.trace(self.scene, plan, frame.seed, frame.index // 2, stream=41, timer=tt,
                                           shader=self.shader)
                 lum = mi.luminance(self.shader.last_direct)
-                t.add_rays("P", self._count(tt))
+                n_p = self._count(tt)
+                t.add_rays("P", n_p)
+                if self.device and not isinstance(n_p, int):   # the budget's device count (and host bounds)
+                    self._frame_dev.append((n_p, 8 * len(ids), 8 * len(ids) * (1.0 + self._shadow_rate)))
                 self.hstate = self.heur.update(self.hstate, frame.index, ids, res.distance, lum, fc)
                 if p["pilot_updates"] and frame.index % 2 == 0:
                     self._merge(res, None, self.acc_static, p["n_max_static"])
@@ -397,11 +426,17 @@ class ADGITechnique(_ProbeTechniqueBase):
             stats["dynamic_proxy_octants"] = self._dynamic(frame, samp_dr, fd, t)
             self._cap_outer(v_out & ~v_in, p["outer_count_cap"])
             stats["probes_updated"] = self._convolve_updated()
-        img, ind = self._primary(frame, t)
+        stats["v_in"], stats["v_out"] = int(v_in.sum()), int(v_out.sum())
+        stats["static_chains_run"] = self.planner.n_run
+        return stats
+
+    def finish_frame(self, t: StageTimer, stats: dict, img, ind) -> FrameResult:
+        """The frame's result after :meth:`update_probes` and the primary pass: the timer's stats with the
+        update's (device counts read here, after the image: no extra wait), the equal-time measurements."""
         out = t.as_dict()
         out.update(stats)
-        out["v_in"], out["v_out"] = int(v_in.sum()), int(v_out.sum())
-        out["static_chains_run"] = self.planner.n_run
+        if self.device:
+            self._finish_device_frame(out)
         self._measure_time(out)
         return FrameResult(image=img, indirect=ind, stats=out)
 
@@ -436,11 +471,16 @@ class ADGITechnique(_ProbeTechniqueBase):
         measured on its last frame (S: its share; D: what S actually left, after S has run), so the
         chain counts scale with the time budget. Nothing measured yet (the first frame): the defaults."""
         self._static_rays = self._dynamic_rays = self._time_avail_ms = None
+        self._static_limit = self._dynamic_limit = self._avail_dev = None
+        self._static_rays_max = self._dynamic_rays_max = None
         # the dynamic stage is reserved its half only when some entry has f_d > 0 this frame (else it
         # traces nothing and S gets it all); one host read of the f_d scale, only under a budget
         if frame.ray_budget is None and frame.time_budget_ms is None:
             return
-        dyn = self.planner.dynamic_state is not None and float(np.asarray(self.lut_scale).ravel()[0]) > 0.0
+        if self.device and frame.ray_budget is not None:
+            return self._plan_budget_device(frame, t)
+        dyn = self._dyn_prev if self.device else \
+            self.planner.dynamic_state is not None and float(np.asarray(self.lut_scale).ravel()[0]) > 0.0
         share = float(self.params["dynamic_share"]) if dyn else 0.0
         if frame.ray_budget is None:
             if frame.time_budget_ms is not None and self._ms_per_ray["S"]:
@@ -453,6 +493,51 @@ class ADGITechnique(_ProbeTechniqueBase):
         avail = max(float(frame.ray_budget) - spent - primary, 0.0)
         self._static_rays = avail * (1.0 - share)
         self._dynamic_rays = avail      # less what S spends
+
+    def _plan_budget_device(self, frame: Frame, t: StageTimer) -> None:
+        """:meth:`_plan_budget` without a host read (device path): the exact caps are device values -- the
+        rays spent so far (the pilot's NEE shadow rays are counted on the device) and the dynamic share only
+        when some f_d > 0 *this* frame (the 6-10-10 word's scale, on the device) -- while the host sizes the
+        chains run and the plans' widths from the last frame's "some f_d > 0" and shadow-ray rate (an
+        estimate) and from the fewest rays spent so far (an upper bound of the widths)."""
+        p = self.params
+        ints = sum(v for k, v in t.rays.items() if k != "warmup")
+        primary = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
+        fixed = float(frame.ray_budget) - ints - primary
+        lower = sum(lo for _, lo, _ in self._frame_dev)
+        est = sum(e for _, _, e in self._frame_dev)
+        dyn_on = self.planner.dynamic_state is not None
+        share = float(p["dynamic_share"]) if dyn_on else 0.0
+        avail_est = max(fixed - est, 0.0)
+        self._static_rays = avail_est * (1.0 - (share if self._dyn_prev else 0.0))
+        self._static_rays_max = self._dynamic_rays_max = max(fixed - lower, 0.0)
+        self._dynamic_rays = avail_est
+        spent = mi.Float(0.0)
+        for c, _, _ in self._frame_dev:
+            spent = spent + mi.Float(c)
+        avail = dr.maximum(dr.opaque(mi.Float, fixed) - spent, 0.0)
+        dyn = (self.lut_scale > 0.0) if dyn_on else mi.Bool(False)
+        per = 2.0 + self._shadow_rate
+        self._avail_dev = avail
+        self._static_limit = mi.UInt32(avail * (1.0 - dr.select(dyn, dr.opaque(mi.Float, share), 0.0))
+                                       / dr.opaque(mi.Float, per))
+
+    def _finish_device_frame(self, out: dict) -> None:
+        """Device path, after the frame's image: its stats as ints, the NEE shadow rays per probe ray and the
+        "some f_d > 0" flag for the next frame's sizes, the planner's counts (:meth:`.planner.ADGIChainPlanner
+        .finish_frame`)."""
+        for k in ("static_samples", "dynamic_proxy_octants", "probes_updated"):
+            if not isinstance(out.get(k, 0), int):
+                out[k] = int(np.asarray(out[k]).ravel()[0])
+        for probe_rays, shadow in self._rates:
+            pr = int(np.asarray(probe_rays).ravel()[0]) if not isinstance(probe_rays, int) else probe_rays
+            if pr:
+                self._shadow_rate = int(np.asarray(shadow).ravel()[0]) / pr
+        self._rates.clear()
+        self._frame_dev.clear()
+        self._dyn_prev = self.planner.dynamic_state is not None and \
+            float(np.asarray(self.lut_scale).ravel()[0]) > 0.0
+        self.planner.finish_frame()
 
     def _measure_time(self, stats: dict) -> None:
         """Learn ms per ray of S and D and the ms outside them (for equal-time budgets); not on frames
@@ -473,13 +558,18 @@ class ADGITechnique(_ProbeTechniqueBase):
         <dyngi.probes.pipeline.ProbePipeline.classify>`, 32 spherical-Fibonacci rays) and
         :class:`~dyngi.probes.states.ProbeStates` moves / (de)activates it as ``ddgi`` does. The rays are
         counted (stage ``states``) and come out of an equal-ray budget before the chains are sized."""
+        if self.device:     # the host pass resets the counts of woken probes: the device counts go through it
+            self.pipeline.history_to_host()
         self.pipeline.classify(self.scene, np.flatnonzero(mask).astype(np.uint32), frame.index, frame.seed, t)
+        if self.device:
+            self.pipeline.history_from_host()
 
     # -- the stages' traces and merges ----------------------------------------------------------------
     def _static(self, frame: Frame, vin_dr, fd, t: StageTimer) -> int:
         """S: the planner's static plan, traced and merged with N_max static (Sec. 4.8)."""
         plan = self.planner.plan(frame.index, frame.seed, stage="static", vin=vin_dr, fs=self._fs_q, fd=fd,
-                                 rays=self._static_rays, shadow_rate=self._shadow_rate)
+                                 rays=self._static_rays, shadow_rate=self._shadow_rate,
+                                 rays_max=self._static_rays_max, limit=self._static_limit)
         if plan is None:
             return 0
         lane_cap = None
@@ -490,14 +580,18 @@ class ADGITechnique(_ProbeTechniqueBase):
         spent = self._trace_and_merge(frame, plan, self.acc_static, self.params["n_max_static"], stream=43,
                                       lane_cap=lane_cap)
         t.add_rays("S", spent)
-        if self._dynamic_rays is not None:
+        if self._avail_dev is not None:       # device path: D's exact cap on the device
+            self._dynamic_limit = mi.UInt32(dr.maximum(self._avail_dev - mi.Float(spent), 0.0)
+                                            / dr.opaque(mi.Float, 2.0 + self._shadow_rate))
+        elif self._dynamic_rays is not None:
             self._dynamic_rays = max(self._dynamic_rays - spent, 0.0)
         return self.planner.last_samples
 
     def _dynamic(self, frame: Frame, vin_dr, fd, t: StageTimer) -> int:
         """D: the planner's dynamic plan, traced and merged with N_max dynamic (Sec. 4.9)."""
         plan = self.planner.plan(frame.index, frame.seed, stage="dynamic", vin=vin_dr, fd=fd,
-                                 rays=self._dynamic_rays, shadow_rate=self._shadow_rate)
+                                 rays=self._dynamic_rays, shadow_rate=self._shadow_rate,
+                                 rays_max=self._dynamic_rays_max, limit=self._dynamic_limit)
         if plan is not None:
             t.add_rays("D", self._trace_and_merge(frame, plan, self.acc_dynamic, self.params["n_max_dynamic"],
                                                   stream=45))
@@ -512,11 +606,22 @@ class ADGITechnique(_ProbeTechniqueBase):
         back = negated(plan)
         dist = self.pipeline.trace_distances(self.scene, back)
         self._merge(res, ProbeRayResults(res.radiance, dist, back), acc, n_max, lane_cap)
-        return self._count(tt) + plan.n_rays
+        return self._count(tt) + plan.rays_cast()
 
-    def _count(self, tt: StageTimer) -> int:
+    def _count(self, tt: StageTimer):
         """Rays a trace cast (from its private timer: its stage times are part of ours); learns the NEE
-        shadow rays per probe ray for the equal-ray budget."""
+        shadow rays per probe ray for the equal-ray budget. Device path: a device count (the lazy counts of
+        the trace's timer, not read; the rate is learnt after the frame's image)."""
+        if self.device:
+            lazy = list(getattr(tt, "_lazy", ()))       # the timer's unread device counts
+            total = sum(tt.rays.values())
+            if lazy:            # the host part opaque: it changes per frame (a literal would recompile)
+                total = dr.opaque(mi.UInt32, total)
+                for _, n in lazy:
+                    total = n + total
+            probe = dict(lazy).get("trace probes", tt.rays.get("trace probes", 0))
+            self._rates.append((probe, dict(lazy).get("shade probes", 0)))
+            return total
         rays = tt.as_dict()["rays"]
         if rays.get("trace probes"):
             self._shadow_rate = rays.get("shade probes", 0) / rays["trace probes"]
@@ -535,8 +640,22 @@ class ADGITechnique(_ProbeTechniqueBase):
         est_d = self.est_dist.distance(vol, dist_res if dist_res is not None else irr_res)
         if plan.weight is not None:      # the static plan's weight is a multiplicity: m samples of one ray
             est_d = dataclasses.replace(est_d, count=mi.UInt32(dr.round(est_d.weight)))
+        if self.device:
+            slot_probe, slot_valid = self._slots(plan)
+            self.pipeline.merge_slots(None, est_d, slot_probe, slot_valid, accumulator=acc, encoding=self.encoding)
+            dr.scatter(self._updated_dev, mi.UInt32(1), slot_probe, slot_valid)
+            self._slots_merged += dr.width(slot_probe)
+            return
         self.pipeline.merge(None, est_d, plan.probe_ids, plan.counts, accumulator=acc, encoding=self.encoding)
         self._updated[plan.probe_ids[plan.counts > 0]] = True
+
+    @staticmethod
+    def _slots(plan: RayPlan):
+        """(probe per slot, slot used) on the device: a masked plan's own, a host plan's uploaded."""
+        if plan.is_masked:
+            return plan.probe_ids, plan.slot_valid
+        return (upload(np.asarray(plan.probe_ids, np.uint32), mi.UInt32),
+                upload((plan.counts > 0).astype(np.uint32), mi.UInt32) != 0)
 
     def _merge_closest(self, res, acc, lane_cap=None) -> None:
         """``cache_update='closest-entry'``: each sample's radiance updates the irradiance texel its direction
@@ -553,10 +672,25 @@ class ADGITechnique(_ProbeTechniqueBase):
             sub = ProbeRayResults(res.radiance, res.distance, dataclasses.replace(plan, weight=wp))
             est = self.est_irr.irradiance(self.volume, sub)
             est = dataclasses.replace(est, count=mi.UInt32(dr.round(est.weight)))
-            self.pipeline.merge(est, None, plan.probe_ids, plan.counts, accumulator=a, encoding=self.encoding)
+            if self.device:
+                self.pipeline.merge_slots(est, None, *self._slots(plan), accumulator=a, encoding=self.encoding)
+            else:
+                self.pipeline.merge(est, None, plan.probe_ids, plan.counts, accumulator=a, encoding=self.encoding)
 
-    def _convolve_updated(self) -> int:
-        """The per-texel convolution pass (:mod:`.radiance`) for the probes updated this frame."""
+    def _convolve_updated(self):
+        """The per-texel convolution pass (:mod:`.radiance`) for the probes updated this frame. Device path:
+        those probes packed on the device (at most the slots merged this frame), the device convolution, a
+        slot merge; returns a device count."""
+        if self.device:
+            S = max(min(self.volume.n_probes, self._slots_merged), 1)
+            self._slots_merged = 0
+            ids, ok = compact(self._updated_dev != 0, S)
+            n = dr.count(ok)
+            if self.params["cache_update"] == "convolve":
+                est = self.radiance.irradiance_estimate_device(ids)
+                self.pipeline.merge_slots(est, None, ids, ok, accumulator=self._mean, encoding=self.encoding)
+            self._updated_dev = dr.zeros(mi.UInt32, self.volume.n_probes)
+            return n
         ids = np.flatnonzero(self._updated).astype(np.uint32)
         self._updated[:] = False
         if len(ids) and self.params["cache_update"] == "convolve":

@@ -1,0 +1,113 @@
+"""ADGI's device path (``impl='device'``, issue 25 item 4): a steady frame's probe update (stages P, S, D)
+reads nothing back to the host and compiles no new kernel, without a budget and under an equal-ray budget;
+and it samples what the host path samples (the same chains and caps, packed into masked plans instead of
+ragged ones), so the two paths' images agree statistically."""
+import numpy as np
+import pytest
+
+from dyngi.scene import load_scene
+from dyngi.techniques import Frame, create_technique
+
+RES = (32, 24)
+SMALL = {"probe_counts": "5", "static_chains": 512, "dynamic_chains": 128, "iterations": 8, "warmup": 1,
+         "warmup_rays": 32, "reclassify_interval": 0}
+
+
+@pytest.fixture()
+def guard(backend):
+    """``no_host_reads`` of the SMC-IR device test, plus ``dr.compress`` (its width is a host sync)."""
+    import contextlib
+
+    import drjit as dr
+
+    from tests.techniques.test_smcir_device import HostRead, no_host_reads
+
+    @contextlib.contextmanager
+    def strict():
+        def refuse(*a, **k):
+            raise HostRead("dr.compress (a host sync of its width)")
+        saved = dr.compress
+        dr.compress = refuse
+        try:
+            with no_host_reads():
+                yield
+        finally:
+            dr.compress = saved
+    return strict, HostRead
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("budget", [None, 36000])
+def test_steady_device_frame_reads_nothing_back_and_compiles_nothing(guard, budget):
+    """cornell-moving-box (the box moves: the dynamic stage runs), new frame index and seed every frame:
+    from frame 2 on, :meth:`update_probes` runs inside the read guard and every kernel a frame launches was
+    launched before; the guard itself catches the host path's reads."""
+    from dyngi.backend import dr
+    from dyngi.techniques.base import StageTimer
+    from tests.helpers import jit_kernel_hashes
+
+    strict, HostRead = guard
+    sc = load_scene("cornell-moving-box")
+    tech = create_technique("adgi", sc, dict(SMALL, impl="device"))
+    seen, d_rays = set(), []
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        for i in range(6):
+            t = sc.frame_time(i)
+            sc.at(t)
+            f = Frame(i, t, sc.camera(t), RES, seed=11 + 7 * i, ray_budget=budget if i else None)
+            dr.kernel_history()     # clears
+            tt = StageTimer()
+            if i >= 2:
+                with strict():
+                    stats = tech.update_probes(f, tt)
+            else:
+                stats = tech.update_probes(f, tt)
+            r = tech.finish_frame(tt, stats, *tech._primary(f, tt))
+            hashes = jit_kernel_hashes()
+            if i >= 3:
+                assert hashes and hashes <= seen, f"frame {i} compiled {len(hashes - seen)} new kernels"
+            seen |= hashes
+            if i:
+                d_rays.append(r.stats["rays"].get("D", 0))
+                if budget is not None:
+                    assert r.stats["total_rays"] <= budget, (i, r.stats["total_rays"])
+            assert np.all(np.isfinite(r.image))
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert max(d_rays) > 0, d_rays          # the dynamic stage traced in the guarded frames
+    host = create_technique("adgi", sc, dict(SMALL, impl="host"))
+    t = sc.frame_time(0)
+    host.step(Frame(0, t, sc.camera(t), RES, seed=1))
+    with pytest.raises(HostRead):
+        with strict():
+            host.update_probes(Frame(1, t, sc.camera(t), RES, seed=2, ray_budget=budget), StageTimer())
+
+
+@pytest.mark.slow
+def test_device_path_image_equals_the_host_path_statistically(backend):
+    """cornell-static at t = 0, 4^3 probes, 6 seeds x 10 frames each path: the mean indirect image of the
+    last 4 frames per seed, device vs host: the per-seed differences of the image means have mean 0 within
+    3 standard errors (+ 0.5% for the one-frame lag of the device path's dynamic capacity), and the
+    per-pixel mean over seeds agrees within 4 standard errors of the difference on 99% of the pixels."""
+    sc = load_scene("cornell-static")
+    p = {"probe_counts": "4", "static_chains": 1024, "dynamic_chains": 64, "iterations": 8, "warmup": 1,
+         "warmup_rays": 64}
+    img = {"host": [], "device": []}
+    for seed in range(6):
+        for impl in img:
+            tech = create_technique("adgi", sc, dict(p, impl=impl))
+            acc = []
+            for i in range(10):
+                sc.at(0.0)
+                r = tech.step(Frame(i, 0.0, sc.camera(0.0), RES, seed=seed, static=i > 0))
+                if i >= 6:
+                    acc.append(r.indirect)
+            img[impl].append(np.mean(acc, 0))
+    H, D = np.asarray(img["host"], np.float64), np.asarray(img["device"], np.float64)
+    diff = D.mean(axis=(1, 2, 3)) - H.mean(axis=(1, 2, 3))
+    se = diff.std(ddof=1) / np.sqrt(len(diff))
+    assert abs(diff.mean()) <= 3 * se + 0.005 * H.mean(), (diff, se)
+    pd = D - H
+    z = pd.mean(0) / np.maximum(pd.std(0, ddof=1) / np.sqrt(len(pd)), 1e-6 * H.mean())
+    assert np.mean(np.abs(z) <= 4) >= 0.99, np.mean(np.abs(z) <= 4)
