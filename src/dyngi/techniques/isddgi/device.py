@@ -1,9 +1,9 @@
-"""IS-DDGI's importance draws and per-set caps as Dr.Jit kernels (Liu et al., I3D 2023, supplement
-Secs. 4.3-4.4 and Table 1's Multi-Rays / One-Ray limits; issue 26).
+"""IS-DDGI's allocation pdf, importance draws and change measure as Dr.Jit kernels (Liu et al., I3D 2023,
+supplement Secs. 4.3-4.4; issue 26).
 
-The device twins of :func:`~.sets.allocation_pdf`, :func:`~.sets.sample_indices` and the cap of
-:func:`~.sets.merge_keys`, on device arrays only (no host round trip inside; the caller reads back what
-it needs):
+The device twins of :func:`~.sets.allocation_pdf`, :func:`~.sets.sample_indices` and
+:meth:`~.planner.ISDDGIPlanner.ray_change`, on device arrays only (no host round trip inside); the per-set
+cap and the ray layout are :mod:`.device_planner`'s:
 
 * :func:`allocation_pdf_dr`: ``p(i, j) = F_i / sum F * p_f(j | i)``, ``p_f(j | i) = (1 - eps) f_ij /
   sum_j f_ij + eps / 256`` (uniform where a probe has no ``f``) over the *candidates* (probes with
@@ -14,21 +14,15 @@ it needs):
   so every frame runs the same kernels. A zero-pdf entry is never drawn (its cumulative sum equals its
   predecessor's). Float32 sums (ours): the relative rounding of the CDF is ~1e-7 x sqrt(entries), far
   below the chi-squared resolution of the tests.
-* :func:`cap_per_set_dr`: the per-set limit with atomic counters (``dr.scatter_inc``): the uniform rays
-  take their set's first slot, then each importance draw takes the next one; a draw whose slot is at or
-  above the limit (4, Multi-Rays; 1, One-Ray) is dropped. Which of several draws of one set are kept
-  depends on the atomics' order, but the draws are i.i.d., so the kept multiset's distribution does not
-  (ours; the host path keeps the first ones in key order). Returns the kept mask and the per-set counts
-  (``n_ij``, the denominators of the stratified weights ``Omega_j / n_ij``).
 * :func:`change_measure_dr`: the paired-visit change measure of :meth:`~.planner.ISDDGIPlanner.ray_change`
   (the normalised luminance / distance difference of a check visit against its set's stored sample,
   soft-thresholded) and the per-probe balance-heuristic estimate ``F^_i = 256 x`` the check visits' mean
   ``g`` (Sec. 4.3, as :meth:`~.planner.ISDDGIPlanner.observe`), one lane per ray, per-probe sums by
   ``dr.scatter_reduce``; the stored samples are device arrays indexed ``probe * 256 + j``.
 
-The host planner (:class:`~.planner.ISDDGIPlanner`) still builds the frame's plan with the NumPy twins
-(the declared CPU fast path); these kernels are the device path's pieces (see the report of issue 26 for
-what remains to route the default plan through them).
+The default planner (:class:`~.device_planner.DeviceISDDGIPlanner`) builds each frame's plan and state
+update from these kernels; the host planner (:class:`~.planner.ISDDGIPlanner`, ``impl='host'``) keeps the
+NumPy twins.
 """
 from __future__ import annotations
 
@@ -81,24 +75,6 @@ def sample_pairs_dr(pdf, n: int, seed: int):
     idx = dr.select(ok, idx, 0)
     dr.eval(idx)
     return mi.UInt32(idx)
-
-
-def cap_per_set_dr(n_pairs: int, uniform_keys, draw_keys, limit: int):
-    """Per-set cap with atomic counters over ``n_pairs`` (candidate, set) pairs: returns ``(keep, counts)``,
-    ``keep`` (len(draw_keys),) Bool, the draws kept; ``counts`` (n_pairs,) UInt32, the rays per pair after the
-    cap (uniform + kept draws, at most ``limit``). ``uniform_keys``: at most one uniform ray per pair."""
-    counts = dr.zeros(mi.UInt32, n_pairs)
-    if dr.width(uniform_keys):
-        dr.scatter_inc(counts, mi.UInt32(uniform_keys))
-        dr.eval(counts)
-    if not dr.width(draw_keys):
-        return mi.Bool(), counts
-    slot = dr.scatter_inc(counts, mi.UInt32(draw_keys))
-    keep = slot < dr.opaque(mi.UInt32, int(limit))
-    dr.eval(keep, counts)
-    capped = dr.minimum(counts, dr.opaque(mi.UInt32, int(limit)))
-    dr.eval(capped)
-    return keep, capped
 
 
 def change_measure_dr(lum, dist, slot, pair, paired, check, sample_lum, sample_dist, has_sample, n_slots: int,

@@ -49,7 +49,7 @@ from ...backend import dr, mi
 from ...probes.rays import RayPlan
 from ...probes.volume import upload
 from ...sampling.rng import mix_seed
-from .device import allocation_pdf_dr, change_measure_dr, uniform_numbers_dr
+from .device import allocation_pdf_dr, change_measure_dr, sample_pairs_dr
 from .planner import ISDDGIPlanner, ISDDGIState
 from .sets import (CELL_STREAM, CHANGE_EPS, N_SETS, NEIGHBOUR_SHARE, RAYS_LIMIT, SETS_PER_SIDE, SHADE_STREAM,
                    SHIFT_STREAM, _NB, _hash_u32_dr)
@@ -230,12 +230,7 @@ class DeviceISDDGIPlanner:
             kk = dr.arange(mi.UInt32, S * N_SETS)
             fv = dr.gather(mi.Float, self.f, dr.gather(mi.UInt32, pid_dr, kk >> 8) * N_SETS + (kk & 255))
             pdf = allocation_pdf_dr(Fs, fv, h.eps)
-            cdf = dr.cumsum(pdf)
-            dr.eval(cdf)
-            total = dr.gather(mi.Float, cdf, mi.UInt32(S * N_SETS - 1))
-            u = uniform_numbers_dr(NI, mix_seed(seed, frame, 0x15DD62)) * total
-            pair_i = dr.binary_search(0, S * N_SETS - 1, lambda q: dr.gather(mi.Float, cdf, q) <= u)
-            pair_i = mi.UInt32(dr.minimum(pair_i, S * N_SETS - 1))
+            pair_i = sample_pairs_dr(pdf, NI, mix_seed(seed, frame, 0x15DD62))     # prefix sum + binary search
             valid_i = (dr.arange(mi.UInt32, NI) < n_imp) & (dr.gather(mi.Float, pdf, pair_i) > 0.0)
             dr.eval(pair_i, valid_i)
             # -- 3. per-set cap: atomic counters, the uniform ray first --
