@@ -153,7 +153,7 @@ def test_steady_isddgi_frame_compiles_nothing_and_reads_back_only_per_probe_coun
         seen, log, imp = set(), [], 0
         dr.set_flag(dr.JitFlag.KernelHistory, True)
         try:
-            for i in range(1, 8):
+            for i in range(1, 16):
                 sc.at(sc.frame_time(10 + i))
                 if not tech._warmed:
                     tech._warm_up(Frame(0, sc.frame_time(10), sc.camera(0.0), (8, 6), seed=0), StageTimer())

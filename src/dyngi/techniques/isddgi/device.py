@@ -9,7 +9,7 @@ cap and the ray layout are :mod:`.device_planner`'s:
   sum_j f_ij + eps / 256`` (uniform where a probe has no ``f``) over the *candidates* (probes with
   ``F_i > 0``: the pdf is 0 elsewhere), one lane per (candidate, set); per-probe sums by ``dr.block_sum``.
 * :func:`sample_pairs_dr`: ``n`` i.i.d. draws by inverse CDF: the inclusive prefix sum of the pdf
-  (``dr.cumsum``) and, per draw, a binary search (``dr.binary_search``) for the first entry whose
+  (``dr.cumsum``) and, per draw, a binary search (a fixed number of steps) for the first entry whose
   cumulative sum exceeds ``u * total``; ``u`` from a hash of (draw index, seed) with the seed opaque,
   so every frame runs the same kernels. A zero-pdf entry is never drawn (its cumulative sum equals its
   predecessor's). Float32 sums (ours): the relative rounding of the CDF is ~1e-7 x sqrt(entries), far
@@ -30,6 +30,8 @@ from ...backend import dr, mi
 from .sets import LUMINANCE_FLOOR, N_SETS, PROBE_MEAN_SHARE, _hash_u32_dr
 
 DRAW_STREAM = 0x15DD66          # hash stream of the device draws' uniform numbers (ours)
+_LOCAL = dr.ReduceMode.Local    # per-slot sums: Auto picks "expand" for small targets, whose kernel
+                                # holds the target's width as a literal (a recompile when it changes)
 
 
 def allocation_pdf_dr(F, f, eps: float):
@@ -59,20 +61,29 @@ def uniform_numbers_dr(n: int, seed: int):
     return mi.Float(h >> 8) * (1.0 / 16777216.0)
 
 
-def sample_pairs_dr(pdf, n: int, seed: int):
+def sample_pairs_dr(pdf, n: int, seed: int, max_size: int | None = None):
     """(n,) UInt32 flat indices (``candidate * 256 + j``) of ``n`` i.i.d. draws from ``pdf`` (any
-    non-negative Float, normalised here): prefix sum + binary search. Empty if ``n == 0`` or the pdf is 0."""
+    non-negative Float, normalised here): prefix sum + binary search. Empty if ``n == 0`` or the pdf is 0.
+
+    The search runs ``ceil(log2(max_size))`` steps (default: the pdf's width) with the width opaque, so
+    pdfs of any width up to ``max_size`` share one kernel (the planner's traced-probe count varies per frame)."""
     size = dr.width(pdf)
     if n <= 0 or size == 0:
         return mi.UInt32()
     cdf = dr.cumsum(pdf)                                  # inclusive prefix sum
     dr.eval(cdf)
-    total = dr.gather(mi.Float, cdf, mi.UInt32(size - 1))
+    last = dr.opaque(mi.UInt32, size - 1)
+    total = dr.gather(mi.Float, cdf, last)
     u = uniform_numbers_dr(n, seed) * total
-    idx = dr.binary_search(0, size - 1, lambda k: dr.gather(mi.Float, cdf, k) <= u)
-    idx = dr.minimum(idx, size - 1)
-    ok = total > 0.0
-    idx = dr.select(ok, idx, 0)
+    steps = max(int(max(size, max_size or 0) - 1).bit_length(), 1)
+    lo, hi = mi.UInt32(0), mi.UInt32(last)
+    for _ in range(steps):            # first k with cdf[k] > u (fixed step count: no literal of the width)
+        go = lo < hi
+        mid = (lo + hi) >> 1
+        right = dr.gather(mi.Float, cdf, mid, go) <= u
+        lo = dr.select(go & right, mid + 1, lo)
+        hi = dr.select(go & ~right, mid, hi)
+    idx = dr.select(total > 0.0, lo, 0)
     dr.eval(idx)
     return mi.UInt32(idx)
 
@@ -88,8 +99,8 @@ def change_measure_dr(lum, dist, slot, pair, paired, check, sample_lum, sample_d
     ones = dr.full(mi.Float, 1.0, dr.width(lum))
     lum_sum = dr.zeros(mi.Float, n_slots)
     cnt = dr.zeros(mi.Float, n_slots)
-    dr.scatter_reduce(dr.ReduceOp.Add, lum_sum, lum, slot)
-    dr.scatter_reduce(dr.ReduceOp.Add, cnt, ones, slot)
+    dr.scatter_reduce(dr.ReduceOp.Add, lum_sum, lum, slot, mode=_LOCAL)
+    dr.scatter_reduce(dr.ReduceOp.Add, cnt, ones, slot, mode=_LOCAL)
     ybar = dr.gather(mi.Float, lum_sum, slot) / dr.maximum(dr.gather(mi.Float, cnt, slot), 1.0)
     dmax = dr.opaque(mi.Float, max_distance)
     y_old = dr.gather(mi.Float, sample_lum, pair, paired)
@@ -102,8 +113,8 @@ def change_measure_dr(lum, dist, slot, pair, paired, check, sample_lum, sample_d
     g = dr.select(measured, g, 0.0)
     g_sum = dr.zeros(mi.Float, n_slots)
     n_meas = dr.zeros(mi.Float, n_slots)
-    dr.scatter_reduce(dr.ReduceOp.Add, g_sum, g, slot)
-    dr.scatter_reduce(dr.ReduceOp.Add, n_meas, dr.select(measured, 1.0, 0.0), slot)
+    dr.scatter_reduce(dr.ReduceOp.Add, g_sum, g, slot, mode=_LOCAL)
+    dr.scatter_reduce(dr.ReduceOp.Add, n_meas, dr.select(measured, 1.0, 0.0), slot, mode=_LOCAL)
     F_est = dr.select(n_meas > 0.0, N_SETS * g_sum / dr.maximum(n_meas, 1.0), 0.0)
     dr.eval(g, F_est, n_meas)
     return g, F_est, n_meas

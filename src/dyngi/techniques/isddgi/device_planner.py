@@ -49,7 +49,7 @@ from ...backend import dr, mi
 from ...probes.rays import RayPlan
 from ...probes.volume import upload
 from ...sampling.rng import mix_seed
-from .device import allocation_pdf_dr, change_measure_dr, sample_pairs_dr
+from .device import _LOCAL, allocation_pdf_dr, change_measure_dr, sample_pairs_dr
 from .planner import ISDDGIPlanner, ISDDGIState
 from .sets import (CELL_STREAM, CHANGE_EPS, N_SETS, NEIGHBOUR_SHARE, RAYS_LIMIT, SETS_PER_SIDE, SHADE_STREAM,
                    SHIFT_STREAM, _NB, _hash_u32_dr)
@@ -126,8 +126,10 @@ class DeviceISDDGIPlanner:
         self.open_ref = dr.full(mi.Bool, False, PS)
         self.ref_key = dr.zeros(mi.UInt32, PS)
         self.near_age = dr.full(mi.UInt32, 255, P)
-        dr.eval(self.log2x, self.hold, self.f, self.F, self.sample_lum, self.sample_dist, self.has_sample,
-                self.open_ref, self.ref_key, self.near_age)
+        # memory, not literals: a literal zero array would be folded into the first frames' kernels, which
+        # would then differ from the steady ones (a recompile the first time a change is measured)
+        dr.make_opaque(self.log2x, self.hold, self.f, self.F, self.sample_lum, self.sample_dist, self.has_sample,
+                       self.open_ref, self.ref_key, self.near_age)
 
     def pull(self) -> np.ndarray:
         """Copy the device state into :attr:`host`'s (host reads; budgets); returns the near-surface ages."""
@@ -172,7 +174,7 @@ class DeviceISDDGIPlanner:
         self.F = dr.zeros(mi.Float, self.P)
         self.has_sample = dr.full(mi.Bool, False, PS)
         self.open_ref = dr.full(mi.Bool, False, PS)
-        dr.eval(self.has_sample, self.open_ref)
+        dr.make_opaque(self.f, self.F, self.has_sample, self.open_ref)
 
     def forget(self, probes) -> None:
         """Drop the stored samples (references) of ``probes`` (host ids; relocated probes)."""
@@ -230,7 +232,7 @@ class DeviceISDDGIPlanner:
             kk = dr.arange(mi.UInt32, S * N_SETS)
             fv = dr.gather(mi.Float, self.f, dr.gather(mi.UInt32, pid_dr, kk >> 8) * N_SETS + (kk & 255))
             pdf = allocation_pdf_dr(Fs, fv, h.eps)
-            pair_i = sample_pairs_dr(pdf, NI, mix_seed(seed, frame, 0x15DD62))     # prefix sum + binary search
+            pair_i = sample_pairs_dr(pdf, NI, mix_seed(seed, frame, 0x15DD62), self.P * N_SETS)   # prefix sum + search
             valid_i = (dr.arange(mi.UInt32, NI) < n_imp) & (dr.gather(mi.Float, pdf, pair_i) > 0.0)
             dr.eval(pair_i, valid_i)
             # -- 3. per-set cap: atomic counters, the uniform ray first --
@@ -245,9 +247,10 @@ class DeviceISDDGIPlanner:
         start = dr.prefix_sum(capped)                       # exclusive
         buf = dr.zeros(mi.UInt32, S + 3)
         dr.scatter(buf, totals, dr.arange(mi.UInt32, S))
-        dr.scatter(buf, dr.sum(mi.UInt32(valid_u)), mi.UInt32(S))
-        dr.scatter(buf, n_kept, mi.UInt32(S + 1))
-        dr.scatter(buf, n_drawn, mi.UInt32(S + 2))
+        So = _op(mi.UInt32, S)                              # opaque: the traced-probe count varies per frame
+        dr.scatter(buf, dr.sum(mi.UInt32(valid_u)), So)
+        dr.scatter(buf, n_kept, So + 1)
+        dr.scatter(buf, n_drawn, So + 2)
         host = np.asarray(buf).astype(np.int64)            # the plan's one read: counts per probe, statistics
         tot = host[:S]
         R = int(tot.sum())
@@ -276,7 +279,7 @@ class DeviceISDDGIPlanner:
         npair = dr.gather(mi.UInt32, capped, ray_pair)
         direction, weight, shade_key = _rays_from_hash(hsh, dset, npair, self._omega)
         offsets = np.concatenate([[0], np.cumsum(tot)])
-        const = int(tot[0]) if S and np.all(tot == tot[0]) and tot[0] > 0 else None
+        const = None       # (a constant count would be folded into kernels as a literal: ragged always)
         plan = RayPlan(rprobe, direction, const, None, pid, offsets, rslot, weight)
         info = DevicePlanInfo(S, tot, totals, pid_dr, rslot, dset, gp, ray_k, paired, check, key)
         dr.eval(paired, check, key)
@@ -342,7 +345,7 @@ class DeviceISDDGIPlanner:
         dr.scatter(self.F, Fn, pid_dr)
         # -- adaptive uniform rays --
         dyn = dr.zeros(mi.UInt32, S)
-        dr.scatter_reduce(dr.ReduceOp.Add, dyn, mi.UInt32(1), slot, g > 0.0)
+        dr.scatter_reduce(dr.ReduceOp.Add, dyn, mi.UInt32(1), slot, g > 0.0, mode=_LOCAL)
         changed = dyn > 0
         if adapt:
             lo, hi = int(np.log2(h.x_min)), int(np.log2(h.x_max))
@@ -372,8 +375,8 @@ class DeviceISDDGIPlanner:
         back = dr.zeros(mi.UInt32, S)
         front = dr.zeros(mi.UInt32, S)
         fin = dr.isfinite(dist)
-        dr.scatter_reduce(dr.ReduceOp.Add, back, mi.UInt32(1), slot, dist < 0.0)
-        dr.scatter_reduce(dr.ReduceOp.Add, front, mi.UInt32(1), slot, (dist >= 0.0) & fin)
+        dr.scatter_reduce(dr.ReduceOp.Add, back, mi.UInt32(1), slot, dist < 0.0, mode=_LOCAL)
+        dr.scatter_reduce(dr.ReduceOp.Add, front, mi.UInt32(1), slot, (dist >= 0.0) & fin, mode=_LOCAL)
         tot = info.total_dr
         on = (front > 0) & (mi.Float(back) < _op(mi.Float, backface_threshold) * mi.Float(tot)) & (tot > 0)
         if near_surface:
@@ -387,7 +390,7 @@ class DeviceISDDGIPlanner:
                 t_exit = dr.minimum(t_exit, dr.select(aw > 0.0, e / aw, np.inf))
             near = (dist > 0.0) & fin & (dist <= t_exit)
             ns = dr.zeros(mi.UInt32, S)
-            dr.scatter_reduce(dr.ReduceOp.Add, ns, mi.UInt32(1), slot, near)
+            dr.scatter_reduce(dr.ReduceOp.Add, ns, mi.UInt32(1), slot, near, mode=_LOCAL)
             dr.eval(ns)
             pid_dr = info.pid_dr
             age = dr.gather(mi.UInt32, self.near_age, pid_dr)

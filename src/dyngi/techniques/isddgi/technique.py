@@ -237,9 +237,10 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         buf = dr.zeros(mi.UInt32, S + 4)
         if on is not None:
             dr.scatter(buf, mi.UInt32(on), dr.arange(mi.UInt32, S))
+        So = dr.opaque(mi.UInt32, S)                    # opaque: the traced-probe count varies per frame
         for i, k in enumerate(("dynamic_rays", "changed_probes", "check_rays")):
-            dr.scatter(buf, mi.UInt32(obs[k]), mi.UInt32(S + i))
-        dr.scatter(buf, mi.UInt32(dr.sum(mi.UInt32(1) << pl.log2x)), mi.UInt32(S + 3))
+            dr.scatter(buf, mi.UInt32(obs[k]), So + i)
+        dr.scatter(buf, mi.UInt32(dr.sum(mi.UInt32(1) << pl.log2x)), So + 3)
         host = np.asarray(buf).astype(np.int64)          # the states step's one read
         self._mean_x = float(host[S + 3]) / max(vol.n_probes, 1)
         if on is not None:
