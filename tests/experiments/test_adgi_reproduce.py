@@ -60,7 +60,7 @@ def test_equal_rays_protocol_follows_qddgi(rep):
 MICRO = {"res": (16, 12), "dt": 1.0, "hold": 2, "ref_spp": 4, "static_frames": 3,
          "reference": {"texels": 4, "rays_per_texel": 1},
          "params": {"probe_counts": "3,3,6", "warmup": 1, "warmup_rays": 16, "static_chains": 256,
-                    "dynamic_chains": 64}}
+                    "dynamic_chains": 64}, "atrium_seeds": (0, 1)}
 
 
 @pytest.mark.slow
@@ -75,10 +75,13 @@ def test_reproduce_adgi_micro_run(rep, tmp_path, monkeypatch):
     out = run_experiment("adgi", str(tmp_path / "adgi"), quick=True)
     md = open(os.path.join(out, "summary.md")).read()
     for s in ("0.920/0.005", "0.868/0.012", "4.01 + 2.23 + 4.73 = 11.0", "adgi@equal-rays", "probes-reference",
-              "Fig. 10", "0.996/0.017", "4.83 + 2.11 + 4.33 = 11.27", "adgi:glossy=true", "qddgi:glossy=true"):
+              "Fig. 10", "0.996/0.017", "4.83 + 2.11 + 4.33 = 11.27", "adgi:glossy=true", "qddgi:glossy=true",
+              "(mean [min-max] over seeds 0, 1)"):
         assert s in md, s
     pj = json.load(open(os.path.join(out, "paper.json")))
     assert len(pj["rows"]) == 4 + 3 + 4 + 6 + (3 + 1 + 3)      # + glossy-floor (Fig. 10): 3 marks, means, Table 4
+    at = pj["atrium"]["figures"]["adgi"]          # Fig. 9: each seed's check points, the row shows their mean
+    assert len(at["at_seeds"]) == 2 and np.isclose(at["at"][0]["mse"], np.mean([s[0]["mse"] for s in at["at_seeds"]]))
     gl = pj["glossy"]["figures"]
     assert set(gl) == {"adgi", "qddgi"}
     assert all(np.isfinite(m["ssim"]) for f in gl.values() for m in f["at"])

@@ -86,10 +86,13 @@ def test_steady_device_frame_reads_nothing_back_and_compiles_nothing(guard, budg
 
 @pytest.mark.slow
 def test_device_path_image_equals_the_host_path_statistically(backend):
-    """cornell-static at t = 0, 4^3 probes, 6 seeds x 10 frames each path: the mean indirect image of the
-    last 4 frames per seed, device vs host: the per-seed differences of the image means have mean 0 within
-    3 standard errors (+ 0.5% for the one-frame lag of the device path's dynamic capacity), and the
-    per-pixel mean over seeds agrees within 4 standard errors of the difference on 99% of the pixels."""
+    """cornell-static at t = 0, 4^3 probes, 6 seeds x 10 frames each path; the mean indirect image of the
+    last 4 frames per seed, device vs host. Both paths run the same chains (the differences are the NEE
+    streams, which follow the ray order): (1) the per-seed differences of the image means are 0 within 3
+    standard errors + 0.5%; (2) the per-pixel mean difference over the seeds is small against the seeds'
+    own noise: its RMS over the pixels below 0.35 x sqrt(2 / seeds) x the RMS of the host's per-pixel
+    standard deviation over seeds (the scale of the difference of two independent sets of runs). Measured:
+    0.16; a 3% bias on the device image gives 0.54."""
     sc = load_scene("cornell-static")
     p = {"probe_counts": "4", "static_chains": 1024, "dynamic_chains": 64, "iterations": 8, "warmup": 1,
          "warmup_rays": 64}
@@ -108,6 +111,6 @@ def test_device_path_image_equals_the_host_path_statistically(backend):
     diff = D.mean(axis=(1, 2, 3)) - H.mean(axis=(1, 2, 3))
     se = diff.std(ddof=1) / np.sqrt(len(diff))
     assert abs(diff.mean()) <= 3 * se + 0.005 * H.mean(), (diff, se)
-    pd = D - H
-    z = pd.mean(0) / np.maximum(pd.std(0, ddof=1) / np.sqrt(len(pd)), 1e-6 * H.mean())
-    assert np.mean(np.abs(z) <= 4) >= 0.99, np.mean(np.abs(z) <= 4)
+    rms = np.sqrt(np.mean((D - H).mean(0) ** 2))
+    scale = np.sqrt(2.0 / len(H)) * np.sqrt(np.mean(H.std(0, ddof=1) ** 2))
+    assert rms < 0.35 * scale, (rms, scale)
