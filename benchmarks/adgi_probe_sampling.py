@@ -9,13 +9,14 @@ stages trace + shade + blend + states. The first ``--skip`` frames of each (the 
 compilation) are left out; the medians of the others are printed, with ``uptime`` before and after, and a
 one-line summary at the end::
 
-    nice .venv/bin/python benchmarks/adgi_probe_sampling.py [--counts 32,24,128] [--frames 6] [--res 64x48]
+    nice .venv/bin/python benchmarks/adgi_probe_sampling.py [--counts 32,24,128] [--frames 10] [--res 64x48]
         [--equal-rays] [--adgi K=V,...] [--qddgi K=V,...]
 
 ``--equal-rays``: ADGI's ray budget is Q-DDGI's rays of the same frame (Q-DDGI steps first); without it
-each runs at its defaults (the paper's protocol). ``--adgi`` / ``--qddgi``: extra ``key=value,...`` settings (e.g. ``--adgi impl=host``). Takes about 3-4
-minutes at the defaults on the shared 2-core box (set-up ~40 s each, a frame 2-10 s). Results go to
-docs/benchmarks.md with the machine load.
+each runs at its defaults (the paper's protocol). ``--adgi`` / ``--qddgi``: extra ``key=value,...``
+settings (e.g. ``--adgi impl=device``). At the defaults it takes about a minute on the shared 2-core box
+at load 2-4 with a warm kernel cache (the first frame of each, with the warm-up, 5-25 s; the others
+0.4-1 s). Results go to docs/benchmarks.md with the machine load.
 """
 from __future__ import annotations
 
@@ -47,7 +48,7 @@ def _settings(text: str | None) -> dict:
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--counts", default="32,24,128", help="probe_counts of both techniques (default 98,304 probes)")
-    ap.add_argument("--frames", type=int, default=6, help="frames per technique (the first --skip are left out)")
+    ap.add_argument("--frames", type=int, default=10, help="frames per technique (the first --skip are left out)")
     ap.add_argument("--skip", type=int, default=2, help="first frames left out (warm-up, compilation)")
     ap.add_argument("--res", default="64x48")
     ap.add_argument("--t0", type=float, default=1.5, help="start time in seconds (the gate is opening)")
