@@ -85,14 +85,28 @@ ray on its last frame, then shared as above (so the chain counts scale with
 the time; the first frame, with nothing measured, runs the defaults); the
 spend is recorded (``stats['static_chains_run']``), not guaranteed.
 
-Speed: an ``adgi`` frame launches several times the kernels of a ``qddgi`` frame and syncs with the
-host for the ragged plans (the sample counts, from ``dr.compress``, and a host sort of the traced
-probe ids: one read per stage and plan; a ``RayPlan`` holds its probe ids and offsets on the host) and,
-under a budget, the f_d scale; the radiance convolution runs on the device on a GPU and as NumPy/BLAS
-(the CPU fast path) on the LLVM backend. That fixed cost, not the rays, makes it slower than ``qddgi`` at small grids, and it is why an
-equal-time budget below it cannot be met (the chains shrink to 1 and the frame overspends; recorded,
-not hidden). The two trigger convolutions (Eqs. 15, 18) share one launch per axis. Figures:
-docs/benchmarks.md, "Figures moved out of the probe docstrings".
+Two implementations of one sampling (``impl``; ours): the **host** path sizes ragged plans on the host
+(the sample counts from ``dr.compress``, a host sort of the traced probe ids: one read per stage and plan;
+under a budget the f_d scale), counts probe updates on the host, and convolves the radiance layer with
+NumPy/BLAS (the CPU fast path). The **device** path never waits for the host in a steady probe update
+(:meth:`ADGITechnique.update_probes`; tests/techniques/adgi/test_device_path.py): masked fixed-width plans
+(:meth:`RayPlan.masked <dyngi.probes.rays.RayPlan.masked>`; widths set on the host from the chains, the
+budget or, for D without a budget, 1.5x the last frame's lanes, :mod:`.planner`), the exact budget caps as
+device values (the rays spent so far and "some f_d > 0" this frame, on the device; the chain count from
+the last frame's measurements), update counts on the device (:meth:`ProbePipeline.merge_slots
+<dyngi.probes.pipeline.ProbePipeline.merge_slots>`) and the device convolution; its counts (stats, the
+NEE shadow-ray rate, the unique share) are read after the frame's image. A frame with the warm-up or a
+relocation/classification pass (every ``reclassify_interval`` frames; ``ddgi``'s host states) still
+reads back. ``impl='auto'``: the device path on a GPU; on the LLVM backend the host path, measured faster
+there (masked lanes still cost CPU time, the device convolution is a symbolic loop; docs/benchmarks.md,
+issue 25). Either path samples the same chains with the same caps: the images agree statistically (the
+NEE streams follow the ray order).
+
+Speed: an ``adgi`` frame launches several times the kernels of a ``qddgi`` frame; that fixed cost, not the
+rays, makes it slower than ``qddgi`` at small grids, and it is why an equal-time budget below it cannot
+be met (the chains shrink to 1 and the frame overspends; recorded, not hidden). The two trigger
+convolutions (Eqs. 15, 18) share one launch per axis. Figures: docs/benchmarks.md, "Figures moved out of
+the probe docstrings".
 
 Probe relocation and classification carry over from ``ddgi`` (the paper is
 silent; ours): during the warm-up updates, then every
@@ -121,6 +135,8 @@ outer_count_cap : int = 16        (Sec. 4.8)
 encoding : str = 'adgi'           R9G9B8 + 6-bit count / R13G13 + count (Sec. 4.5-4.6, Table 3)
 guide_mip : int = 1               mip level of g in the static guide (ours; Sec. 4.8 "a higher mip-level")
 reclassify_interval : int = 8     frames between relocation/classification passes after the warm-up (ddgi's)
+impl : str = 'auto'               'device' (no host read in a steady update) | 'host' | 'auto' (device on a
+                                  GPU, host on the CPU: measured faster there)
 
 Bias: the moving average lags dynamic changes (Sec. 3.5); texels no chain
 visits keep old values; quantised irradiance storage rounds low.
