@@ -181,7 +181,10 @@ def knn_density_device(points, queries=None, k: int = 1, n_total=None, valid=Non
 
     g = grid or KNNGrid(points, valid)
     if queries is None:
-        r = g.kth_distance(points, k, dr.arange(mi.UInt32, dr.width(points)))
+        # the points in the grid's cell order (neighbouring lanes search neighbouring cells: a SIMD
+        # packet's lanes need similar numbers of rings; our choice), results scattered back
+        r = dr.empty(mi.Float, g.n)
+        dr.scatter(r, g.kth_distance(g.pts, k, g.idx), g.idx)
     else:
         r = g.kth_distance(queries, k)
     if n_total is None:
