@@ -53,7 +53,8 @@ def main():
                 hist = dr.kernel_history()
                 dr.set_flag(dr.JitFlag.KernelHistory, False)
                 ks = [h for h in hist if h.get("type") == dr.KernelType.JIT]
-                print(f"  kernels launched: {len(ks)}")
+                print(f"  kernels launched: {len(ks)}, their execution {sum(h.get('execution_time', 0) for h in ks):.1f} ms "
+                      f"of the frame's {1e3 * wall:.1f} ms (the rest: tracing, compilation, host work)")
                 for h in sorted(ks, key=lambda h: -h.get("execution_time", 0))[:12]:
                     print(f"   {h.get('execution_time', 0):9.1f} ms  size {h.get('size')}  ops {h.get('operation_count')}"
                           f"  cache_hit {h.get('cache_hit')}")
