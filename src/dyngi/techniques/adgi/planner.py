@@ -318,11 +318,14 @@ class ADGIChainPlanner:
         the device (``limit`` samples, else the host cap of ``rays``), packed into a masked plan of at most
         the samples ``rays_max`` pays for; no host read."""
         width = n_run * self.static.samples_per_chain
+        # the cap always applies (no budget: none can bind), as an evaluated value: one set of kernels
+        # whether or not this frame has a budget, and of which kind
+        cap = dr.opaque(mi.UInt32, 0xFFFFFFFF)
         if rays is not None:
             cap = limit if limit is not None else dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
-            ok &= dr.prefix_sum(mi.UInt32(ok)) < cap
             bound = rays if rays_max is None else rays_max
             width = min(width, int(max(bound // (2.0 + shadow_rate), 0)) + 1)
+        ok &= dr.prefix_sum(mi.UInt32(ok)) < cap
         idx, lane_ok = compact(ok, width)
         x = dr.gather(mi.Vector3f, s.position, idx)
         w = dr.gather(mi.Vector3f, s.direction, idx)
@@ -467,11 +470,10 @@ class ADGIChainPlanner:
         width = self.dynamic_capacity(rays_max if rays is not None else None, shadow_rate)
         per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), per_m)
         key = guide_level(dr.select(m_ok, dr.gather(mi.Float, table, marked), 0.0), GUIDE_LEVELS)
+        budget = dr.opaque(mi.UInt32, width)     # evaluated values either way: one set of kernels
         if rays is not None:
             budget = limit if limit is not None else dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
-            budget = dr.minimum(mi.UInt32(budget), dr.opaque(mi.UInt32, width))
-        else:
-            budget = dr.opaque(mi.UInt32, width)
+        budget = dr.minimum(budget, dr.opaque(mi.UInt32, width))
         keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
         ok &= dr.gather(mi.Bool, keep_m, m)
         idx, lane_ok = compact(ok, width)

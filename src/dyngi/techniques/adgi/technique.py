@@ -537,6 +537,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         self._avail_dev = avail
         self._static_limit = mi.UInt32(avail * (1.0 - dr.select(dyn, dr.opaque(mi.Float, share), 0.0))
                                        / dr.opaque(mi.Float, per))
+        dr.make_opaque(self._static_limit)     # evaluated, as the planner's opaque caps: the same kernels
 
     def _finish_device_frame(self, out: dict) -> None:
         """Device path, after the frame's image: its stats as ints, the NEE shadow rays per probe ray and the
@@ -599,6 +600,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         if self._avail_dev is not None:       # device path: D's exact cap on the device
             self._dynamic_limit = mi.UInt32(dr.maximum(self._avail_dev - mi.Float(spent), 0.0)
                                             / dr.opaque(mi.Float, 2.0 + self._shadow_rate))
+            dr.make_opaque(self._dynamic_limit)
         elif self._dynamic_rays is not None:
             self._dynamic_rays = max(self._dynamic_rays - spent, 0.0)
         return self.planner.last_samples
