@@ -164,7 +164,11 @@ def antipodal_sets(side: int = 16) -> np.ndarray:
 
 
 _SIDE_TABLES: dict = {}
-_Array4f = dr.llvm.ad.Array4f if "llvm" in mi.variant() else dr.cuda.ad.Array4f
+
+
+def _array4f():
+    """The variant's 4-float array type (packet loads of :func:`_packed_rays`)."""
+    return dr.cuda.ad.Array4f if mi.variant().startswith("cuda") else dr.llvm.ad.Array4f
 
 
 def _packed_rays(plan, radiance, dist, dmax):
@@ -232,6 +236,7 @@ def _antipodal_sums(plan, radiance, dist, side: int, irradiance: bool, distance:
     cut = MIN_BLEND_WEIGHT ** (1.0 / power) if power > 1.0 else 0.0
 
     packed = _packed_rays(plan, radiance, dist, dmax)
+    _Array4f = _array4f()
 
     def body(r, ea, wa, eb, wb, ma1, ma2, da, mb1, mb2, db):
         p0 = dr.gather(_Array4f, packed, r * 2)         # (direction, +-weight): two packet loads per ray
