@@ -34,6 +34,7 @@ near_surface : bool = True      Algorithm 2 combined with DDGI's near-surface te
                                 OFF, so isddgi does not update probes ``ddgi`` would not
                                 (:func:`~.estimator.near_surface_hits`); False: Algorithm 2 alone
 reclassify_interval : int = 8   inactive probes trace their uniform rays every this many frames (ours)
+impl : str = 'device'           'device' (Dr.Jit planner and states, :mod:`.device_planner`) | 'host' (NumPy)
 
 Warm-up (ours, as ``ddgi``'s): ``warmup`` updates on frame 0 with one ray in every set (256 per probe)
 and no hysteresis; afterwards the change measure forgets their samples (the probes they read changed).
@@ -42,10 +43,14 @@ Stages: ``ddgi``'s (the probe pipeline's), so that a stage table compares like w
 ``shade probes``, ``blend``, ``states``. ``states`` holds relocation, Algorithm 2 with the near-surface test, the change measure *and
 the allocation* (ours: the plan turns the per-probe allocation state -- Table 1's per-probe bytes -- into
 this frame's rays; ``ddgi``'s rotation of its direction set costs nothing comparable, so there is no
-``plan`` stage that ``ddgi`` would lack); the stat ``plan_ms`` gives the allocation alone. The allocation
-runs on the host, sparse -- the rays' (probe, set) keys, no P x 256 tables per frame -- with one upload
-per frame, from which the device computes directions, weights and shading keys (the documented CPU fast
-path: pdf, draws and prefix sums in NumPy; their Dr.Jit kernels are :mod:`.device`). Stats per frame:
+``plan`` stage that ``ddgi`` would lack); the stat ``plan_ms`` gives the allocation alone. ``impl='device'``
+(default): the allocation (uniform cells, importance draws by prefix sum + binary search, per-set caps by
+atomic counters, the ray layout), the change measure, Algorithm 2 and the near-surface test run as Dr.Jit
+kernels over device state (:mod:`.device_planner`); a frame reads back two small buffers (the plan's ray
+count per probe, which the pipeline's CSR plan holds on the host, and the new ON flags; nothing per ray or
+per set), and a steady frame compiles no kernel. ``impl='host'``: the former path (NumPy allocation and
+change measure, every ray's radiance and distance read back; :mod:`.planner`), kept for comparison -- it is
+not faster on the CPU (docs/benchmarks.md). Comparison budgets plan on the host in either. Stats per frame:
 ``plan_ms``, ``uniform_rays``, ``importance_rays`` (kept after the per-set limit),
 ``importance_dropped``, ``probe_trace_ms`` (the ``trace probes`` stage), ``dynamic_rays``,
 ``changed_probes``, ``check_rays`` (paired visits that measured change), ``mean_uniform_per_probe``.
