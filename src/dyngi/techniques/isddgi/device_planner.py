@@ -28,7 +28,8 @@ adaptive ``x_i`` and the near-surface age) are Dr.Jit arrays, and one frame runs
 **Host reads.** The probe pipeline's :class:`~dyngi.probes.rays.RayPlan` holds its CSR offsets on the host
 and the volume its probe states, so a frame reads back two small buffers: after step 3 the per-probe ray
 counts and three plan statistics (``S + 3`` integers), and after the states step the new ON/OFF flags
-and four statistics (``S + 4``); no per-ray or per-set array comes back. Relocation frames (every
+and five statistics (``S + 5``; one of them, the number of probes with ``F_i > 0``, lets the next frame
+skip the draw kernels when no probe saw change); no per-ray or per-set array comes back. Relocation frames (every
 ``reclassify_interval``) read the rays' distances as ``ddgi``'s relocation does.
 
 The change measure and the state update after the trace (:meth:`observe`; the paired visits, peak hold,
@@ -108,6 +109,7 @@ class DeviceISDDGIPlanner:
         self.host = ISDDGIPlanner(n_probes, *args, **kwargs)
         self.P = int(n_probes)
         self.force_uniform: int | None = None
+        self.any_change = True      # some probe had F_i > 0 at the last states read (False: no draws to make)
         self._omega = upload(self.host.omega.astype(np.float32), mi.Float)
         self._nb = upload(((_NB[:, 1] + 1) * 3 + (_NB[:, 0] + 1)).astype(np.uint32), mi.UInt32)
         self._reset()
@@ -159,6 +161,7 @@ class DeviceISDDGIPlanner:
         self.ref_key = upload(st.ref_key.ravel(), mi.UInt32)
         self.near_age = upload(np.asarray(near_age, np.uint32), mi.UInt32)
         dr.eval(self.has_sample, self.open_ref)
+        self.any_change = bool(np.any(st.F > 0.0))
 
     # -- the pipeline's warm-up hooks ---------------------------------------------------------
     def begin_warmup(self) -> None:
@@ -222,7 +225,8 @@ class DeviceISDDGIPlanner:
         has_uni = counts != 0                    # before the draws: the sets with a uniform ray
         dr.eval(has_uni)
         # -- 2. importance draws over the allocation pdf of the traced probes --
-        NI = int(np.ceil(h.importance_rays * S)) if self.force_uniform is None else 0
+        # no probe with change at the last states read: the draws would all be empty (skip their kernels)
+        NI = int(np.ceil(h.importance_rays * S)) if self.force_uniform is None and self.any_change else 0
         if NI > 0:
             imp = (dr.full(mi.Bool, True, S) if importance is None
                    else upload(np.asarray(importance, np.uint32), mi.UInt32) != 0)
@@ -402,6 +406,10 @@ class DeviceISDDGIPlanner:
             on &= age < window
         dr.eval(on, self.near_age)
         return on
+
+    def n_changed(self):
+        """Device scalar: probes with ``F_i > 0`` (the states read sets :attr:`any_change` from it)."""
+        return dr.sum(mi.UInt32(self.F > 0.0))
 
     def mean_uniform(self):
         """Device scalar: the mean ``x_i`` over all probes (stat ``mean_uniform_per_probe``)."""

@@ -229,7 +229,8 @@ class ISDDGITechnique(_ProbeTechniqueBase):
     def _states_device(self, plan, res, warm: bool, adapt: bool) -> dict:
         """The ``states`` step on the device (:class:`~.device_planner.DeviceISDDGIPlanner`): Algorithm 2 with the
         near-surface test, then the change measure and the allocation state; one read of the new ON flags and
-        the statistics (``S + 4`` integers)."""
+        the statistics (``S + 5`` integers; the last, the probes with change, lets the next plan skip its
+        importance draws when there is none)."""
         from ...backend import dr, mi
         p, vol = self.params, self.volume
         st = vol.state
@@ -239,14 +240,16 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         if p["classify"]:
             on = pl.probe_states(vol, plan, res.distance, warm, p["backface_threshold"], p["near_surface"])
         obs = pl.observe(plan, mi.luminance(res.radiance), res.distance, adapt=adapt)
-        buf = dr.zeros(mi.UInt32, S + 4)
+        buf = dr.zeros(mi.UInt32, S + 5)
         if on is not None:
             dr.scatter(buf, mi.UInt32(on), dr.arange(mi.UInt32, S))
         So = dr.opaque(mi.UInt32, S)                    # opaque: the traced-probe count varies per frame
         for i, k in enumerate(("dynamic_rays", "changed_probes", "check_rays")):
             dr.scatter(buf, mi.UInt32(obs[k]), So + i)
         dr.scatter(buf, mi.UInt32(dr.sum(mi.UInt32(1) << pl.log2x)), So + 3)
+        dr.scatter(buf, pl.n_changed(), So + 4)
         host = np.asarray(buf).astype(np.int64)          # the states step's one read
+        pl.any_change = bool(host[S + 4] > 0)            # the next plan skips its draws without change
         self._mean_x = float(host[S + 3]) / max(vol.n_probes, 1)
         if on is not None:
             pid = plan.probe_ids.astype(np.int64)
