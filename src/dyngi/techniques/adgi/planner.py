@@ -404,13 +404,38 @@ class ADGIChainPlanner:
         n_marked = self.last_samples = dr.width(marked)
         if n_marked == 0:
             return None
-        # -- lanes: (marked proxy octant, sub-probe of 27, stratum) --
+        # -- (marked proxy octant, sub-probe of 27) pairs; then the strata of the pairs in V_in: the octants'
+        # invalid sub-probes never get stratum lanes (27x fewer planning lanes at a large grid; same plan) --
         R = dr.width(self._strata.x)
-        lane = dr.arange(mi.UInt32, n_marked * 27 * R)
-        m = lane // (27 * R)
-        rest = lane - m * (27 * R)
-        sub = rest // R
-        r = rest - sub * R
+        probe, ok, oo, m = self._pairs(marked, None, vin_dr)
+        if rays is not None:    # budget: whole proxy octants, the highest guide value first
+            # pairs of one proxy octant are contiguous: a block sum, not a scatter into n_marked slots
+            # (on LLVM that bakes n_marked into the kernel, a new kernel whenever it changes)
+            per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27) * R
+            key = guide_level(dr.gather(mi.Float, table, marked), GUIDE_LEVELS)
+            budget = dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
+            keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
+            ok &= dr.gather(mi.Bool, keep_m, m)
+            dr.eval(ok)
+        keep = dr.compress(ok)
+        n_pairs = dr.width(keep)
+        if n_pairs == 0:
+            return None
+        lane = dr.arange(mi.UInt32, n_pairs * R)
+        pair = lane // R
+        r = lane - pair * R
+        src = dr.gather(mi.UInt32, keep, pair)
+        d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(dr.gather(mi.UInt32, oo, src))
+        return sorted_plan(dr.gather(mi.UInt32, probe, src), d, None, vol.n_probes)
+
+    def _pairs(self, marked, m_ok, vin_dr):
+        """Per (proxy octant ``marked[m]``, sub-probe ``s`` of its 27) lane ``27 m + s``: (probe, in V_in (and
+        ``m_ok[m]``), octant, m)."""
+        nx, ny, nz = self.counts
+        px, py, _ = self.proxies
+        lane = dr.arange(mi.UInt32, dr.width(marked) * 27)
+        m = lane // 27
+        sub = lane - m * 27
         ent = dr.gather(mi.UInt32, marked, m)
         q = ent // OCTANTS
         oo = ent - q * OCTANTS
@@ -418,57 +443,28 @@ class ADGIChainPlanner:
         j = mi.Int32((q // px) % py) * PROXY + mi.Int32((sub // PROXY) % PROXY)
         k = mi.Int32(q // (px * py)) * PROXY + mi.Int32(sub // (PROXY * PROXY))
         inside = (i < nx) & (j < ny) & (k < nz)
+        if m_ok is not None:
+            inside &= dr.gather(mi.Bool, m_ok, m)
         probe = mi.UInt32(dr.select(inside, i + nx * (j + ny * k), 0))
         ok = inside & (dr.gather(mi.Float, vin_dr, probe, inside) > 0.0)
-        d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(oo)
-        dr.eval(probe, d, ok)
-        if rays is not None:    # budget: whole proxy octants, the highest guide value first
-            # lanes of one proxy octant are contiguous: a block sum, not a scatter into n_marked slots
-            # (on LLVM that bakes n_marked into the kernel, a new kernel whenever it changes)
-            per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27 * R)
-            key = guide_level(dr.gather(mi.Float, table, marked), GUIDE_LEVELS)
-            budget = dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
-            keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
-            ok &= dr.gather(mi.Bool, keep_m, m)
-            dr.eval(ok)
-        keep = dr.compress(ok)
-        if dr.width(keep) == 0:
-            return None
-        return sorted_plan(dr.gather(mi.UInt32, probe, keep), dr.gather(mi.Vector3f, d, keep), None,
-                           vol.n_probes)
+        dr.eval(probe, ok, oo)
+        return probe, ok, oo, m
 
     def _dynamic_masked(self, table, mark, vin_dr, rays, shadow_rate: float, rays_max, limit):
         """The device path's dynamic plan (module docstring): the marked proxy octants packed on the device
         (at most one per chain sample), their lanes, whole octants kept highest guide first while the cap
         lasts (``limit`` rays' worth under a budget, the plan's width without one), packed into a masked plan
         of :meth:`dynamic_capacity` lanes; no host read."""
-        nx, ny, nz = self.counts
         px, py, pz = self.proxies
         n_entries = px * py * pz * OCTANTS
         E = max(min(n_entries, self.dynamic_state.n * self.dynamic.samples_per_chain), 1)
         marked, m_ok = compact(mark != 0, E)
         self.last_samples = dr.count(m_ok)
         R = dr.width(self._strata.x)
-        per_m = 27 * R
-        lane = dr.arange(mi.UInt32, E * per_m)
-        m = lane // per_m
-        rest = lane - m * per_m
-        sub = rest // R
-        r = rest - sub * R
-        ent = dr.gather(mi.UInt32, marked, m)
-        q = ent // OCTANTS
-        oo = ent - q * OCTANTS
-        i = mi.Int32(q % px) * PROXY + mi.Int32(sub % PROXY)
-        j = mi.Int32((q // px) % py) * PROXY + mi.Int32((sub // PROXY) % PROXY)
-        k = mi.Int32(q // (px * py)) * PROXY + mi.Int32(sub // (PROXY * PROXY))
-        inside = (i < nx) & (j < ny) & (k < nz) & dr.gather(mi.Bool, m_ok, m)
-        probe = mi.UInt32(dr.select(inside, i + nx * (j + ny * k), 0))
-        ok = inside & (dr.gather(mi.Float, vin_dr, probe, inside) > 0.0)
-        d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(oo)
-        dr.eval(probe, d, ok)
-        self._pending["dynamic"] = dr.count(ok)
+        probe, ok, oo, m = self._pairs(marked, m_ok, vin_dr)
+        self._pending["dynamic"] = dr.count(ok) * R
         width = self.dynamic_capacity(rays_max if rays is not None else None, shadow_rate)
-        per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), per_m)
+        per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27) * R
         key = guide_level(dr.select(m_ok, dr.gather(mi.Float, table, marked), 0.0), GUIDE_LEVELS)
         budget = dr.opaque(mi.UInt32, width)     # evaluated values either way: one set of kernels
         if rays is not None:
@@ -476,6 +472,11 @@ class ADGIChainPlanner:
         budget = dr.minimum(budget, dr.opaque(mi.UInt32, width))
         keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
         ok &= dr.gather(mi.Bool, keep_m, m)
-        idx, lane_ok = compact(ok, width)
-        return RayPlan.masked(dr.gather(mi.UInt32, probe, idx), dr.gather(mi.Vector3f, d, idx), lane_ok,
-                              self.volume.n_probes)
+        pairs, p_ok = compact(ok, width // R + 1)       # a pair is R lanes
+        lane = dr.arange(mi.UInt32, dr.width(pairs) * R)
+        pair = lane // R
+        r = lane - pair * R
+        src = dr.gather(mi.UInt32, pairs, pair)
+        lane_ok = dr.gather(mi.Bool, p_ok, pair)
+        d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(dr.gather(mi.UInt32, oo, src))
+        return RayPlan.masked(dr.gather(mi.UInt32, probe, src), d, lane_ok, self.volume.n_probes)
