@@ -61,7 +61,8 @@ Pieces (numbers refer to the supplement; "ours" marks choices the supplement lea
   differ by up to ~5x, so the supplement's plain ``2 / |Omega^H|`` mean (Sec. 4.2, which assumes
   hemisphere-uniform rays) would over-weight the small texels near the octahedron's edges.
 
-Host/device split (the documented CPU fast path; issue 13 follow-up item 3): the per-probe and per-set
+Host planner (``impl='host'``; the default is its device twin :class:`~.device_planner.DeviceISDDGIPlanner`,
+same formulas, issue 26): the per-probe and per-set
 state is host NumPy (P x 256 entries; vectorised); a frame's plan is built sparse -- the sorted
 ``slot * 256 + j`` keys of its uniform rays and importance draws, merged and capped per set -- so no P x 256
 table is built per frame (rayHitInfo's dense count/prefix tables are built on first use only), and one
