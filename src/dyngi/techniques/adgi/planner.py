@@ -29,8 +29,9 @@ Two implementations of the same sampling (``device``, ours): the host one sizes 
 (``dr.compress`` and a host sort of the probe ids: one read per plan); the device one
 (``device=True``) returns masked plans (:meth:`RayPlan.masked <dyngi.probes.rays.RayPlan.masked>`) of a
 width fixed on the host -- static: the chains' samples, at most what the stage's allowance ``rays_max``
-pays for; dynamic: the lanes a budget pays for, or without one 1.5x the last frame's lanes (a power of
-two, at least 8 proxy octants' worth; :meth:`ADGIChainPlanner.dynamic_capacity`) -- and takes the
+pays for, without a budget at most 1.25x the samples the last frame wanted (in steps of 4096; the early
+iterations' samples first, as a budget's cap); dynamic: the lanes a budget pays for, or without one 1.25x the last frame's lanes (in steps of
+8 proxy octants' worth; :meth:`ADGIChainPlanner.dynamic_capacity`) -- and takes the
 stage's exact cap as a device value (``limit``: samples, or rays for D). The counts (:attr:`last_samples`,
 the unique share, the lanes D wanted) stay device values until :meth:`ADGIChainPlanner.finish_frame` reads
 them after the frame's image. A change of guide that needs more dynamic lanes than the capacity is traced,
@@ -157,6 +158,7 @@ class ADGIChainPlanner:
         self.device = False          # masked plans, no host read (set by the technique's ``impl``)
         self._pending = {}           # device counts of this frame, read by finish_frame()
         self._dyn_lanes = 0          # lanes the last frame's dynamic stage wanted (device path, measured)
+        self._static_lanes = 0       # samples the last frame's static stage wanted (device path, measured)
 
     def plan(self, frame: int, seed: int, probe_ids=None, previous=None, stage: str = "static", vin=None,
              fs=None, fd=None, rays=None, shadow_rate: float = 1.0, rays_max=None, limit=None) -> RayPlan | None:
@@ -321,6 +323,8 @@ class ADGIChainPlanner:
         # the cap always applies (no budget: none can bind), as an evaluated value: one set of kernels
         # whether or not this frame has a budget, and of which kind
         cap = dr.opaque(mi.UInt32, 0xFFFFFFFF)
+        if rays is None and self._static_lanes:    # 1.25x the last frame's samples (ours: early iterations first)
+            width = min(width, max(-(-int(1.25 * self._static_lanes) // 4096), 1) * 4096)
         if rays is not None:
             cap = limit if limit is not None else dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
             bound = rays if rays_max is None else rays_max
@@ -336,6 +340,7 @@ class ADGIChainPlanner:
         w = dr.select(snap, dr.gather(mi.Vector3f, self._texel_dirs, ti), w)
         n = dr.count(lane_ok)
         self.last_samples = n
+        self._pending["static_lanes"] = dr.count(ok)
         self._pending["static"] = (n, dr.sum(m), None if rays is None else
                                    (limit if limit is not None else mi.UInt32(int(max(rays // (2.0 + shadow_rate),
                                                                                        0)))))
@@ -343,13 +348,13 @@ class ADGIChainPlanner:
 
     def dynamic_capacity(self, rays_max, shadow_rate: float) -> int:
         """Lanes of the device path's dynamic plan: under a budget what ``rays_max`` pays for; without one
-        1.5x the lanes the last frame wanted, rounded up to a power of two, at least 8 proxy octants' worth
-        (ours; module docstring)."""
+        1.25x the lanes the last frame wanted, rounded up to a multiple of 8 proxy octants' worth (at least
+        one; ours, module docstring: a width is no kernel parameter, so it may change every frame)."""
         per_octant = PROXY ** 3 * dr.width(self._strata.x)
         if rays_max is not None:
             return max(int(rays_max // (2.0 + shadow_rate)) + 1, 1)
-        want = max(int(1.5 * self._dyn_lanes), 8 * per_octant)
-        return 1 << (want - 1).bit_length()
+        step = 8 * per_octant
+        return max(-(-int(1.25 * self._dyn_lanes) // step), 1) * step
 
     def finish_frame(self) -> None:
         """Read this frame's device counts (after the frame's image: no extra wait): :attr:`last_samples` as
@@ -359,6 +364,9 @@ class ADGIChainPlanner:
             n, kept, cap = (float(np.asarray(v).ravel()[0]) if v is not None else None for v in st)
             if kept > 0 and (cap is None or n < cap):
                 self._unique = min(max(n / kept, 0.05), 1.0)
+        lanes = self._pending.pop("static_lanes", None)
+        if lanes is not None:
+            self._static_lanes = int(np.asarray(lanes).ravel()[0])
         dyn = self._pending.pop("dynamic", None)
         if dyn is not None:
             self._dyn_lanes = int(np.asarray(dyn).ravel()[0])

@@ -91,7 +91,7 @@ under a budget the f_d scale), counts probe updates on the host, and convolves t
 NumPy/BLAS (the CPU fast path). The **device** path never waits for the host in a steady probe update
 (:meth:`ADGITechnique.update_probes`; tests/techniques/adgi/test_device_path.py): masked fixed-width plans
 (:meth:`RayPlan.masked <dyngi.probes.rays.RayPlan.masked>`; widths set on the host from the chains, the
-budget or, for D without a budget, 1.5x the last frame's lanes, :mod:`.planner`), the exact budget caps as
+budget or, without one, 1.25x the last frame's lanes, :mod:`.planner`), the exact budget caps as
 device values (the rays spent so far and "some f_d > 0" this frame, on the device; the chain count from
 the last frame's measurements), update counts on the device (:meth:`ProbePipeline.merge_slots
 <dyngi.probes.pipeline.ProbePipeline.merge_slots>`) and the device convolution; its counts (stats, the
