@@ -30,12 +30,13 @@ Two implementations of the same sampling (``device``, ours): the host one sizes 
 (``device=True``) returns masked plans (:meth:`RayPlan.masked <dyngi.probes.rays.RayPlan.masked>`) of a
 width fixed on the host -- static: the chains' samples, at most what the stage's allowance ``rays_max``
 pays for, without a budget at most 1.25x the samples the last frame wanted (in steps of 4096; the early
-iterations' samples first, as a budget's cap); dynamic: the lanes a budget pays for, or without one 1.25x the last frame's lanes (in steps of
-8 proxy octants' worth; :meth:`ADGIChainPlanner.dynamic_capacity`) -- and takes the
-stage's exact cap as a device value (``limit``: samples, or rays for D). The counts (:attr:`last_samples`,
-the unique share, the lanes D wanted) stay device values until :meth:`ADGIChainPlanner.finish_frame` reads
-them after the frame's image. A change of guide that needs more dynamic lanes than the capacity is traced,
-highest guide first, up to it, and fully from the next frame.
+iterations' samples first, as a budget's cap); dynamic: the lanes a budget pays for, or without one 1.25x
+the last frame's lanes (in steps of 8 proxy octants' worth; :meth:`ADGIChainPlanner.dynamic_capacity`) --
+and takes the stage's exact cap as a device value (``limit``: samples, or rays for D). The counts
+(:attr:`last_samples`, the unique share, the lanes each stage wanted) stay device values until
+:meth:`ADGIChainPlanner.finish_frame` reads them after the frame's image. A change of guide that needs
+more dynamic lanes than the capacity is traced, highest guide first, up to it, and fully from the next
+frame.
 """
 from __future__ import annotations
 
