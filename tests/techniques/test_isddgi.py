@@ -79,41 +79,6 @@ def test_device_allocation_pdf_and_draws_match_the_supplement(backend):
     _assert_draws_follow(counts, pdf, n, P)
 
 
-def test_device_change_measure_matches_the_host_one(backend):
-    """:func:`~dyngi.techniques.isddgi.device.change_measure_dr` == the planner's host change measure
-    (per-ray ``g`` of the check visits and the per-probe estimate ``F^ = 256 x mean g``) after 11 frames of
-    random hits (16 probes, 32 uniform rays: every set revisited, ~half of the uniform rays are checks)."""
-    from dyngi.backend import mi
-    from dyngi.techniques.isddgi.device import change_measure_dr
-    P = 16
-    pl = ISDDGIPlanner(P, x_init=32, x_max=32)
-    ids = np.arange(P, dtype=np.uint32)
-    rng = np.random.default_rng(2)
-    for t in range(12):
-        plan = pl.plan(t, 0, ids)
-        lum = rng.random(plan.n_rays) * 2
-        dist = rng.random(plan.n_rays) * 3 - 0.3
-        if t < 11:
-            pl.observe(plan, lum, dist)
-    info, st = plan.info, pl.state
-    pid = np.asarray(plan.probe_ids, np.int64)
-    pr, g, measured = pl.ray_change(info, pid, lum, dist)
-    assert measured.sum() > 100 and (g > 0).sum() > 10          # checks that measured some change
-    n_meas = np.bincount(info.ray_slot[pr], measured.astype(float), P)
-    est = np.where(n_meas > 0, N_SETS * np.bincount(info.ray_slot[pr], g, P) / np.maximum(n_meas, 1), 0)
-    pair = (pid[info.ray_slot] * N_SETS + info.ray_set).astype(np.uint32)
-    gd, Fd, nd = change_measure_dr(
-        mi.Float(lum.astype(np.float32)), mi.Float(dist.astype(np.float32)),
-        mi.UInt32(info.ray_slot.astype(np.uint32)), mi.UInt32(pair), mi.Bool(info.ray_paired),
-        mi.Bool(info.ray_check), mi.Float(st.sample_lum.ravel()), mi.Float(st.sample_dist.ravel()),
-        mi.Bool(st.has_sample.ravel()), P, pl.max_distance, pl.tau)
-    full = np.zeros(plan.n_rays)
-    full[pr] = g
-    assert np.allclose(np.asarray(gd), full, atol=1e-5)
-    assert np.allclose(np.asarray(Fd), est, rtol=1e-4, atol=1e-4)
-    assert np.array_equal(np.asarray(nd), n_meas)
-
-
 def test_allocation_is_zero_without_change():
     pdf = allocation_pdf(np.zeros(4), np.zeros((4, N_SETS)), 0.1)
     assert pdf.sum() == 0

@@ -50,10 +50,10 @@ from ...backend import dr, mi
 from ...probes.rays import RayPlan
 from ...probes.volume import upload
 from ...sampling.rng import mix_seed
-from .device import _LOCAL, allocation_pdf_dr, change_measure_dr, sample_pairs_dr
+from .device import _LOCAL, allocation_pdf_dr, sample_pairs_dr
 from .planner import ISDDGIPlanner, ISDDGIState
-from .sets import (CELL_STREAM, CHANGE_EPS, N_SETS, NEIGHBOUR_SHARE, RAYS_LIMIT, SETS_PER_SIDE, SHADE_STREAM,
-                   SHIFT_STREAM, _NB, _hash_u32_dr)
+from .sets import (CELL_STREAM, CHANGE_EPS, LUMINANCE_FLOOR, N_SETS, NEIGHBOUR_SHARE, PROBE_MEAN_SHARE, RAYS_LIMIT,
+                   SETS_PER_SIDE, SHADE_STREAM, SHIFT_STREAM, _NB, _hash_u32_dr)
 
 IMPLS = ("device", "host")
 
@@ -296,40 +296,81 @@ class DeviceISDDGIPlanner:
         return plan
 
     # -- feedback --------------------------------------------------------------------------------
-    def observe(self, plan: RayPlan, lum, dist, adapt: bool = True) -> dict:
+    def observe(self, plan: RayPlan, lum, dist, adapt: bool = True, out=None):
         """The host :meth:`~.planner.ISDDGIPlanner.observe` on the device: ``lum``, ``dist`` (R,) Float in
-        ray order. Returns device scalars (width-1 arrays) ``dynamic_rays``, ``changed_probes`` and
-        ``check_rays`` for the caller's one read."""
+        ray order (the paired-visit change measure of :meth:`~.planner.ISDDGIPlanner.ray_change`, its sums
+        sharing kernels with the state updates: a handful of launches per frame). Statistics are added into ``out``
+        (UInt32, ``S + 5``; allocated if None, and returned): ``S`` dynamic rays, ``S + 1`` check rays,
+        ``S + 2`` probes that saw change, ``S + 3`` the sum of ``x_i`` over all probes, ``S + 4`` the probes
+        with ``F_i > 0``."""
         h, info = self.host, plan.info
         S = info.S
         pid_dr, slot, gp, dset = info.pid_dr, info.slot, info.pair, info.set
         paired, check = info.paired, info.check
-        g, F_est, n_meas = change_measure_dr(lum, dist, slot, gp, paired, check, self.sample_lum, self.sample_dist,
-                                             self.has_sample, S, h.max_distance, h.tau)
-        # -- references: a reference visit opens one (a first visit only on the even checkerboard squares) --
+        if out is None:
+            out = dr.zeros(mi.UInt32, S + 5)
+        So = _op(mi.UInt32, S)
+        dmax, tau, decay = _op(mi.Float, h.max_distance), _op(mi.Float, h.tau), _op(mi.Float, h.decay)
+        one = mi.UInt32(1)
+        # -- the probe's mean hit luminance (the change measure's floor) --
+        lum_sum, cnt = dr.zeros(mi.Float, S), dr.zeros(mi.Float, S)
+        dr.scatter_reduce(dr.ReduceOp.Add, lum_sum, lum, slot, mode=_LOCAL)
+        dr.scatter_reduce(dr.ReduceOp.Add, cnt, mi.Float(1.0), slot, mode=_LOCAL)
+        dr.eval(lum_sum, cnt)
+        # -- change g of the check visits against the stored samples; per-probe sums; statistics --
+        ybar = dr.gather(mi.Float, lum_sum, slot) / dr.maximum(dr.gather(mi.Float, cnt, slot), 1.0)
+        y_old = dr.gather(mi.Float, self.sample_lum, gp, paired)
+        d_old = dr.gather(mi.Float, self.sample_dist, gp, paired)
         hs_old = dr.gather(mi.Bool, self.has_sample, gp, paired)
-        even = (((dset & 15) + (dset >> 4)) & 1) == 0
-        openv = ~check & (hs_old | even)
-        dmax = _op(mi.Float, h.max_distance)
+        measured = paired & check & hs_old
         dcl = dr.minimum(dr.abs(dist), dmax)
-        dr.eval(openv, dcl)
+        c_l = dr.abs(lum - y_old) / (lum + y_old + PROBE_MEAN_SHARE * ybar + LUMINANCE_FLOOR)
+        c_d = dr.abs(dcl - d_old) / dmax
+        g = dr.select(measured, dr.maximum(dr.maximum(c_l, c_d) - tau, 0.0) / dr.maximum(1.0 - tau, 1e-6), 0.0)
+        g_sum, n_meas, dyn = dr.zeros(mi.Float, S), dr.zeros(mi.Float, S), dr.zeros(mi.UInt32, S)
+        dr.scatter_reduce(dr.ReduceOp.Add, g_sum, g, slot, mode=_LOCAL)
+        dr.scatter_reduce(dr.ReduceOp.Add, n_meas, mi.Float(1.0), slot, measured, mode=_LOCAL)
+        dr.scatter_reduce(dr.ReduceOp.Add, dyn, one, slot, g > 0.0, mode=_LOCAL)
+        dr.scatter_reduce(dr.ReduceOp.Add, out, one, So, g > 0.0, mode=_LOCAL)          # dynamic rays
+        dr.scatter_reduce(dr.ReduceOp.Add, out, one, So + 1, measured, mode=_LOCAL)     # check rays
+        # a reference visit opens a reference (a first visit only on the even checkerboard squares)
+        openv = ~check & (hs_old | ((((dset & 15) + (dset >> 4)) & 1) == 0))
+        dr.eval(g, openv, dcl)
         dr.scatter(self.open_ref, openv, gp, paired)
         dr.scatter(self.sample_lum, lum, gp, paired)
         dr.scatter(self.sample_dist, dcl, gp, paired)
         dr.scatter(self.ref_key, info.rkey, gp, paired)
         dr.scatter(self.has_sample, mi.Bool(True), gp, paired)
-        # -- smoothed change per set: decay over the traced probes, peak hold, the 8 neighbours' share --
+        # -- smoothed change per set: one lane per traced (probe, set): decay, then at the sets with a paired
+        #    ray the peak hold and its threshold (the host's order; g reaches its set through a scratch array) --
+        g_pair = dr.full(mi.Float, -1.0, S * N_SETS)          # -1: no paired ray in the set this frame
+        dr.scatter(g_pair, g, (slot << 8) + dset, paired)
         kk = dr.arange(mi.UInt32, S * N_SETS)
         q = dr.gather(mi.UInt32, pid_dr, kk >> 8) * N_SETS + (kk & 255)
-        fd = dr.gather(mi.Float, self.f, q) * _op(mi.Float, h.decay)
+        fd = dr.gather(mi.Float, self.f, q) * decay
+        gk = dr.gather(mi.Float, g_pair, kk)
+        fv = dr.maximum(gk, fd)
+        fd = dr.select(gk >= 0.0, dr.select(fv < CHANGE_EPS * 0.1, 0.0, fv), fd)
         dr.eval(fd)
         dr.scatter(self.f, fd, q)
-        dr.eval(self.f)
-        fv = dr.maximum(g, dr.gather(mi.Float, self.f, gp, paired))
-        fv = dr.select(fv < CHANGE_EPS * 0.1, 0.0, fv)
-        dr.eval(fv)
-        dr.scatter(self.f, fv, gp, paired)
-        dr.eval(self.f)
+        # -- F_i (Sec. 4.3: 256 x the check visits' mean g) and the adaptive uniform count (one lane per probe) --
+        F_est = dr.select(n_meas > 0.0, N_SETS * g_sum / dr.maximum(n_meas, 1.0), 0.0)
+        Fn = dr.maximum(F_est, decay * dr.gather(mi.Float, self.F, pid_dr))
+        dr.scatter(self.F, dr.select(Fn < CHANGE_EPS, 0.0, Fn), pid_dr)
+        changed = dyn > 0
+        dr.scatter_reduce(dr.ReduceOp.Add, out, one, So + 2, changed, mode=_LOCAL)      # probes that saw change
+        if adapt:
+            lo, hi = int(np.log2(h.x_min)), int(np.log2(h.x_max))
+            lx = dr.gather(mi.UInt32, self.log2x, pid_dr)
+            hold = dr.gather(mi.UInt32, self.hold, pid_dr)
+            expire = ~changed & (hold <= 1)
+            lx = dr.select(changed, dr.minimum(lx + 1, _op(mi.UInt32, hi)),
+                           dr.select(expire & (lx > _op(mi.UInt32, lo)), lx - 1, lx))
+            hold = dr.select(changed | expire, _op(mi.UInt32, h.hold_frames), hold - 1)
+            dr.scatter(self.log2x, lx, pid_dr)
+            dr.scatter(self.hold, hold, pid_dr)
+        dr.eval()                  # f, F, x: before the neighbours' share and the statistics read them
+        # -- the 8 neighbouring sets get NEIGHBOUR_SHARE of a measured change --
         R = dr.width(g)
         if R:
             kn = dr.arange(mi.UInt32, R * len(_NB))
@@ -341,48 +382,26 @@ class DeviceISDDGIPlanner:
             ny = dr.clip(mi.Int32(jr >> 4) + mi.Int32(nb // 3) - 1, 0, SETS_PER_SIDE - 1)
             idx = (dr.gather(mi.UInt32, gp, r) & ~mi.UInt32(255)) + mi.UInt32(ny * SETS_PER_SIDE + nx)
             dr.scatter_reduce(dr.ReduceOp.Max, self.f, gr * NEIGHBOUR_SHARE, idx, gr > 0.0)
-            dr.eval(self.f)
-        # -- F_i (Sec. 4.3) --
-        Fn = dr.maximum(F_est, _op(mi.Float, h.decay) * dr.gather(mi.Float, self.F, pid_dr))
-        Fn = dr.select(Fn < CHANGE_EPS, 0.0, Fn)
-        dr.eval(Fn)
-        dr.scatter(self.F, Fn, pid_dr)
-        # -- adaptive uniform rays --
-        dyn = dr.zeros(mi.UInt32, S)
-        dr.scatter_reduce(dr.ReduceOp.Add, dyn, mi.UInt32(1), slot, g > 0.0, mode=_LOCAL)
-        changed = dyn > 0
-        if adapt:
-            lo, hi = int(np.log2(h.x_min)), int(np.log2(h.x_max))
-            lx = dr.gather(mi.UInt32, self.log2x, pid_dr)
-            hold = dr.gather(mi.UInt32, self.hold, pid_dr)
-            expire = ~changed & (hold <= 1)
-            lx = dr.select(changed, dr.minimum(lx + 1, _op(mi.UInt32, hi)),
-                           dr.select(expire & (lx > _op(mi.UInt32, lo)), lx - 1, lx))
-            hold = dr.select(changed | expire, _op(mi.UInt32, h.hold_frames), hold - 1)
-            dr.eval(lx, hold)
-            dr.scatter(self.log2x, lx, pid_dr)
-            dr.scatter(self.hold, hold, pid_dr)
-        dr.eval(self.F, self.log2x, self.hold, self.open_ref, self.sample_lum, self.sample_dist, self.ref_key,
-                self.has_sample)
-        return {"dynamic_rays": dr.sum(dyn), "changed_probes": dr.sum(mi.UInt32(changed)),
-                "check_rays": mi.UInt32(dr.sum(n_meas))}
+        # -- over all probes: the sum of x_i and the probes with change --
+        dr.scatter_reduce(dr.ReduceOp.Add, out, one << self.log2x, So + 3, mode=_LOCAL)
+        dr.scatter_reduce(dr.ReduceOp.Add, out, one, So + 4, self.F > 0.0, mode=_LOCAL)
+        dr.eval(out, self.f)
+        return out
 
     def probe_states(self, volume, plan: RayPlan, dist, warm: bool, backface_threshold: float,
-                     near_surface: bool):
+                     near_surface: bool, out=None):
         """Algorithm 2 (front-face minimum over front faces, :func:`~.estimator.probe_states_alg2`) and, with
         ``near_surface``, DDGI's near-surface test over the rotation window (:func:`~.estimator.near_surface_hits`,
-        :func:`~.estimator.near_window`) on the device: (S,) Bool ON per traced slot. Runs before
-        :meth:`observe` (the window uses this frame's ``x_i``)."""
+        :func:`~.estimator.near_window`) on the device: (S,) Bool ON per traced slot, also written (as 0/1)
+        into ``out[:S]`` if given. Runs before :meth:`observe` (the window uses this frame's ``x_i``)."""
         from ...probes.states import _cell_extents
         info = plan.info
         S, slot = info.S, info.slot
-        back = dr.zeros(mi.UInt32, S)
-        front = dr.zeros(mi.UInt32, S)
+        one = mi.UInt32(1)
+        back, front, ns = dr.zeros(mi.UInt32, S), dr.zeros(mi.UInt32, S), dr.zeros(mi.UInt32, S)
         fin = dr.isfinite(dist)
-        dr.scatter_reduce(dr.ReduceOp.Add, back, mi.UInt32(1), slot, dist < 0.0, mode=_LOCAL)
-        dr.scatter_reduce(dr.ReduceOp.Add, front, mi.UInt32(1), slot, (dist >= 0.0) & fin, mode=_LOCAL)
-        tot = info.total_dr
-        on = (front > 0) & (mi.Float(back) < _op(mi.Float, backface_threshold) * mi.Float(tot)) & (tot > 0)
+        dr.scatter_reduce(dr.ReduceOp.Add, back, one, slot, dist < 0.0, mode=_LOCAL)
+        dr.scatter_reduce(dr.ReduceOp.Add, front, one, slot, (dist >= 0.0) & fin, mode=_LOCAL)
         if near_surface:
             lo, hi = _cell_extents(volume, np.asarray(plan.probe_ids, np.int64))
             ext = upload(np.concatenate([lo, hi], 1).astype(np.float32).ravel(), mi.Float)     # (S, 6)
@@ -393,27 +412,22 @@ class DeviceISDDGIPlanner:
                 aw = dr.abs(w[a])
                 t_exit = dr.minimum(t_exit, dr.select(aw > 0.0, e / aw, np.inf))
             near = (dist > 0.0) & fin & (dist <= t_exit)
-            ns = dr.zeros(mi.UInt32, S)
-            dr.scatter_reduce(dr.ReduceOp.Add, ns, mi.UInt32(1), slot, near, mode=_LOCAL)
-            dr.eval(ns)
+            dr.scatter_reduce(dr.ReduceOp.Add, ns, one, slot, near, mode=_LOCAL)
+        dr.eval(back, front, ns)
+        tot = info.total_dr
+        on = (front > 0) & (mi.Float(back) < _op(mi.Float, backface_threshold) * mi.Float(tot)) & (tot > 0)
+        if near_surface:
             pid_dr = info.pid_dr
             age = dr.gather(mi.UInt32, self.near_age, pid_dr)
             age = dr.select(ns > 0, 0, dr.minimum(age + 1, 255))
-            dr.eval(age)
+            x = tot if warm else (one << dr.gather(mi.UInt32, self.log2x, pid_dr))
+            on &= age < dr.maximum(mi.UInt32(N_SETS) // dr.maximum(x, 1), 1)
+            dr.eval(age, on)
             dr.scatter(self.near_age, age, pid_dr)
-            x = tot if warm else (mi.UInt32(1) << dr.gather(mi.UInt32, self.log2x, pid_dr))
-            window = dr.maximum(mi.UInt32(N_SETS) // dr.maximum(x, 1), 1)
-            on &= age < window
+        if out is not None:
+            dr.scatter(out, mi.UInt32(on), dr.arange(mi.UInt32, S))
         dr.eval(on, self.near_age)
         return on
-
-    def n_changed(self):
-        """Device scalar: probes with ``F_i > 0`` (the states read sets :attr:`any_change` from it)."""
-        return dr.sum(mi.UInt32(self.F > 0.0))
-
-    def mean_uniform(self):
-        """Device scalar: the mean ``x_i`` over all probes (stat ``mean_uniform_per_probe``)."""
-        return dr.sum(mi.Float(mi.UInt32(1) << self.log2x)) / max(self.P, 1)
 
 
 def _rays_from_hash(h, dset, npair, omega):

@@ -236,18 +236,11 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         st = vol.state
         S = plan.info.S
         pl = self.planner
+        buf = dr.zeros(mi.UInt32, S + 5)                  # ON flags, then observe's five statistics
         on = None
         if p["classify"]:
-            on = pl.probe_states(vol, plan, res.distance, warm, p["backface_threshold"], p["near_surface"])
-        obs = pl.observe(plan, mi.luminance(res.radiance), res.distance, adapt=adapt)
-        buf = dr.zeros(mi.UInt32, S + 5)
-        if on is not None:
-            dr.scatter(buf, mi.UInt32(on), dr.arange(mi.UInt32, S))
-        So = dr.opaque(mi.UInt32, S)                    # opaque: the traced-probe count varies per frame
-        for i, k in enumerate(("dynamic_rays", "changed_probes", "check_rays")):
-            dr.scatter(buf, mi.UInt32(obs[k]), So + i)
-        dr.scatter(buf, mi.UInt32(dr.sum(mi.UInt32(1) << pl.log2x)), So + 3)
-        dr.scatter(buf, pl.n_changed(), So + 4)
+            on = pl.probe_states(vol, plan, res.distance, warm, p["backface_threshold"], p["near_surface"], out=buf)
+        pl.observe(plan, mi.luminance(res.radiance), res.distance, adapt=adapt, out=buf)
         host = np.asarray(buf).astype(np.int64)          # the states step's one read
         pl.any_change = bool(host[S + 4] > 0)            # the next plan skips its draws without change
         self._mean_x = float(host[S + 3]) / max(vol.n_probes, 1)
@@ -259,7 +252,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
             st.updates[pid[(old == PROBE_INACTIVE) & (new == PROBE_ACTIVE)]] = 0
             if np.any(old != new):
                 vol.sync(("positions", "states"))
-        return {"dynamic_rays": int(host[S]), "changed_probes": int(host[S + 1]), "check_rays": int(host[S + 2])}
+        return {"dynamic_rays": int(host[S]), "check_rays": int(host[S + 1]), "changed_probes": int(host[S + 2])}
 
     # -- comparison budgets (ours) -------------------------------------------------------
     def _budget_probe_rays(self, frame: Frame, n_probes: int) -> int | None:
