@@ -202,6 +202,10 @@ class DeviceISDDGIPlanner:
         pid = np.asarray(probe_ids, np.uint32)
         S = len(pid)
         pid_dr = upload(pid, mi.UInt32)
+        # no probe with change at the last states read: the draws would all be empty (skip their kernels)
+        NI = int(np.ceil(h.importance_rays * S)) if self.force_uniform is None and self.any_change else 0
+        if NI == 0:
+            return self._uniform_plan(frame, seed, pid, pid_dr, t0)
         # -- 1. uniform rays: one lane per (slot, cell) up to the capacity, masked where c >= x_i --
         XC = self.force_uniform or h.x_max
         k = dr.arange(mi.UInt32, S * XC)
@@ -225,8 +229,6 @@ class DeviceISDDGIPlanner:
         has_uni = counts != 0                    # before the draws: the sets with a uniform ray
         dr.eval(has_uni)
         # -- 2. importance draws over the allocation pdf of the traced probes --
-        # no probe with change at the last states read: the draws would all be empty (skip their kernels)
-        NI = int(np.ceil(h.importance_rays * S)) if self.force_uniform is None and self.any_change else 0
         if NI > 0:
             imp = (dr.full(mi.Bool, True, S) if importance is None
                    else upload(np.asarray(importance, np.uint32), mi.UInt32) != 0)
@@ -290,6 +292,45 @@ class DeviceISDDGIPlanner:
         info.dropped = int(host[S + 2] - host[S + 1])
         info.stats = {"uniform_rays": int(host[S]), "importance_rays": int(host[S + 1]),
                       "importance_dropped": info.dropped}
+        plan.info = info
+        plan.shade_key = shade_key
+        info.stats["plan_ms"] = (time.perf_counter() - t0) * 1e3
+        return plan
+
+    def _uniform_plan(self, frame: int, seed: int, pid: np.ndarray, pid_dr, t0: float) -> RayPlan:
+        """A plan without importance rays (the warm-up, frames after one without change): ``x_i`` uniform
+        rays per probe, already in set order (cell ``c``'s set ``K c + off`` grows with ``c``), so a ray's place
+        is its probe's offset plus its cell -- no per-set count tables or prefix sums over ``S x 256`` (ours;
+        the same rays as the general path). One read: the ``S`` uniform counts."""
+        S = len(pid)
+        if self.force_uniform is None:
+            lxs = dr.gather(mi.UInt32, self.log2x, pid_dr)
+        else:
+            lxs = dr.full(mi.UInt32, int(np.log2(self.force_uniform)), S)
+        xs = mi.UInt32(1) << lxs
+        dr.eval(xs)
+        tot = np.asarray(xs).astype(np.int64)              # the plan's one read: rays per probe
+        R = int(tot.sum())
+        offsets = np.concatenate([[0], np.cumsum(tot)])
+        rslot = upload(np.repeat(np.arange(S, dtype=np.uint32), tot), mi.UInt32)
+        start = upload(offsets[:-1].astype(np.uint32), mi.UInt32)
+        c = dr.arange(mi.UInt32, R) - dr.gather(mi.UInt32, start, rslot)
+        rprobe = dr.gather(mi.UInt32, pid_dr, rslot)
+        lx = dr.gather(mi.UInt32, lxs, rslot)
+        K = mi.UInt32(N_SETS) >> lx
+        sh = _hash_u32_dr(rprobe + SHIFT_STREAM)
+        perm = _hash_u32_dr(sh * 0x9E3779B1 + c + CELL_STREAM)
+        dset = K * c + ((_op(mi.UInt32, int(frame) & 0xFFFFFFFF) + sh + perm) & (K - 1))
+        gp = rprobe * N_SETS + dset
+        check = dr.gather(mi.Bool, self.open_ref, gp)
+        key = dr.select(check, dr.gather(mi.UInt32, self.ref_key, gp), _op(mi.UInt32, mix_seed(seed, frame, 0x1DD61)))
+        hsh = _hash_u32_dr(_hash_u32_dr(rprobe * (N_SETS * RAYS_LIMIT) + dset * RAYS_LIMIT + key) ^ key)
+        dr.eval(dset, gp, check, key, hsh)
+        direction, weight, shade_key = _rays_from_hash(hsh, dset, mi.UInt32(1), self._omega)
+        plan = RayPlan(rprobe, direction, None, None, pid, offsets, rslot, weight)
+        info = DevicePlanInfo(S, tot, xs, pid_dr, rslot, dset, gp, dr.zeros(mi.UInt32, R), dr.full(mi.Bool, True, R),
+                              check, key)
+        info.stats = {"uniform_rays": R, "importance_rays": 0, "importance_dropped": 0}
         plan.info = info
         plan.shade_key = shade_key
         info.stats["plan_ms"] = (time.perf_counter() - t0) * 1e3
