@@ -24,7 +24,8 @@ def test_device_planner_equals_the_host_planner_without_importance_rays(backend)
     every frame, the device plan's rays (directions, weights, shading keys, per-probe counts) are the host
     plan's bit for bit, and after each observe the device state (change f/F, stored samples, references,
     adaptive x_i and hold) equals the host's -- the change measure, peak hold, neighbour share and adaptive
-    rule agree, so the uniform count moves (the comparison has something to compare)."""
+    rule agree, so the uniform count moves (the comparison has something to compare). Both device layouts
+    (without draws: from the per-probe offsets; with: per-set counters) are checked."""
     from dyngi.backend import mi
     from dyngi.probes.trace import vector_to_numpy
     P = 16
@@ -55,6 +56,12 @@ def test_device_planner_equals_the_host_planner_without_importance_rays(backend)
         assert np.allclose(_np(dp.F), hs.F, rtol=1e-4, atol=1e-4), t
         xs |= set(hs.x.tolist())
     assert len(xs) >= 2 and hp.state.F[moving].max() > 0 and hp.state.F[~moving].max() == 0, (xs, hp.state.F)
+    # the general path (per-set counters and prefix sums, taken when draws may happen) lays out the same rays
+    gen, ref = DeviceISDDGIPlanner(P, **{**args, "importance_rays": 16.0}), ISDDGIPlanner(P, **args)
+    a, b = ref.plan(0, 3, ids), gen.plan(0, 3, ids)
+    assert gen.any_change and b.info.stats["importance_rays"] == 0
+    assert np.array_equal(a.offsets, b.offsets) and np.array_equal(_np(a.shade_key), _np(b.shade_key))
+    assert np.array_equal(vector_to_numpy(a.direction), vector_to_numpy(b.direction))
 
 
 def _device_planner_with_change(P=16, importance_rays=16.0, f=None, variant="multi-rays"):
