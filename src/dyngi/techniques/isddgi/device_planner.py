@@ -422,7 +422,9 @@ class DeviceISDDGIPlanner:
             nx = dr.clip(mi.Int32(jr & 15) + mi.Int32(nb % 3) - 1, 0, SETS_PER_SIDE - 1)
             ny = dr.clip(mi.Int32(jr >> 4) + mi.Int32(nb // 3) - 1, 0, SETS_PER_SIDE - 1)
             idx = (dr.gather(mi.UInt32, gp, r) & ~mi.UInt32(255)) + mi.UInt32(ny * SETS_PER_SIDE + nx)
-            dr.scatter_reduce(dr.ReduceOp.Max, self.f, gr * NEIGHBOUR_SHARE, idx, gr > 0.0)
+            # Direct: Auto picked "expand" here (a per-thread copy of the P x 256 target, cleared and reduced every
+            # frame: ~4 of observe's ~7 ms on tunnel-gate) although few lanes are active
+            dr.scatter_reduce(dr.ReduceOp.Max, self.f, gr * NEIGHBOUR_SHARE, idx, gr > 0.0, mode=dr.ReduceMode.Direct)
         # -- over all probes: the sum of x_i and the probes with change --
         dr.scatter_reduce(dr.ReduceOp.Add, out, one << self.log2x, So + 3, mode=_LOCAL)
         dr.scatter_reduce(dr.ReduceOp.Add, out, one, So + 4, self.F > 0.0, mode=_LOCAL)
