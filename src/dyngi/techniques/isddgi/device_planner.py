@@ -47,7 +47,7 @@ import time
 import numpy as np
 
 from ...backend import dr, mi
-from ...probes.rays import RayPlan
+from ...probes.rays import RayPlan, compact
 from ...probes.volume import upload
 from ...sampling.rng import mix_seed
 from .device import _LOCAL, allocation_pdf_dr, sample_pairs_dr
@@ -110,6 +110,7 @@ class DeviceISDDGIPlanner:
         self.P = int(n_probes)
         self.force_uniform: int | None = None
         self.any_change = True      # some probe had F_i > 0 at the last states read (False: no draws to make)
+        self.n_changed = int(n_probes)  # how many (bounds this frame's candidates of the draws)
         self._omega = upload(self.host.omega.astype(np.float32), mi.Float)
         self._nb = upload(((_NB[:, 1] + 1) * 3 + (_NB[:, 0] + 1)).astype(np.uint32), mi.UInt32)
         self._reset()
@@ -161,7 +162,8 @@ class DeviceISDDGIPlanner:
         self.ref_key = upload(st.ref_key.ravel(), mi.UInt32)
         self.near_age = upload(np.asarray(near_age, np.uint32), mi.UInt32)
         dr.eval(self.has_sample, self.open_ref)
-        self.any_change = bool(np.any(st.F > 0.0))
+        self.n_changed = int(np.count_nonzero(st.F > 0.0))
+        self.any_change = self.n_changed > 0
 
     # -- the pipeline's warm-up hooks ---------------------------------------------------------
     def begin_warmup(self) -> None:
@@ -223,72 +225,70 @@ class DeviceISDDGIPlanner:
         perm = _hash_u32_dr(sh * 0x9E3779B1 + c + CELL_STREAM)
         off = (_op(mi.UInt32, int(frame) & 0xFFFFFFFF) + sh + perm) & (K - 1)
         pair_u = slot * N_SETS + K * c + off
+        buf = dr.zeros(mi.UInt32, S + 3)                    # the plan's read: counts per probe, statistics
+        So = _op(mi.UInt32, S)                              # opaque: the traced-probe count varies per frame
+        one = mi.UInt32(1)
         counts = dr.zeros(mi.UInt32, S * N_SETS)
         dr.scatter_inc(counts, pair_u, valid_u)
+        dr.scatter_reduce(dr.ReduceOp.Add, buf, one, So, valid_u, mode=_LOCAL)          # uniform rays
         dr.eval(counts)
-        has_uni = counts != 0                    # before the draws: the sets with a uniform ray
-        dr.eval(has_uni)
         # -- 2. importance draws over the allocation pdf of the traced probes --
-        if NI > 0:
-            imp = (dr.full(mi.Bool, True, S) if importance is None
-                   else upload(np.asarray(importance, np.uint32), mi.UInt32) != 0)
-            Fs = dr.select(imp, dr.gather(mi.Float, self.F, pid_dr), 0.0)
-            n_cand = dr.sum(mi.UInt32(Fs > 0.0))
-            n_imp = mi.UInt32(dr.round(mi.Float(n_cand) * _op(mi.Float, h.importance_rays)))
-            kk = dr.arange(mi.UInt32, S * N_SETS)
-            fv = dr.gather(mi.Float, self.f, dr.gather(mi.UInt32, pid_dr, kk >> 8) * N_SETS + (kk & 255))
-            pdf = allocation_pdf_dr(Fs, fv, h.eps)
-            pair_i = sample_pairs_dr(pdf, NI, mix_seed(seed, frame, 0x15DD62), self.P * N_SETS)   # prefix sum + search
-            valid_i = (dr.arange(mi.UInt32, NI) < n_imp) & (dr.gather(mi.Float, pdf, pair_i) > 0.0)
-            dr.eval(pair_i, valid_i)
-            # -- 3. per-set cap: atomic counters, the uniform ray first --
-            si = dr.scatter_inc(counts, pair_i, valid_i)
-            keep_i = valid_i & (si < _op(mi.UInt32, h.limit))
-            dr.eval(si, keep_i, counts)
-            n_drawn, n_kept = dr.sum(mi.UInt32(valid_i)), dr.sum(mi.UInt32(keep_i))
-        else:
-            n_drawn = n_kept = mi.UInt32(0)
+        imp = (dr.full(mi.Bool, True, S) if importance is None
+               else upload(np.asarray(importance, np.uint32), mi.UInt32) != 0)
+        Fs = dr.select(imp, dr.gather(mi.Float, self.F, pid_dr), 0.0)
+        n_cand = dr.sum(mi.UInt32(Fs > 0.0))
+        n_imp = mi.UInt32(dr.round(mi.Float(n_cand) * _op(mi.Float, h.importance_rays)))
+        # the candidates (F_i > 0; the pdf is 0 elsewhere), compacted on the device into a capacity known on the
+        # host: the probes with change at the last states read, which bounds them (F changes only in observe)
+        C = max(1, min(S, self.n_changed))
+        cand, cok = compact(Fs > 0.0, C)
+        Fc = dr.select(cok, dr.gather(mi.Float, Fs, cand), 0.0)
+        kk = dr.arange(mi.UInt32, C * N_SETS)
+        cs = dr.gather(mi.UInt32, cand, kk >> 8)
+        fv = dr.gather(mi.Float, self.f, dr.gather(mi.UInt32, pid_dr, cs) * N_SETS + (kk & 255))
+        pdf = allocation_pdf_dr(Fc, fv, h.eps)
+        pc = sample_pairs_dr(pdf, NI, mix_seed(seed, frame, 0x15DD62), self.P * N_SETS)   # prefix sum + search
+        pair_i = dr.gather(mi.UInt32, cand, pc >> 8) * N_SETS + (pc & 255)
+        valid_i = (dr.arange(mi.UInt32, NI) < n_imp) & (dr.gather(mi.Float, pdf, pc) > 0.0)
+        # -- 3. per-set cap: atomic counters, the uniform ray first --
+        si = dr.scatter_inc(counts, pair_i, valid_i)
+        keep_i = valid_i & (si < _op(mi.UInt32, h.limit))
+        dr.scatter_reduce(dr.ReduceOp.Add, buf, one, So + 1, keep_i, mode=_LOCAL)       # importance rays kept
+        dr.scatter_reduce(dr.ReduceOp.Add, buf, one, So + 2, valid_i, mode=_LOCAL)      # drawn
+        dr.eval(si, keep_i, counts)
         capped = dr.minimum(counts, _op(mi.UInt32, h.limit))
         totals = dr.block_sum(capped, N_SETS)
         start = dr.prefix_sum(capped)                       # exclusive
-        buf = dr.zeros(mi.UInt32, S + 3)
         dr.scatter(buf, totals, dr.arange(mi.UInt32, S))
-        So = _op(mi.UInt32, S)                              # opaque: the traced-probe count varies per frame
-        dr.scatter(buf, dr.sum(mi.UInt32(valid_u)), So)
-        dr.scatter(buf, n_kept, So + 1)
-        dr.scatter(buf, n_drawn, So + 2)
-        host = np.asarray(buf).astype(np.int64)            # the plan's one read: counts per probe, statistics
+        host = np.asarray(buf).astype(np.int64)            # the plan's one read
         tot = host[:S]
         R = int(tot.sum())
-        # -- 4. layout: each ray's place from the prefix sum --
+        # -- 4. layout: each ray's place from the prefix sum (a set's uniform ray first) --
         ray_pair = dr.zeros(mi.UInt32, R)
         ray_k = dr.zeros(mi.UInt32, R)
+        paired = dr.full(mi.Bool, False, R)                 # the set's uniform ray (a draw may be ray 0 of its set)
         pos_u = dr.gather(mi.UInt32, start, pair_u, valid_u)
         dr.scatter(ray_pair, pair_u, pos_u, valid_u)
-        if NI > 0:
-            pos_i = dr.gather(mi.UInt32, start, pair_i, keep_i) + si
-            dr.scatter(ray_pair, pair_i, pos_i, keep_i)
-            dr.scatter(ray_k, si, pos_i, keep_i)
-        dr.eval(ray_pair, ray_k)
+        dr.scatter(paired, mi.Bool(True), pos_u, valid_u)
+        pos_i = dr.gather(mi.UInt32, start, pair_i, keep_i) + si
+        dr.scatter(ray_pair, pair_i, pos_i, keep_i)
+        dr.scatter(ray_k, si, pos_i, keep_i)
+        dr.eval(ray_pair, ray_k, paired)
         rslot = ray_pair >> 8
         dset = ray_pair & 255
         rprobe = dr.gather(mi.UInt32, pid_dr, rslot)
         gp = rprobe * N_SETS + dset
-        paired = ray_k == 0
-        if NI > 0:     # a set with only importance rays has no uniform ray: its ray 0 is a draw
-            paired &= dr.gather(mi.Bool, has_uni, ray_pair)
         check = paired & dr.gather(mi.Bool, self.open_ref, gp)
         fkey = _op(mi.UInt32, mix_seed(seed, frame, 0x1DD61))
         key = dr.select(check, dr.gather(mi.UInt32, self.ref_key, gp), fkey)
         hsh = _hash_u32_dr(rprobe * (N_SETS * RAYS_LIMIT) + dset * RAYS_LIMIT + ray_k + key)
         hsh = _hash_u32_dr(hsh ^ key)
         npair = dr.gather(mi.UInt32, capped, ray_pair)
+        dr.schedule(rslot, dset, gp, check, key)          # evaluated with the rays' kernel below
         direction, weight, shade_key = _rays_from_hash(hsh, dset, npair, self._omega)
         offsets = np.concatenate([[0], np.cumsum(tot)])
-        const = None       # (a constant count would be folded into kernels as a literal: ragged always)
-        plan = RayPlan(rprobe, direction, const, None, pid, offsets, rslot, weight)
+        plan = RayPlan(rprobe, direction, None, None, pid, offsets, rslot, weight)   # ragged always (no literal)
         info = DevicePlanInfo(S, tot, totals, pid_dr, rslot, dset, gp, ray_k, paired, check, key)
-        dr.eval(paired, check, key)
         info.dropped = int(host[S + 2] - host[S + 1])
         info.stats = {"uniform_rays": int(host[S]), "importance_rays": int(host[S + 1]),
                       "importance_dropped": info.dropped}

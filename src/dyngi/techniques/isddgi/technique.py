@@ -242,7 +242,8 @@ class ISDDGITechnique(_ProbeTechniqueBase):
             on = pl.probe_states(vol, plan, res.distance, warm, p["backface_threshold"], p["near_surface"], out=buf)
         pl.observe(plan, mi.luminance(res.radiance), res.distance, adapt=adapt, out=buf)
         host = np.asarray(buf).astype(np.int64)          # the states step's one read
-        pl.any_change = bool(host[S + 4] > 0)            # the next plan skips its draws without change
+        pl.n_changed = int(host[S + 4])                  # bounds the next plan's draw candidates
+        pl.any_change = pl.n_changed > 0                 # the next plan skips its draws without change
         self._mean_x = float(host[S + 3]) / max(vol.n_probes, 1)
         if on is not None:
             pid = plan.probe_ids.astype(np.int64)
