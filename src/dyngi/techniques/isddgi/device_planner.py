@@ -10,11 +10,13 @@ adaptive ``x_i`` and the near-surface age) are Dr.Jit arrays, and one frame runs
 1. **uniform rays** (Fig. 1's cells and rotation): one lane per (traced probe, cell) up to the largest
    uniform count, masked where ``c >= x_i`` -- the same integer hashes as the host's :func:`~.sets.uniform_keys`
    (32-bit wrap-around; ``K = 256 / x_i`` divides 2^32, so the rotation's ``mod K`` agrees);
-2. **importance draws** (Secs. 4.3-4.4): the allocation pdf over (probe, set) pairs of the traced probes
-   (:func:`~.device.allocation_pdf_dr`; zero for probes without change), its prefix sum and one binary
-   search per draw (:func:`~.device.sample_pairs_dr`), ``importance_rays x`` (probes with ``F_i > 0``)
-   draws, the count computed on the device (the draw kernel runs at the capacity ``importance_rays x S``,
-   masked);
+2. **importance draws** (Secs. 4.3-4.4): the allocation pdf over the (probe, set) pairs of the candidates
+   (traced probes with ``F_i > 0``; the pdf is 0 elsewhere), compacted on the device into a capacity that the
+   last states read bounds (ours: the probes with change then; ``F`` changes only in :meth:`observe`)
+   (:func:`~.device.allocation_pdf_dr`), its prefix sum and one binary search per draw
+   (:func:`~.device.sample_pairs_dr`), ``importance_rays x`` (candidates) draws, the count computed on the
+   device (the draw kernel runs at the capacity ``importance_rays x S``, masked); a frame after one without
+   change skips steps 2-3 (:meth:`_uniform_plan`);
 3. **per-set cap** with atomic counters (``dr.scatter_inc``): uniform rays first (slot 0 of their set),
    then each draw takes the next slot and is dropped at the limit. Draws of one set are
    indistinguishable (same pair, same frame key), so which ones the atomics keep does not change the
