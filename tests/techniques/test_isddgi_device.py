@@ -78,7 +78,8 @@ def _device_planner_with_change(P=16, importance_rays=16.0, f=None, variant="mul
 def test_device_planner_draws_follow_the_allocation_pdf(backend):
     """The device planner's importance rays over 420 frames (~400k draws; the state held fixed) follow
     ``p(i, j) = F_i / sum F * p_f(j | i)`` (chi^2 per (probe, set), per 16-set block and per probe; one
-    probe's share 5% too high is rejected); a zero-F probe gets none, and ``importance_rays x`` (probes with change) are drawn per frame."""
+    probe's share 5% too high is rejected); a zero-F probe gets none, and ``importance_rays x`` (probes with
+    change) are drawn per frame."""
     P = 16
     dp, st = _device_planner_with_change(P, importance_rays=64.0)
     ids = np.arange(P, dtype=np.uint32)
@@ -146,7 +147,8 @@ def test_steady_isddgi_frame_compiles_nothing_and_reads_back_only_per_probe_coun
     """cornell-moving-box while the box moves (importance rays drawn), 4^3 probes, two passes over the same
     15 frames: in the second pass a steady probe update (plan, trace, blend, states; re-test frames excluded)
     launches only kernels launched before (the first pass compiles the frames without change -- no draw
-    kernels -- and, once, those with change), and every update reads back two buffers of at most ``S + 5`` integers (``S`` traced probes: the plan's
+    kernels -- and, once, those with change), and every update reads back two buffers of at most ``S + 5``
+    integers (``S`` traced probes: the plan's
     per-probe counts, the new ON flags) and nothing per ray; the host impl reads every ray back (the count has
     power)."""
     import drjit as dr

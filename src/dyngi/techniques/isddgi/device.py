@@ -1,8 +1,8 @@
 """IS-DDGI's allocation pdf and importance draws as Dr.Jit kernels (Liu et al., I3D 2023,
 supplement Secs. 4.3-4.4; issue 26).
 
-The device twins of :func:`~.sets.allocation_pdf` and :func:`~.sets.sample_indices`, on device arrays only (no host round trip inside); the per-set cap, the ray layout and the change measure
-are :mod:`.device_planner`'s:
+The device twins of :func:`~.sets.allocation_pdf` and :func:`~.sets.sample_indices`, on device arrays only (no
+host round trip inside); the per-set cap, the ray layout and the change measure are :mod:`.device_planner`'s:
 
 * :func:`allocation_pdf_dr`: ``p(i, j) = F_i / sum F * p_f(j | i)``, ``p_f(j | i) = (1 - eps) f_ij /
   sum_j f_ij + eps / 256`` (uniform where a probe has no ``f``) over the *candidates* (probes with
