@@ -148,9 +148,8 @@ def test_steady_isddgi_frame_compiles_nothing_and_reads_back_only_per_probe_coun
     15 frames: in the second pass a steady probe update (plan, trace, blend, states; re-test frames excluded)
     launches only kernels launched before (the first pass compiles the frames without change -- no draw
     kernels -- and, once, those with change), and every update reads back two buffers of at most ``S + 5``
-    integers (``S`` traced probes: the plan's
-    per-probe counts, the new ON flags) and nothing per ray; the host impl reads every ray back (the count has
-    power)."""
+    integers (``S`` traced probes: the plan's per-probe counts, the new ON flags) and nothing per ray; the host
+    impl reads every ray back (the count has power)."""
     import drjit as dr
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique
