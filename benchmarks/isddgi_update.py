@@ -12,12 +12,13 @@ does every frame) are left out. Printed per scene: the mean stage ms of each tec
 steady frames, the update and trace speed-ups (mean over seeds, [min-max]), probe rays, and ``uptime``
 before and after; then a one-line summary per scene::
 
-    nice .venv/bin/python benchmarks/isddgi_update.py [--scenes a,b] [--all] [--seeds 0,1,2] [--frames 12]
+    nice .venv/bin/python benchmarks/isddgi_update.py [--scenes a,b] [--all] [--seeds 0,1,2] [--frames 45]
         [--res 32x24] [--isddgi K=V,...] [--ddgi K=V,...]
 
-Defaults: the quick reproduction's three scenes (``--all``: its five), seeds 0-2, 12 frames at 32x24. It takes
-about 2 minutes on the shared 2-core box at load ~2 with a warm kernel cache. Results go to
-docs/benchmarks.md with the machine load.
+Defaults: the quick reproduction's three scenes (``--all``: its five), seeds 0-2, 45 frames at 32x24 (1.5 s of
+animation: corridor-rooms' first light switch at 1 s and tunnel-gate's gate opening fall inside; with
+``--frames 12`` both are still static). About 2 minutes for the three scenes, 4 for ``--all``, on the shared
+2-core box at load ~3 with a warm kernel cache. Results go to docs/benchmarks.md with the machine load.
 """
 from __future__ import annotations
 
@@ -82,7 +83,7 @@ def main(argv=None) -> None:
     ap.add_argument("--scenes", default=None)
     ap.add_argument("--all", action="store_true", help="the full reproduction's five scenes")
     ap.add_argument("--seeds", default="0,1,2")
-    ap.add_argument("--frames", type=int, default=12)
+    ap.add_argument("--frames", type=int, default=45)
     ap.add_argument("--skip", type=int, default=2)
     ap.add_argument("--res", default="32x24")
     ap.add_argument("--isddgi", default=None)
