@@ -160,6 +160,8 @@ class Scene:
                     v = np.asarray(self.params[k])
                 except Exception:  # non-array parameters (e.g. textures objects)
                     v = np.asarray(str(self.params[k]).encode())
+                if v.dtype == object:  # e.g. a Transform4f: its bytes would be a pointer; hash its value
+                    v = np.asarray(str(self.params[k]).encode())
                 h.update(k.encode())
                 h.update(np.ascontiguousarray(v).tobytes())
             self._base_hash = h.hexdigest()[:16]
