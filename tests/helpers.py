@@ -12,11 +12,20 @@ def jit_kernel_hashes() -> set:
 def assert_steady_state_compiles_nothing(step, frames: int, warmup: int, nonempty: bool = False) -> None:
     """Run ``step(f)`` for f = 0..frames-1; from frame ``warmup`` on, every JIT kernel a frame launches
     must be one launched before (kernels compared by hash, not ``cache_hit``: Dr.Jit's on-disk kernel
-    cache makes a per-frame recompile a "cache hit"). ``nonempty``: steady frames must launch kernels."""
+    cache makes a per-frame recompile a "cache hit"). ``nonempty``: steady frames must launch kernels.
+    Between frames the host heap is shifted (a few small NumPy buffers kept alive), so a kernel whose IR
+    depends on where NumPy's allocator put a buffer -- Dr.Jit maps a NumPy array without a copy and emits
+    ``align 64`` or ``align 1`` loads by its address (:func:`dyngi.backend.upload`) -- fails here every run,
+    not only when CI's heap happens to differ (issue 36)."""
+    import numpy as np
+
     seen = set()
+    pad = []
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
         for f in range(frames):
+            # take the freed host chunks of every size and shift the heap's top by 16 * f bytes
+            pad.append([np.empty(int(n) + 16 * f, np.uint8) for n in np.geomspace(600, 1 << 20, 64)])
             dr.kernel_history()   # clears
             step(f)
             hashes = jit_kernel_hashes()

@@ -107,6 +107,30 @@ def limit_blas_threads() -> int | None:
 BLAS_THREADS = limit_blas_threads()
 
 
+def upload(T, *arrays):
+    """NumPy arrays as Dr.Jit arrays of type ``T`` in Dr.Jit's own memory, evaluated (one array, or a tuple).
+
+    ``T(numpy_array)`` on the LLVM backend maps NumPy's buffer without a copy, and a kernel that then loads
+    it directly is compiled with ``align 64`` loads when the buffer happens to be 64-byte aligned and
+    ``align 1`` loads when it is not: two kernel hashes for one computation, chosen by the heap's state
+    (garbage collection, what an earlier test left allocated). A per-frame upload from the host therefore
+    "compiled new kernels" in a steady frame at random (issue 36: ``test_steady_device_builds_compile_nothing``
+    failed in CI only). Here each array is copied by a gather with an opaque index into a buffer Dr.Jit
+    allocates (always aligned): the copy kernel reads the mapped buffer by gather, which has no alignment in
+    its IR, so it has one hash too. Arrays of one length are copied in one kernel."""
+    import numpy as np
+
+    dtype = {mi.Float: np.float32, mi.UInt32: np.uint32, mi.Int32: np.int32}.get(T)
+    U = mi.UInt32
+    out = []
+    for a in arrays:
+        src = T(np.ascontiguousarray(a, dtype) if dtype is not None else a)
+        n = dr.width(src)
+        out.append(dr.gather(T, src, dr.arange(U, n) + dr.opaque(U, 0)) if n else src)
+    dr.eval(*out)
+    return out[0] if len(out) == 1 else tuple(out)
+
+
 def cuda_available() -> bool:
     """True when the CUDA backend of Dr.Jit can run (a GPU and driver present)."""
     try:

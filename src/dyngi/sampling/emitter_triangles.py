@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..backend import dr, mi
+from ..backend import dr, mi, upload
 from ..color import luminance
 
 INVALID = 0xFFFFFFFF
@@ -74,7 +74,7 @@ def _triangle_radiance(sh, p, n):
 
 def _to_point(a, cls=mi.Point3f):
     a = np.asarray(a, np.float32).reshape(-1, 3)
-    return cls(a[:, 0], a[:, 1], a[:, 2])
+    return cls(*upload(mi.Float, a[:, 0], a[:, 1], a[:, 2]))    # Dr.Jit's own memory (dyngi.backend.upload)
 
 
 class EmitterTriangles:
@@ -141,9 +141,9 @@ class EmitterTriangles:
         self.e1 = _to_point(pad(e1), mi.Vector3f)
         self.e2 = _to_point(pad(e2), mi.Vector3f)
         self.normal = _to_point(pad(n), mi.Normal3f)
-        self.area = mi.Float(np.asarray(pad(area), np.float32))
+        self.area = upload(mi.Float, pad(area))
         self.radiance = _to_point(pad(rad), mi.Color3f)
-        self.power = mi.Float(np.asarray(pad(power), np.float32))
+        self.power = upload(mi.Float, pad(power))
         self.centroid = _to_point(pad(cen))
         dr.eval(self.p0, self.e1, self.e2, self.normal, self.area, self.radiance, self.power, self.centroid)
 

@@ -64,7 +64,7 @@ import time
 
 import numpy as np
 
-from ..backend import dr, mi
+from ..backend import dr, mi, upload
 from ..errors import DyngiError
 from .emitter_triangles import INVALID
 from .light_select import triangle_irradiance
@@ -193,19 +193,18 @@ def _build_binary_device(tlo, thi, cen, power, normal, read_back: bool = True):
     M = max(2 * L - 1, 2)
     F, U = mi.Float, mi.UInt32
     inf = float("inf")
-    up = (lambda a: F(np.ascontiguousarray(a, np.float32)))
-    TLO = [up(tlo[:, k]) for k in range(3)]
-    THI = [up(thi[:, k]) for k in range(3)]
-    CEN = [up(cen[:, k]) for k in range(3)]
-    NRM = [up(normal[:, k]) for k in range(3)]
-    PW = up(np.maximum(power, 0.0))
+    # host inputs copied into Dr.Jit's own (aligned) memory: a mapped NumPy buffer's alignment changes the
+    # kernels that read it (dyngi.backend.upload), and every level reads these
+    ups = upload(F, *[a[:, k] for a in (tlo, thi, cen, normal) for k in range(3)], np.maximum(power, 0.0))
+    TLO, THI, CEN, NRM = [list(ups[3 * i:3 * i + 3]) for i in range(4)]
+    PW = ups[12]
     Add, Min, Max = dr.ReduceOp.Add, dr.ReduceOp.Min, dr.ReduceOp.Max
     perm = dr.arange(U, L)
     seg = dr.zeros(U, L)
     pos = dr.arange(U, L)
     node = dr.arange(U, M)
     start = dr.zeros(U, M)
-    end = U(np.concatenate([[L], np.zeros(M - 1)]).astype(np.uint32))
+    end = dr.select(dr.arange(U, M) == 0, dr.opaque(U, L), U(0))
     left = dr.full(mi.Int32, -1, M)
     right = dr.full(mi.Int32, -1, M)
     c_lo = [dr.full(F, inf, M) for _ in range(3)]
@@ -608,8 +607,8 @@ class LightTreeSelector:
         lpar = leaf_par.reshape(-1, 2)
         depth = len(par_rows)              # wide levels (one per pass of the collapse)
         # -- upload --
-        f32 = lambda a: mi.Float(np.ascontiguousarray(a, np.float32))
-        u32 = lambda a: mi.UInt32(np.ascontiguousarray(a, np.uint32))
+        f32 = lambda a: upload(mi.Float, a)       # Dr.Jit's own memory: see dyngi.backend.upload
+        u32 = lambda a: upload(mi.UInt32, a)
         self._child = u32(child)
         self._clo = mi.Point3f(*[f32(clo[:, k]) for k in range(3)])
         self._chi = mi.Point3f(*[f32(chi[:, k]) for k in range(3)])
