@@ -22,27 +22,12 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import time
+
+from common import parse_settings, uptime
 
 ADGI_STAGES = ("P", "S", "D")
 QDDGI_STAGES = ("trace probes", "shade probes", "blend", "states")
-
-
-def uptime() -> str:
-    try:
-        return subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
-    except OSError:
-        return "(uptime unavailable)"
-
-
-def _settings(text: str | None) -> dict:
-    out = {}
-    for item in (text or "").split(","):
-        if item.strip():
-            k, _, v = item.partition("=")
-            out[k.strip()] = v.strip()
-    return out
 
 
 def main(argv=None) -> dict:
@@ -69,7 +54,7 @@ def main(argv=None) -> dict:
     order = (("qddgi", a.qddgi), ("adgi", a.adgi)) if a.equal_rays else (("adgi", a.adgi), ("qddgi", a.qddgi))
     for name, extra in order:
         t0 = time.perf_counter()
-        techs[name] = create_technique(name, sc, {"probe_counts": a.counts, **_settings(extra)})
+        techs[name] = create_technique(name, sc, {"probe_counts": a.counts, **parse_settings(extra)})
         print(f"{name}: created in {time.perf_counter() - t0:.1f} s", flush=True)
     n_probes = techs["adgi"].volume.n_probes
     sampling = {n: [] for n in techs}

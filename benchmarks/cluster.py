@@ -29,6 +29,8 @@ import sys
 import tempfile
 import time
 
+from common import uptime
+
 SCENE = "cornell-moving-light"
 GRID = ["hysteresis=0.9,0.97", "rays_per_probe=64,256"]
 
@@ -97,10 +99,6 @@ def _run(cfg: dict) -> dict:
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
-def _uptime() -> str:
-    return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--one", help=argparse.SUPPRESS)
@@ -123,8 +121,8 @@ def main(argv=None) -> int:
         return 0
     workers = [int(x) for x in a.workers.split(",") if x.strip()]
     skip = set(a.skip.split(","))
-    print(f"cores: {os.cpu_count()}; before: {_uptime()}", flush=True)
-    results = {"cores": os.cpu_count(), "uptime_before": _uptime(), "args": vars(a), "runs": []}
+    print(f"cores: {os.cpu_count()}; before: {uptime()}", flush=True)
+    results = {"cores": os.cpu_count(), "uptime_before": uptime(), "args": vars(a), "runs": []}
     warm = tempfile.mkdtemp(prefix="dyngi-bench-warm-")          # Dr.Jit's kernel cache, warmed once
     _run({"name": "warm-up", "mode": "serial", "job": "reference", "frames": 1, "spp": 8, "res": a.res,
           "cache": warm})
@@ -147,8 +145,8 @@ def main(argv=None) -> int:
             results["runs"].append(r)
             print(f"{r['name']:<22} job {r['job_s']:7.1f} s" + (f"  (Ray start {r['start_s']:.1f} s, "
                   f"{r['workers']} workers)" if "start_s" in r else f"  ({r['threads']} Dr.Jit threads)")
-                  + f"  [{_uptime().split('load average:')[-1].strip()}]", flush=True)
-    results["uptime_after"] = _uptime()
+                  + f"  [{uptime().split('load average:')[-1].strip()}]", flush=True)
+    results["uptime_after"] = uptime()
     print(f"after: {results['uptime_after']}")
     by = {}
     for r in results["runs"]:      # the median run of each configuration

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import subprocess
 import time
 
 from dyngi.backend import dr, mi
@@ -12,6 +13,24 @@ SHARED_SCENES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__f
 def shared_scene(rel: str) -> str | None:
     p = os.path.normpath(os.path.join(SHARED_SCENES, rel))
     return p if os.path.exists(p) else None
+
+
+def uptime() -> str:
+    """The machine's load (``uptime``), printed beside every timing."""
+    try:
+        return subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
+    except OSError:
+        return "(uptime unavailable)"
+
+
+def parse_settings(text: str | None) -> dict:
+    """``'k=v,k2=v2'`` as a dict of strings (technique parameters from a benchmark's command line)."""
+    out = {}
+    for item in (text or "").split(","):
+        if item.strip():
+            k, _, v = item.partition("=")
+            out[k.strip()] = v.strip()
+    return out
 
 
 def best_of(fn, repeats: int = 3, warmup: int = 1) -> float:

@@ -23,28 +23,13 @@ animation: corridor-rooms' first light switch at 1 s and tunnel-gate's gate open
 from __future__ import annotations
 
 import argparse
-import subprocess
 import time
 
 import numpy as np
 
+from common import parse_settings, uptime
+
 STAGES = ("trace probes", "shade probes", "blend", "states")
-
-
-def uptime() -> str:
-    try:
-        return subprocess.run(["uptime"], capture_output=True, text=True, check=False).stdout.strip()
-    except OSError:
-        return "(uptime unavailable)"
-
-
-def _settings(text: str | None) -> dict:
-    out = {}
-    for kv in (text or "").split(","):
-        if kv.strip():
-            k, v = kv.split("=", 1)
-            out[k.strip()] = v.strip()
-    return out
 
 
 def run_scene(name: str, seeds, frames: int, res, skip: int, extra: dict) -> dict:
@@ -93,7 +78,7 @@ def main(argv=None) -> None:
     scenes = a.scenes.split(",") if a.scenes else list(SCENES if a.all else SCENES[:3])
     seeds = [int(s) for s in a.seeds.split(",")]
     res = tuple(int(x) for x in a.res.split("x"))
-    extra = {"isddgi": _settings(a.isddgi), "ddgi": _settings(a.ddgi)}
+    extra = {"isddgi": parse_settings(a.isddgi), "ddgi": parse_settings(a.ddgi)}
     lines = []
     for name in scenes:
         up0, t0 = uptime(), time.perf_counter()

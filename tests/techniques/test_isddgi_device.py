@@ -4,8 +4,6 @@ draws that follow the supplement's allocation pdf (chi^2), the per-set cap, and 
 nothing and reads back only the two small per-probe buffers (slow)."""
 from __future__ import annotations
 
-import contextlib
-
 import numpy as np
 import pytest
 
@@ -119,29 +117,6 @@ def test_device_planner_caps_each_set(backend, variant, limit):
     assert plan.n_rays == c.sum() == 8 * P + plan.info.stats["importance_rays"]
 
 
-@contextlib.contextmanager
-def _count_reads(log: list):
-    """Record the width of every Dr.Jit -> host transfer (NumPy conversion, DLPack, element reads)."""
-    import drjit as dr
-    from dyngi.backend import mi
-    patched = [(dr.ArrayBase, name) for name in ("__array__", "__dlpack__", "numpy", "tolist")]
-    patched += [(cls, "__getitem__") for cls in (mi.Float, mi.UInt32, mi.Int32, mi.Bool)]
-    saved = [(cls, name, cls.__dict__[name]) for cls, name in patched if name in cls.__dict__]
-
-    def wrap(fn):
-        def reader(self, *a, **k):
-            log.append(dr.width(self))
-            return fn(self, *a, **k)
-        return reader
-    for cls, name, fn in saved:
-        setattr(cls, name, wrap(fn))
-    try:
-        yield
-    finally:
-        for cls, name, fn in saved:
-            setattr(cls, name, fn)
-
-
 @pytest.mark.slow
 def test_steady_isddgi_frame_compiles_nothing_and_reads_back_only_per_probe_counts(backend):
     """cornell-moving-box while the box moves (importance rays drawn), 4^3 probes, two passes over the same
@@ -154,7 +129,7 @@ def test_steady_isddgi_frame_compiles_nothing_and_reads_back_only_per_probe_coun
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique
     from dyngi.techniques.base import StageTimer
-    from tests.helpers import jit_kernel_hashes
+    from tests.helpers import count_host_reads, jit_kernel_hashes
     sc = load_scene("cornell-moving-box")
     reads = {}
     for impl in ("device", "host"):
@@ -170,7 +145,7 @@ def test_steady_isddgi_frame_compiles_nothing_and_reads_back_only_per_probe_coun
                     continue
                 dr.kernel_history()     # clears
                 log.clear()
-                with _count_reads(log):
+                with count_host_reads(log):
                     info = tech.update(i, 0, StageTimer())
                 hashes = jit_kernel_hashes()
                 if impl == "device" and i >= 17:

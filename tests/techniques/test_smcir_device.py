@@ -5,13 +5,11 @@ steady frame of each compiles no new kernel (the frame index, seeds and camera e
 (Algorithm 1, lines 3-19) reads nothing back to the host."""
 from __future__ import annotations
 
-import contextlib
-
 import pytest
 
 from dyngi.scene import load_scene
 from dyngi.techniques import Frame, create_technique
-from tests.helpers import assert_steady_state_compiles_nothing
+from tests.helpers import HostRead, assert_steady_state_compiles_nothing, no_host_reads
 
 
 @pytest.mark.parametrize("spec, params", [("mir", {"vpls": 32, "resampling_rate": 16}),
@@ -40,33 +38,6 @@ def test_device_vpl_sets_stay_on_the_device(backend):
         tech = create_technique(spec, sc, params)
         pos, nrm, flux, _ = tech.update_vpls(Frame(0, 0.0, sc.camera(0.0), (16, 12), seed=0), StageTimer())
         assert isinstance(pos, mi.Point3f) and isinstance(flux, mi.Color3f), (spec, type(pos))
-
-
-class HostRead(AssertionError):
-    pass
-
-
-@contextlib.contextmanager
-def no_host_reads():
-    """Any Dr.Jit -> host transfer (NumPy conversion, DLPack, ``.numpy()``, an element read, a truth
-    value) raises :class:`HostRead` inside the block."""
-    import drjit as dr
-
-    from dyngi.backend import mi
-
-    def refuse(*a, **k):
-        raise HostRead("a Dr.Jit array was read back to the host")
-
-    patched = [(dr.ArrayBase, name) for name in ("__array__", "__dlpack__", "numpy", "__bool__", "tolist")]
-    patched += [(cls, "__getitem__") for cls in (mi.Float, mi.UInt32, mi.Int32, mi.Bool, mi.UInt64, mi.Float64)]
-    saved = [(cls, name, cls.__dict__[name]) for cls, name in patched if name in cls.__dict__]
-    for cls, name, _ in saved:
-        setattr(cls, name, refuse)
-    try:
-        yield
-    finally:
-        for cls, name, fn in saved:
-            setattr(cls, name, fn)
 
 
 @pytest.mark.slow

@@ -15,25 +15,10 @@ SMALL = {"probe_counts": "5", "static_chains": 512, "dynamic_chains": 128, "iter
 
 @pytest.fixture()
 def guard(backend):
-    """``no_host_reads`` of the SMC-IR device test, plus ``dr.compress`` (its width is a host sync)."""
-    import contextlib
+    """``tests.helpers.no_host_reads`` with ``dr.compress`` refused too (its width is a host sync)."""
+    from tests.helpers import HostRead, no_host_reads
 
-    import drjit as dr
-
-    from tests.techniques.test_smcir_device import HostRead, no_host_reads
-
-    @contextlib.contextmanager
-    def strict():
-        def refuse(*a, **k):
-            raise HostRead("dr.compress (a host sync of its width)")
-        saved = dr.compress
-        dr.compress = refuse
-        try:
-            with no_host_reads():
-                yield
-        finally:
-            dr.compress = saved
-    return strict, HostRead
+    return (lambda: no_host_reads(compress=True)), HostRead
 
 
 @pytest.mark.slow
