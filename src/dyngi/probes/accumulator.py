@@ -107,9 +107,16 @@ class CappedMeanAccumulator:
 
 
 class MeanAccumulator:
-    """The plain mean of this frame's samples (no history); the count is this frame's."""
+    """The plain mean of this frame's samples (no history); the count is this frame's.
+
+    ``keeps_history = False``: :func:`merge` stores its value without the encodings' minimum-step rule
+    (that rule moves a code at least one step towards a value that differs from the stored one, so that a
+    *hysteresis* step smaller than a code is not swallowed; with no history there is no such step, and the
+    rule instead turned a constant estimate below one code into a code that toggles 0, 1, 0, 1 frame after
+    frame -- ADGI's sealed room lit and alternating, issue 36; ours)."""
 
     name = "mean"
+    keeps_history = False
 
     def _blend(self, old, new, n_old, m, fresh, cap: int):
         return new, dr.minimum(m, cap)
@@ -182,8 +189,9 @@ def merge(volume, kind: str, est, accumulator, encoding, pid_dr, fresh_dr, n_pro
         val, cnt = accumulator.irradiance(old, new, n_old, m, fresh, cap)
     else:
         val, cnt = accumulator.distance(old, new, n_old, m, fresh, cap)
-    # the minimum-step rule moves from the stored value; a probe without history has none
-    ref = dr.select(fresh, val, old)
+    # the minimum-step rule moves from the stored value; a probe without history has none, and neither
+    # has an accumulator that keeps none (MeanAccumulator.keeps_history)
+    ref = dr.select(fresh, val, old) if getattr(accumulator, "keeps_history", True) else None
     if irr:
         val, cnt = encoding.roundtrip_irradiance(val, cnt, ref)
     else:
