@@ -387,7 +387,7 @@ def cmd_view(args) -> int:
     from .viewer.server import run_viewer
 
     return run_viewer(args.scene, args.techniques, host=args.host, port=args.port, res=parse_res(args.res),
-                      device=args.device, ref_spp=args.ref_spp)
+                      device=args.device, ref_spp=args.ref_spp, token=not args.no_token)
 
 
 def cmd_demo(args) -> int:
@@ -592,6 +592,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="samples per pixel of the error view's reference (default 128)")
     s.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
                    help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
+    s.add_argument("--no-token", action="store_true",
+                   help="serve without the random token in the address (loopback --host only; the websocket "
+                        "still refuses other sites' pages)")
     s.set_defaults(fn=cmd_view)
 
     s = sub.add_parser("demo", help="the main job: a short tour of the five papers' techniques, each on its analog "

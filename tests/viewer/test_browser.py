@@ -57,7 +57,7 @@ def viewer(tmp_path_factory):
                              SPEC_A, "--res", "96x54", "--port", "0", "--ref-spp", "4"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     line = proc.stdout.readline()
-    m = re.search(r"(http://127\.0\.0\.1:(\d+)/)", line)
+    m = re.search(r"(http://127\.0\.0\.1:(\d+)/(?:\?token=[\w-]+)?)", line)
     if not m:
         proc.kill()
         pytest.fail(f"dyngi view printed no address: {line!r} {proc.stderr.read()[-2000:]}")

@@ -16,23 +16,44 @@ client has its own sender that always sends the newest frame of each slot and dr
 slow client never holds back the renderer. The page sends JSON commands: ``technique`` {slot, spec},
 ``play`` {playing}, ``seek`` {t}, ``camera`` {op, ...} (see :mod:`dyngi.viewer.camera`), ``overlay``
 {name}, ``error_view`` {on}, ``exposure`` {value}. A bad command is answered with an ``error`` message
-to that page; the server carries on.
+to that page; the server carries on. A message over 1 MiB closes that connection with code 1009
+(message too big); the server and its other pages carry on.
+
+Who may drive it: the viewer renders on this machine and shows what it renders, so it answers only its
+user, as Jupyter does (the anchor here):
+
+* a random **token** (``secrets.token_urlsafe``, 192 bits) is printed in the page's address
+  (``http://127.0.0.1:8765/?token=...``); the page and the websocket need it (``?token=`` in the URL, or
+  the ``dyngi-view-token`` cookie the page sets: ``HttpOnly``, ``SameSite=Strict``). Always when ``--host``
+  is not a loopback address; on loopback by default too (``--no-token`` turns it off there only);
+* the websocket handshake is refused (403) unless its ``Origin`` is the page's own: ``http://`` + the
+  ``Host`` the request was sent to. A browser always sends ``Origin`` on a websocket, so another site's
+  page (cross-site WebSocket hijacking) is refused even with ``--no-token``; a client with no ``Origin``
+  (a script, not a browser) must bring the token;
+* on a loopback server the ``Host`` must name a loopback address (``127.0.0.1``, ``localhost``, ``[::1]``):
+  a page whose own name resolves to 127.0.0.1 (DNS rebinding) passes the origin check but not this one.
 """
 from __future__ import annotations
 
 import asyncio
+import hmac
 import json
 import os
+import secrets
 import signal
 import struct
 import sys
 import threading
 import time
+from http.cookies import SimpleCookie
 from importlib import resources
+from urllib.parse import parse_qs, urlsplit
 
 from ..errors import DyngiError
 
 DEFAULT_PORT = 8765
+TOKEN_COOKIE = "dyngi-view-token"
+LOOPBACK = ("127.0.0.1", "localhost", "::1")
 STATIC = {"/": ("index.html", "text/html; charset=utf-8"),
           "/index.html": ("index.html", "text/html; charset=utf-8"),
           "/viewer.js": ("viewer.js", "text/javascript; charset=utf-8")}
@@ -54,10 +75,16 @@ class _Client:
 class ViewerServer:
     """The asyncio server around a :class:`~dyngi.viewer.session.RenderSession`."""
 
-    def __init__(self, session, host: str = "127.0.0.1", port: int | None = None):
+    def __init__(self, session, host: str = "127.0.0.1", port: int | None = None, token: bool = True):
+        """``token``: require a random token (see the module docstring); only a loopback ``host`` may turn
+        it off."""
+        if not token and not is_loopback(host):
+            raise DyngiError(f"--no-token is allowed only on a loopback address ({', '.join(LOOPBACK)}); "
+                             f"--host {host} is reachable from other machines")
         self.session = session
         self.host = host
         self.port = port
+        self.token = secrets.token_urlsafe(24) if token else None
         self.clients: set[_Client] = set()
         self.loop: asyncio.AbstractEventLoop | None = None
         self.stop_event: asyncio.Event | None = None
@@ -110,6 +137,9 @@ class ViewerServer:
         from websockets.http11 import Response
 
         path = request.path.split("?", 1)[0]
+        refused = self._refusal(request, path)
+        if refused:
+            return connection.respond(403, f"forbidden: {refused}\n")
         if path == "/ws":
             return None
         if path in STATIC:
@@ -117,10 +147,40 @@ class ViewerServer:
             body = _static(name)
             headers = Headers([("Content-Type", ctype), ("Content-Length", str(len(body))),
                                ("Cache-Control", "no-store"), ("Connection", "close")])
+            if self.token is not None and name == "index.html":
+                headers["Set-Cookie"] = f"{TOKEN_COOKIE}={self.token}; HttpOnly; SameSite=Strict; Path=/"
             return Response(200, "OK", headers, body)
         if path == "/healthz":
             return connection.respond(200, "ok\n")
         return connection.respond(404, f"not found: {path}\n")
+
+    def _refusal(self, request, path: str) -> str | None:
+        """Why this request may not be answered (None: it may). The page and the websocket need the token;
+        the websocket also needs the page's own origin; a loopback server needs a loopback ``Host``."""
+        if path not in ("/", "/index.html", "/ws"):
+            return None                      # the script, the health check and 404s carry nothing private
+        hosts, origins = request.headers.get_all("Host"), request.headers.get_all("Origin")
+        if len(hosts) != 1 or len(origins) > 1:
+            return "one Host header and at most one Origin header expected"
+        host = hosts[0]
+        if is_loopback(self.host) and not is_loopback(_host_name(host)):
+            return f"Host '{host}' is not this machine's loopback address"
+        origin = origins[0] if origins else None
+        if path == "/ws" and origin is not None and origin != f"http://{host}":
+            return f"websocket from another origin ('{origin}'); only this viewer's own page may connect"
+        if self.token is None:
+            return None
+        given = parse_qs(urlsplit(request.path).query).get("token", [""])[0]
+        if not given:
+            cookie = SimpleCookie()
+            try:
+                cookie.load("; ".join(request.headers.get_all("Cookie")))
+            except Exception:  # noqa: BLE001  (a malformed cookie header: no token)
+                pass
+            given = cookie[TOKEN_COOKIE].value if TOKEN_COOKIE in cookie else ""
+        if not hmac.compare_digest(given.encode(), self.token.encode()):
+            return "a wrong or missing token; open the address 'dyngi view' printed (it ends in ?token=...)"
+        return None
 
     # -- websocket -----------------------------------------------------------------------------
     async def _handler(self, ws) -> None:
@@ -264,8 +324,23 @@ class ViewerServer:
 
     @property
     def url(self) -> str:
+        """The page's address, with the token when one is required."""
         host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"http://{host}:{self.bound_port}/"
+        return f"http://{host}:{self.bound_port}/" + (f"?token={self.token}" if self.token else "")
+
+
+def is_loopback(host: str) -> bool:
+    """True for a name or address of this machine only (127.0.0.0/8, ::1, localhost)."""
+    h = host.strip("[]").lower()
+    return h in LOOPBACK or h.startswith("127.")
+
+
+def _host_name(host_header: str) -> str:
+    """The host of a ``Host`` header (``name:port``, ``[v6]:port`` or a bare name)."""
+    h = host_header.strip()
+    if h.startswith("["):
+        return h[1:h.find("]")] if "]" in h else h
+    return h.rsplit(":", 1)[0] if h.count(":") == 1 else h
 
 
 def _number(msg: dict, key: str) -> float:
@@ -277,7 +352,7 @@ def _number(msg: dict, key: str) -> float:
 
 def run_viewer(scene_name: str, techniques: str = "ddgi", host: str = "127.0.0.1", port: int | None = None,
                res=(320, 180), device: str = "cpu", ref_spp: int = 128, still_frames: int = 32,
-               out=sys.stdout) -> int:
+               out=sys.stdout, token: bool = True) -> int:
     """``dyngi view``: load the scene, build the first technique, serve until Ctrl-C / SIGTERM.
 
     Input errors (unknown scene or technique, bad spec, busy port) raise :class:`DyngiError` before
@@ -287,6 +362,9 @@ def run_viewer(scene_name: str, techniques: str = "ddgi", host: str = "127.0.0.1
     from ..techniques.base import split_spec_list
     from .session import RenderSession
 
+    if not token and not is_loopback(host):
+        raise DyngiError(f"--no-token is allowed only on a loopback address ({', '.join(LOOPBACK)}); "
+                         f"--host {host} is reachable from other machines")
     backend.set_device(device)
     specs = split_spec_list(techniques)
     if not specs:
@@ -295,7 +373,7 @@ def run_viewer(scene_name: str, techniques: str = "ddgi", host: str = "127.0.0.1
     holder = {}
     session = RenderSession(scene, specs, res, publish=lambda k, p: holder["server"].publish(k, p),
                             device=device, ref_spp=ref_spp, still_frames=still_frames)
-    server = ViewerServer(session, host, port)
+    server = ViewerServer(session, host, port, token=token)
     holder["server"] = server
     main_thread = threading.current_thread() is threading.main_thread()
     if main_thread:          # SIGTERM before the server runs (building the techniques) stops as Ctrl-C does
@@ -312,12 +390,12 @@ def run_viewer(scene_name: str, techniques: str = "ddgi", host: str = "127.0.0.1
         raise DyngiError(session.startup_error)
 
     def ready(srv):
-        local = host in ("127.0.0.1", "localhost", "::1")
         print(f"dyngi view: '{scene.name}' with {', '.join(specs)} at {srv.url}  (Ctrl-C stops)", file=out,
               flush=True)
-        if not local:
-            print(f"dyngi view: warning: listening on {host}, not only this machine: anyone who can reach it "
-                  "can drive the renderer (no authentication)", file=sys.stderr, flush=True)
+        if not is_loopback(host):
+            print(f"dyngi view: note: listening on {host}, not only this machine: the address above carries "
+                  "the token that lets its holder drive the renderer; share it only with whom you trust",
+                  file=sys.stderr, flush=True)
 
     try:
         asyncio.run(server.run(on_ready=ready))

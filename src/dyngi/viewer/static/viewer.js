@@ -14,7 +14,7 @@
   // ---------------------------------------------------------------- connection
   function connect() {
     const proto = location.protocol === "https:" ? "wss:" : "ws:";
-    ws = new WebSocket(proto + "//" + location.host + "/ws");
+    ws = new WebSocket(proto + "//" + location.host + "/ws" + location.search);  // ?token=... (or the cookie)
     ws.binaryType = "arraybuffer";
     ws.onopen = () => { V.connected = true; $("conn").textContent = "connected"; };
     ws.onclose = () => {
