@@ -347,13 +347,14 @@ def _reference_flags(s, default):
 
 def cmd_probe_view(args) -> int:
     from .errors import DyngiError
-    from .experiments.io import atomic_output_dir, write_exr, write_png
+    from .experiments.io import atomic_output_dir, check_writable, write_exr, write_png
     from .experiments.runner import parse_res, run_sequence
     from .scene import load_scene
     from .techniques.base import create_technique
 
     _setup(args)
     res = parse_res(args.res)
+    check_writable(args.out)
     scene = load_scene(args.scene)
     tech = create_technique(args.technique, scene, _parse_sets(args.set))
     if not hasattr(tech, "debug_view"):

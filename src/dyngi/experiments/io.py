@@ -107,6 +107,13 @@ def check_writable(out_dir: str) -> None:
         raise DyngiError(f"output '{out_dir}' cannot be created: '{parent}' is a file, not a folder")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise DyngiError(f"output folder '{out_dir}' is not writable (no write permission on '{parent}')")
+    # permissions do not tell everything (root passes os.access on /proc, a read-only mount, a full disk):
+    # make and remove a folder where the output will be made
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".dyngi-probe-", dir=parent))
+    except OSError as e:
+        raise DyngiError(f"output folder '{out_dir}' cannot be created in '{parent}': "
+                         f"{e.strerror or e}") from None
 
 
 @contextlib.contextmanager

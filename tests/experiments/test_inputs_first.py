@@ -1,0 +1,70 @@
+"""Every command that writes files checks its output folder (and its other inputs) before it renders
+anything: a bad folder is one line on stderr, exit 2, no ray traced, no reference rendered, nothing
+written. "Bad" covers what permission bits do not show (root passes ``os.access`` on ``/proc``): the check
+makes and removes a folder where the output goes."""
+from __future__ import annotations
+
+import os
+import time
+
+import pytest
+
+from dyngi.backend import mi
+from dyngi.cli import main
+
+
+class Rendered(AssertionError):
+    pass
+
+
+@pytest.fixture()
+def no_rendering(monkeypatch):
+    """Any ray query or Mitsuba render raises :class:`Rendered` (caught by the CLI as a traceback, so the
+    test sees it)."""
+    def trap(*a, **k):
+        raise Rendered("something was rendered before the inputs were checked")
+    for name in ("ray_intersect", "ray_intersect_preliminary", "ray_test"):
+        monkeypatch.setattr(mi.Scene, name, trap)
+    monkeypatch.setattr(mi, "render", trap)
+
+
+SMALL = ["--frames", "2", "--res", "16x9"]
+COMMANDS = {
+    "render": ["render", "cornell-static", "--technique", "ddgi", *SMALL],
+    "compare": ["compare", "cornell-static", "--techniques", "ddgi,path", *SMALL],
+    "sweep": ["sweep", "ddgi", "cornell-static", "--grid", "hysteresis=0.9,0.97", *SMALL],
+    "reproduce": ["reproduce", "ddgi", "--quick"],
+    "demo": ["demo", "--quick"],
+    "probe-view": ["probe-view", "cornell-static", "--res", "16x9"],
+}
+
+
+def _bad_outputs(tmp_path):
+    f = tmp_path / "a-file"
+    f.write_text("x")
+    return {"under /proc": "/proc/dyngi-out", "under a file": str(f / "out"), "is a file": str(f)}
+
+
+@pytest.mark.parametrize("cmd", sorted(COMMANDS))
+def test_bad_output_folder_fails_first(backend, no_rendering, tmp_path, capsys, cmd):
+    for what, out in _bad_outputs(tmp_path).items():
+        before = sorted(os.listdir(tmp_path))
+        t0 = time.perf_counter()
+        rc = main(COMMANDS[cmd] + ["--out", out])
+        dt = time.perf_counter() - t0
+        err = capsys.readouterr().err
+        print(f"{cmd} --out {what}: exit {rc} in {dt:.2f} s")
+        assert rc == 2, (cmd, what, err)
+        assert err.startswith("dyngi: error: ") and err.count("\n") == 1 and "Traceback" not in err, err
+        assert out in err or os.path.dirname(out) in err, err
+        assert sorted(os.listdir(tmp_path)) == before, (cmd, what)
+
+
+def test_unknown_cluster_is_refused_before_work(backend, no_rendering, tmp_path, capsys):
+    for argv in (["reference", "cornell-static", *SMALL, "--cluster", "bogus"],
+                 ["compare", "cornell-static", "--techniques", "ddgi", *SMALL, "--cluster", "bogus",
+                  "--out", str(tmp_path / "o")]):
+        assert main(argv) == 2
+        err = capsys.readouterr().err
+        assert "--cluster 'bogus' is invalid" in err and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
