@@ -111,20 +111,16 @@ def cmd_render(args) -> int:
 
     _setup(args)
     params = _parse_sets(args.set)
-    spec = parse_spec(args.technique)
-    for k in params:
-        if k not in get_technique(spec.name).PARAMS:
-            raise DyngiError(f"unknown parameter '{k}' for technique '{spec.name}'; valid parameters: "
-                             + (", ".join(sorted(get_technique(spec.name).PARAMS)) or "(none)"))
+    spec = parse_spec(args.technique)             # the one parse; passed down as a TechniqueSpec
     if args.spp is not None:
         if "spp" not in get_technique(spec.name).PARAMS:
             raise DyngiError(f"--spp does not apply to technique '{spec.name}' (it has no 'spp' "
                              "parameter; see 'dyngi techniques')")
         params.setdefault("spp", args.spp)
+    spec = spec.with_settings(params)             # --set checked against the technique's parameters here
     res = parse_res(args.res) if args.res is not None else None
-    summary = render_to_dir(args.scene, args.technique, args.out, frames=args.frames, res=res,
-                            seed=args.seed, params=params, t0=args.t0, quiet=args.quiet,
-                            denoise=args.denoise)
+    summary = render_to_dir(args.scene, spec, args.out, frames=args.frames, res=res,
+                            seed=args.seed, t0=args.t0, quiet=args.quiet, denoise=args.denoise)
     w, h = summary["res"]
     print(f"wrote {summary['frames']} frame(s) of '{summary['scene']}' at {w}x{h} with '{args.technique}' to "
           f"{args.out} ({summary['mean_ms']:.1f} ms/frame, {summary['mean_rays'] / 1e6:.2f} Mrays/frame)")
@@ -237,12 +233,12 @@ def _report_failures(out) -> int:
 
 
 def cmd_compare(args) -> int:
-    from .experiments.compare import run_compare
+    from .experiments.compare import parse_specs, run_compare
     from .experiments.runner import parse_res
     from .techniques.base import split_spec_list
 
     _setup(args)
-    techs = split_spec_list(args.techniques)
+    techs = parse_specs(split_spec_list(args.techniques))      # parsed once, here; passed down
     out, bad = _cluster_run(args, lambda: run_compare(
         args.scene, techs, args.out, frames=args.frames, res=parse_res(args.res),
         budget=args.budget, seed=args.seed, ref_spp=args.ref_spp, quiet=args.quiet,

@@ -68,3 +68,26 @@ def test_unknown_cluster_is_refused_before_work(backend, no_rendering, tmp_path,
         err = capsys.readouterr().err
         assert "--cluster 'bogus' is invalid" in err and err.count("\n") == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_a_spec_is_parsed_once_at_the_edge(backend, tmp_path, monkeypatch, capsys):
+    """``dyngi render`` / ``dyngi compare`` parse each technique spec once (the CLI) and pass the
+    :class:`TechniqueSpec` down; ``--set`` keys are checked there, by the technique's own parameter table."""
+    import dyngi.techniques.base as base
+
+    calls = []
+    real = base.parse_spec
+    monkeypatch.setattr(base, "parse_spec", lambda text: calls.append(text) or real(text))
+    out = tmp_path / "r"
+    assert main(["render", "cornell-static", "--technique", "path:max_depth=3", "--set", "spp=2", "--frames", "1",
+                 "--res", "8x6", "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err
+    assert calls == ["path:max_depth=3"], calls
+    import json
+    stats = json.loads((out / "stats.json").read_text())
+    assert stats["params"]["spp"] == 2 and stats["params"]["max_depth"] == 3
+    calls.clear()
+    assert main(["render", "cornell-static", "--technique", "path", "--set", "bogus=1", "--res", "8x6",
+                 "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown parameter 'bogus' for technique 'path'" in err and err.count("\n") == 1
+    assert not (tmp_path / "b").exists()

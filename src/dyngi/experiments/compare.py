@@ -34,7 +34,7 @@ import sys
 
 from ..errors import DyngiError
 from ..scene import load_scene
-from ..techniques.base import TechniqueSpec, create_technique, get_technique, parse_spec
+from ..techniques.base import TechniqueSpec, as_spec, create_technique, get_technique
 from .budgets import budget_accounting, run_with_budget
 from .evaluate import (LABELS, METRIC_NAMES, check_metric_names, collect_references, evaluate_sequence,  # noqa: F401
                        failures, indirect_reference_fn, summarize_noise)
@@ -44,13 +44,15 @@ from .runner import BUDGETS
 
 
 def parse_specs(techniques) -> list[TechniqueSpec]:
-    """Specs of a list of technique texts (each ``NAME[:KEY=VALUE...]``); a label given twice is an error."""
+    """Specs of a list of technique texts (each ``NAME[:KEY=VALUE...]``) or of :class:`TechniqueSpec`
+    objects already parsed at the edge (kept as they are); a label given twice is an error."""
     if not techniques:
         raise DyngiError("no techniques given; e.g. --techniques path,ddgi")
-    labels = [str(t).strip() for t in techniques]
+    specs = [as_spec(t if isinstance(t, TechniqueSpec) else str(t).strip()) for t in techniques]
+    labels = [s.label for s in specs]
     if len(set(labels)) != len(labels):
         raise DyngiError(f"a technique is listed twice in '{','.join(labels)}'")
-    return [parse_spec(t) for t in labels]
+    return specs
 
 
 def split_params(techniques, params: dict) -> dict[str, dict]:
@@ -59,7 +61,7 @@ def split_params(techniques, params: dict) -> dict[str, dict]:
 
     ``techniques``: labels, spec texts or :class:`TechniqueSpec` objects.
     """
-    specs = [t if isinstance(t, TechniqueSpec) else parse_spec(t) for t in techniques]
+    specs = [as_spec(t) for t in techniques]
     bases = sorted({s.name for s in specs})
     out = {s.label: {} for s in specs}
     for k, v in (params or {}).items():

@@ -16,7 +16,7 @@ import numpy as np
 
 from .. import backend
 from ..scene import load_scene
-from ..techniques.base import create_technique
+from ..techniques.base import TechniqueSpec, as_spec, create_technique
 from .io import atomic_output_dir, check_writable, tonemap_srgb, write_exr, write_json, write_mp4, write_png
 from .runner import run_sequence
 
@@ -35,19 +35,21 @@ def default_res(scene) -> tuple[int, int]:
     return DEFAULT_RES
 
 
-def render_to_dir(scene_name: str, technique: str, out_dir: str, frames: int = 1, res=None, seed: int = 0,
-                  params: dict | None = None, t0: float = 0.0, quiet: bool = False, denoise: bool = False) -> dict:
+def render_to_dir(scene_name: str, technique: "str | TechniqueSpec", out_dir: str, frames: int = 1, res=None,
+                  seed: int = 0, params: dict | None = None, t0: float = 0.0, quiet: bool = False,
+                  denoise: bool = False) -> dict:
     """Render ``frames`` frames into ``out_dir``; with ``denoise`` also ``frame_NNNN_denoised.exr/.png``
-    (Intel OIDN with albedo/normal AOVs of the primary hits, :mod:`dyngi.experiments.denoise`)."""
-    from ..techniques.base import parse_spec
-
-    denoise = denoise or parse_spec(technique).denoise
+    (Intel OIDN with albedo/normal AOVs of the primary hits, :mod:`dyngi.experiments.denoise`).
+    ``technique``: a :class:`TechniqueSpec` (parsed by the caller) or its text (parsed here, once)."""
+    spec = as_spec(technique).with_settings(params)
+    technique = spec.label
+    denoise = denoise or spec.denoise
     if denoise:
         from .denoise import require
         require()
     check_writable(out_dir)
     scene = load_scene(scene_name)
-    tech = create_technique(technique, scene, params)
+    tech = create_technique(spec, scene)
     res = default_res(scene) if res is None else tuple(res)
     pngs = []
     with atomic_output_dir(out_dir) as tmp:

@@ -62,6 +62,19 @@ class TechniqueSpec:
         """``base`` settings (``--set``) overridden by the spec's own."""
         return {**(base or {}), **self.params}
 
+    def with_settings(self, base: dict | None) -> "TechniqueSpec":
+        """This spec with ``base`` settings (``--set``, validated here, at the edge) under its own."""
+        if not base:
+            return self
+        checked = resolve_params(get_technique(self.name), base)
+        return TechniqueSpec(self.label, self.name, {**{k: checked[k] for k in base}, **self.params},
+                             self.denoise)
+
+
+def as_spec(spec: "str | TechniqueSpec") -> "TechniqueSpec":
+    """A :class:`TechniqueSpec` as given, or parsed from its text (the one place a spec text is parsed)."""
+    return spec if isinstance(spec, TechniqueSpec) else parse_spec(spec)
+
 
 def split_spec_list(text: str) -> list[str]:
     """Split a comma-separated list of specs; a comma inside a value stays (``ddgi:probe_counts=4,4,4,path``).
@@ -202,15 +215,18 @@ def get_technique(name: str) -> type[Technique]:
     return REGISTRY[name]
 
 
-def create_technique(name: str, scene, params: dict | None = None) -> Technique:
-    """Instantiate technique ``name`` (a registered name or a spec ``NAME[:KEY=VALUE...]``).
+def create_technique(spec: "str | TechniqueSpec", scene, params: dict | None = None) -> Technique:
+    """Instantiate a technique from a :class:`TechniqueSpec` (parsed once, at the edge: the CLI or the
+    Python API) or from its text (a registered name or ``NAME[:KEY=VALUE...]``, parsed here).
 
-    With a spec, the spec's own settings override ``params``.
+    The spec's own settings override ``params``.
     """
-    if ":" in name:
-        spec = parse_spec(name)
+    if isinstance(spec, TechniqueSpec):
         return get_technique(spec.name)(scene, spec.merged(params))
-    return get_technique(name)(scene, params)
+    if ":" in spec:
+        spec = parse_spec(spec)
+        return get_technique(spec.name)(scene, spec.merged(params))
+    return get_technique(spec)(scene, params)
 
 
 def to_image(values, res: tuple[int, int]) -> np.ndarray:
