@@ -18,7 +18,7 @@ def assert_steady_state_compiles_nothing(step, frames: int, warmup: int, nonempt
     Between frames the host heap is shifted (a few small NumPy buffers kept alive), so a kernel whose IR
     depends on where NumPy's allocator put a buffer -- Dr.Jit maps a NumPy array without a copy and emits
     ``align 64`` or ``align 1`` loads by its address (:func:`dyngi.backend.upload`) -- fails here every run,
-    not only when CI's heap happens to differ (issue 36)."""
+    not only when CI's heap happens to differ."""
     import numpy as np
 
     seen = set()

@@ -31,8 +31,8 @@ def _at_offset(values: np.ndarray, offset: int) -> np.ndarray:
 @pytest.mark.parametrize("T, dtype", [("Float", np.float32), ("UInt32", np.uint32), ("Int32", np.int32)])
 def test_upload_gives_one_kernel_for_any_host_alignment(backend, T, dtype):
     """A kernel reading an uploaded array has one hash whether NumPy's buffer sat on a 64-byte boundary or
-    4 / 16 / 32 bytes past one, and the values are copied exactly (a mapped buffer gives two hashes:
-    issue 36's steady-frame recompile)."""
+    4 / 16 / 32 bytes past one, and the values are copied exactly (a mapped buffer gives two hashes,
+    and a steady frame recompiled whenever the heap's alignment differed)."""
     T = getattr(mi, T)
     vals = (np.arange(1000) * 7 % 101 - 50).astype(dtype)
     hashes, arrays = set(), []

@@ -131,7 +131,7 @@ def test_scenes_listing_has_timing():
 
 
 def test_demo_options_and_bad_section(tmp_path):
-    """`dyngi demo` (issue 30): the tour's options are there; a bad section is a one-line error, nothing written."""
+    """`dyngi demo`: the tour's options are there; a bad section is a one-line error, nothing written."""
     r = run("demo", "--help")
     assert r.returncode == 0
     for opt in ("--out", "--quick", "--sections", "--classic", "--frames", "--res", "--ref-spp", "--quiet"):

@@ -1,4 +1,4 @@
-"""The one luminance (:mod:`dyngi.color`, issue 24 item 2): its weights are Mitsuba's ``mi.luminance``
+"""The one luminance (:mod:`dyngi.color`): its weights are Mitsuba's ``mi.luminance``
 (Rec. 709's Y) on the device and on the host, and no other module of dyngi spells the weights out.
 
 The static check reads every module's float literals (AST, so docstrings and comments do not count):

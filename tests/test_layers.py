@@ -1,4 +1,4 @@
-"""Imports go one way, down DESIGN.md's list of layers (issue 23, item 2):
+"""Imports go one way, down DESIGN.md's list of layers:
 
     errors, backend, timing, registry, color -> metrics, sampling -> scene -> lights, directions -> transport
     -> probes, vpl -> techniques -> experiments -> viewer -> cli

@@ -1,4 +1,4 @@
-"""The one direction-sampler interface (dyngi.directions, issue 24 item 3): every sampler's directions
+"""The one direction-sampler interface (dyngi.directions): every sampler's directions
 follow the pdf it reports (chi^2 on the sphere with Mitsuba's harness, pbrt/Mitsuba's BSDF test), for a
 real BSDF, the diffuse stand-in and the CDQ/BSDF mixture with a learned CDQ; unknown names raise."""
 import numpy as np

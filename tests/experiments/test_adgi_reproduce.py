@@ -1,4 +1,4 @@
-"""``dyngi reproduce adgi`` (issue 12 item 8): its pieces (recovery criterion, the equal-rays protocol) and,
+"""``dyngi reproduce adgi``: its pieces (recovery criterion, the equal-rays protocol) and,
 slow, an end-to-end run on a micro configuration that checks the files and that the paper's figures are
 quoted beside ours (Figs. 7-10, Table 4; Fig. 10's glossy-floor with both techniques' glossy probe lookup)."""
 import json

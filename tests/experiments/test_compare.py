@@ -1,4 +1,4 @@
-"""``dyngi compare`` end to end on a tiny built-in scene (issue 3, item 6).
+"""``dyngi compare`` end to end on a tiny built-in scene.
 
 Two comparisons are run once per module at 32 x 24, 4 frames, 32-spp
 references (cached under a temporary ``$DYNGI_CACHE``):

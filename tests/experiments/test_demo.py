@@ -1,4 +1,4 @@
-"""``dyngi demo``: the tour of the five papers (issue 30, items 3-4).
+"""``dyngi demo``: the tour of the five papers.
 
 Fast: every section's measurement on synthetic comparison results, and the top-level report they make
 (each section with its claim, our figure, a verdict and its figures), the figures checked in headless

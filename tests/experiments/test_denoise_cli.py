@@ -1,4 +1,4 @@
-"""``--denoise`` on ``render`` and ``compare`` (Intel OIDN; issue 14, item 5)."""
+"""``--denoise`` on ``render`` and ``compare`` (Intel OIDN)."""
 import json
 import os
 

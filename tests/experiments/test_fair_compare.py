@@ -1,4 +1,4 @@
-"""Fair comparisons (issue 11, item 6): technique specs, --ref-depth, film resolution, NaN/Inf failures,
+"""Fair comparisons: technique specs, --ref-depth, film resolution, NaN/Inf failures,
 --indirect, reference noise and cache key, primary-ray filtering, budget accounting.
 
 Tiny runs: 32 x 24 (or smaller), a few frames, references of <= 512 spp under a temporary $DYNGI_CACHE.

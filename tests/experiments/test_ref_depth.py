@@ -1,6 +1,6 @@
 """compare's reference depth for techniques of fixed path depth (``REFERENCE_DEPTH``; nee-pt: 3).
 
-The VLC issue: nee-pt's "depth matches a reference of --ref-depth 3: compare it against that". Without
+nee-pt traces the VLC paper's fixed 5-ray path (path depth 3), so it is measured against a reference of depth 3. Without
 ``--ref-depth`` a comparison of fixed-depth techniques must therefore render its reference at that depth
 (else its MSE measures the missing longer paths, not noise), a mixed comparison keeps the scene's depth
 and says which techniques are truncated, and an explicit ``--ref-depth`` always wins.

@@ -1,4 +1,4 @@
-"""The comparison report's image grids: every title sits clear of the images above it (issue 30)."""
+"""The comparison report's image grids: every title sits clear of the images above it."""
 import numpy as np
 import pytest
 

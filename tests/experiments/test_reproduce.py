@@ -1,4 +1,4 @@
-"""``dyngi reproduce`` (issue 11, item 7): the registry, its errors, and the quick ``ddgi`` run."""
+"""``dyngi reproduce``: the registry, its errors, and the quick ``ddgi`` run."""
 import json
 import os
 import time

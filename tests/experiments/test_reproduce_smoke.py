@@ -1,4 +1,4 @@
-"""Every registered reproduction at its smoke size (issue 30, item 4): ``dyngi reproduce NAME --smoke``
+"""Every registered reproduction at its smoke size: ``dyngi reproduce NAME --smoke``
 exits 0 and writes the top-level ``report.html`` its last line names, which opens in headless Chromium
 (a non-blank screenshot, its figures loaded). The smoke size (``reproduce.SMOKE``) takes the ``--quick``
 code path at a tiny configuration (~10-45 s each on the shared 2-core box, references included)."""

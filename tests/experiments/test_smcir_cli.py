@@ -107,9 +107,9 @@ def test_untextured_scene_gets_a_new_content_hash(backend):
     assert sc.content_hash() != before
 
 
-# -- the reproduction's configuration and its ranking verdict (issue 29) -----------------------------------
+# -- the reproduction's configuration and its ranking verdict -----------------------------------
 
-def test_full_reproduction_is_the_issue_size():
+def test_full_reproduction_runs_table1_at_its_real_size():
     """The command's default (no --quick) is Table 1 at its real size: every sequence at >= 160x90,
     >= 60 frames, >= 3 seeds, the paper's VPL counts and mir at 256:1 (no overrides), the paper's IR
     (per-frame photons) with the fixed-photon variant and a k >= 8 smcir as their own rows."""

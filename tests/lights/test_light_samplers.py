@@ -1,4 +1,4 @@
-"""The one light-sampler interface (dyngi.lights, issue 24 item 3): every registered sampler through it.
+"""The one light-sampler interface (dyngi.lights): every registered sampler through it.
 
 * chi^2: the frequencies of ``sample`` at fixed shading points against the ``pmf`` it returns, and that
   ``pmf`` equals ``pmf(light)`` and sums to 1 over the lights (pbrt-v4's LightSampler contract);

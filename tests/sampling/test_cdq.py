@@ -1,4 +1,4 @@
-"""Compressed Directional Quadtree (issue 18): rank/select, sampling vs pdf (chi^2), the pdf's
+"""Compressed Directional Quadtree: rank/select, sampling vs pdf (chi^2), the pdf's
 integral over the sphere, migration toward an energy peak, and nee-pt convergence (slow)."""
 from __future__ import annotations
 
@@ -294,7 +294,7 @@ def test_migrate_carries_statistics_to_the_new_nodes():
         cdq.CDQDirections(_FakeOctree(1), memory=1.0)
 
 
-# -- nee-pt:directions=cdq (issue 18 items 3 and 5) ---------------------------------------------------
+# -- nee-pt:directions=cdq ---------------------------------------------------
 
 def _neept_frames(scene, spec, frames, res, keep_from, seed=0):
     from dyngi.techniques.base import Frame, create_technique

@@ -1,4 +1,4 @@
-"""The CDQ must earn its keep in the sunlit pit (issue 28; VLC paper Fig. 8 b: "the CDQ improves sampling by two
+"""The CDQ must earn its keep in the sunlit pit (VLC paper Fig. 8 b: "the CDQ improves sampling by two
 to three orders of magnitude" where the sun, out of NEE, lights the pit): at the paper's samples per octree leaf
 (``leaf_samples=4096``: the paper's split / collapse thresholds 4096 / 2048, ~1500 samples per leaf and frame
 at 96x54) ``nee-pt:directions=cdq`` has at most 1/:data:`PIT_FACTOR` of ``directions=bsdf``'s MSE on

@@ -1,4 +1,4 @@
-"""G-buffer, motion vectors and disocclusion mask (dyngi.sampling.gbuffer; issue 14, item 1)."""
+"""G-buffer, motion vectors and disocclusion mask (dyngi.sampling.gbuffer)."""
 from __future__ import annotations
 
 import numpy as np

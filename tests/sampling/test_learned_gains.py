@@ -1,4 +1,4 @@
-"""The learned samplers must earn their keep (issue 28): tests that fail if the VLC or the CDQ degrade to the
+"""The learned samplers must earn their keep: tests that fail if the VLC or the CDQ degrade to the
 strategy they replace.
 
 * The VLC keeps a light that is visible from 5% of a leaf's samples once the leaf has the paper's sample

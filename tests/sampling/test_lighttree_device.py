@@ -1,4 +1,4 @@
-"""The light tree built on the device (issue 28): ``build="device"`` runs the binned-SAH levels and the 8-wide
+"""The light tree built on the device: ``build="device"`` runs the binned-SAH levels and the 8-wide
 collapse as Dr.Jit passes (:func:`dyngi.sampling.lighttree._collapse_device`) and must give exactly the tree the
 host collapse makes from the same binary tree (the host collapse is the reference; the binary levels of the two
 builds may differ at float32-vs-float64 SAH ties, so both collapses here start from the device's binary tree)."""

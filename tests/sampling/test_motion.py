@@ -1,4 +1,4 @@
-"""Motion vectors (issue 28, VLC paper Sec. 6.3): a hit on a moving mesh maps to the same surface point one frame
+"""Motion vectors (VLC paper Sec. 6.3): a hit on a moving mesh maps to the same surface point one frame
 earlier (the rigid motion's inverse, exactly); hits on static shapes and the first frame keep their position;
 nee-pt on a scene with a moving mesh uses them (sampling leaf of the previous position) and stays unbiased."""
 from __future__ import annotations

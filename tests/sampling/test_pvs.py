@@ -1,4 +1,4 @@
-"""``lights=sll`` (issue 28): Quake 2 RTX's static light lists from a conservative potentially-visible set.
+"""``lights=sll``: Quake 2 RTX's static light lists from a conservative potentially-visible set.
 
 The PVS is conservative: no light that an unoccluded segment from a point of a leaf reaches is missing from
 that leaf's list (random segments on ``warehouse-rooms``); a closed room's light never enters the lists of

@@ -1,4 +1,4 @@
-"""Visibility Light Cache (issue 17 items 3 and 5): pmfs, sampling frequencies, dedup/buckets, occlusion.
+"""Visibility Light Cache: pmfs, sampling frequencies, dedup/buckets, occlusion.
 
 Exact identities: the exploration alias table reproduces its pmf (chi^2); every selector's pmf sums
 to 1 over the lights (the VLC: minus the mass of buckets whose lights all have zero importance at the

@@ -1,4 +1,4 @@
-"""``hall-top-light`` (issue 11, item 1): DDGI on a two-storey hall lit from the top, against Mitsuba's ``path``.
+"""``hall-top-light``: DDGI on a two-storey hall lit from the top, against Mitsuba's ``path``.
 
 The analog of the real staircase hall where ``ddgi`` drew whole regions black
 (-16% to -36% image mean). Diagnosed causes, both at the primary hit: glass

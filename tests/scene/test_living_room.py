@@ -1,10 +1,10 @@
-"""The thin-walled sunlit ``living-room`` (issue 15, item 7): single-layer walls, and the leak that stays small.
+"""The thin-walled sunlit ``living-room``: single-layer walls, and the leak that stays small.
 
 * ``test_walls_are_single_layer`` -- the outer walls, the roof and the floor
   are flat polygons without thickness: every wall triangle lies in one of the
   planes ``x = +-3`` / ``z = +-2.5`` (no second, parallel layer), the ceiling
   and the floor are one quad each; the probe volume lies inside the house
-  (issue 22: no layer of probes outside the walls, in the sun);
+  (no layer of probes outside the walls, in the sun);
 * ``test_ddgi_leak_near_the_walls_stays_small`` -- ``ddgi`` and ``ddgi-primary``
   against Mitsuba's ``path``: the luminance error of the pixels within 0.3 m
   of a wall's or the ceiling's inside stays small (measured +8% / +9%; with the
@@ -76,7 +76,7 @@ def test_ddgi_leak_near_the_walls_stays_small():
                      np.float64)
     near, far = _near_wall_mask(sc, res)
     assert near.mean() > 0.2 and far.mean() > 0.1
-    # measured (issue 22, 64x36, frames 6-11): ddgi +0.08 near the walls' inside, +0.03 elsewhere;
+    # measured (64x36, frames 6-11): ddgi +0.08 near the walls' inside, +0.03 elsewhere;
     # ddgi-primary +0.09 / +0.01 (with the volume over the whole house: +0.65 / +0.11 and +0.60 / +0.08)
     for spec, params in (("ddgi", {}), ("ddgi-primary", {"candidates": 8})):
         lk, rest = _leak(create_technique(spec, sc, params), sc, ref, near, far)
@@ -86,4 +86,4 @@ def test_ddgi_leak_near_the_walls_stays_small():
 
 
 LEAK_NEAR, LEAK_REST = 0.2, 0.1
-"""Bounds of the relative luminance error near the walls' inside and elsewhere (issue 22; see the test)."""
+"""Bounds of the relative luminance error near the walls' inside and elsewhere (see the test)."""

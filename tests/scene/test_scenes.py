@@ -16,7 +16,7 @@ from dyngi.techniques.path import render_paths
 
 NAMES = builtin_names()
 STATIC = {"cornell-static", "furnace"}
-DARK = {"sealed-rooms"}   # issue 22: the camera is inside a sealed room, which Mitsuba renders exactly black
+DARK = {"sealed-rooms"}   # the camera is inside a sealed room, which Mitsuba renders exactly black
 PAPER_STAND_INS = {"tunnel-gate", "atrium-sun", "corridor-rooms", "maze", "warehouse-lights", "sky-pit",
                    "covered-lights", "glossy-floor", "rotating-hidden-light",
                    "cornell-moving-light", "cornell-moving-box", "room-door", "villa-sun", "pink-room"}

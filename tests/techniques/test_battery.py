@@ -1,4 +1,4 @@
-"""Test battery over the technique registry (issue 11, item 8).
+"""Test battery over the technique registry.
 
 Every technique in :func:`dyngi.techniques.technique_names` -- present and
 future -- gets, with no per-technique test code:
@@ -31,7 +31,7 @@ another (:data:`HEAVY_KINDS`, :func:`_pick`); a plain ``-m slow`` runs the whole
 
 Per-technique settings and capabilities
 ---------------------------------------
-Test-only settings live in :data:`PROFILES` below (one entry per technique, issue 23 item 2); what a
+Test-only settings live in :data:`PROFILES` below (one entry per technique); what a
 technique declares about itself is a class attribute. A class attribute wins over the table (the
 self-tests at the end build techniques that way); a technique with neither gets the default.
 
@@ -89,7 +89,7 @@ _DDGI_RESAMPLING = {
     # for small emitters and darkens a closed emitting shell (the probes' E then lies ~25% low)
     "FURNACE_PARAMS": {"candidates": 8, "hysteresis": 0.5, "warmup": 16, "rays_per_probe": 128,
                        "irradiance_gamma": 1.0, "emission_attenuation": "none"},
-    # a measured bias, bounded here (issue 27 note): the default spatiotemporal reuse (M cap 4, the unified
+    # a measured bias, bounded here: the default spatiotemporal reuse (M cap 4, the unified
     # reservoir) leaves the ellipsoid furnace's indirect mean 4.5% low after 32 accumulated frames -- a transient
     # of the per-frame image (-10% at frames 8-11, -3% at 36-39); temporal=false or spatial=0 are within 1%, and
     # M cap 1 gives -1.5%, 20 gives -11%. The cause in the reuse is not found yet; the bound fails if it grows
@@ -138,14 +138,14 @@ PROFILES = {
     # Eq. 8's k = 1 over-estimates the furnace's indirect light once replacements have made the set
     # blue-noise-like (+26-28% at 2048 VPLs; density_k=32: +2-3%, docs/benchmarks.md): the furnace checks
     # the rest of the machinery with k = 32 (the kNN bias of Sec. 3.3); the defaults' own bias is bounded
-    # by tests/techniques/test_smcir_bias.py
+    # by tests/techniques/smcir/test_bias.py
     "smcir": {"BATTERY_PARAMS": {"vpls": 32, "warmup": 2, "radiosity_spp": 4, "candidate_rate": 8},
               "FURNACE_PARAMS": {"vpls": 1024, "warmup": 4, "shading": "exhaustive", "radiosity_spp": 8,
                                  "density_k": 32},
               "FURNACE_TOL": 0.05},
     "tcas": {"BATTERY_PARAMS": {"vpls": 32, "iterations": 4, "view_samples": 16}},
 }
-"""The battery's settings per technique (issue 23 item 2: test-only settings live in the tests, not on the
+"""The battery's settings per technique (test-only settings live in the tests, not on the
 production classes); a technique without an entry runs its defaults."""
 _DEFAULTS = {"BATTERY_PARAMS": {}, "FURNACE": True, "FURNACE_REASON": "", "FURNACE_PARAMS": {},
              "FURNACE_FRAMES": 32, "FURNACE_TOL": 0.02, "DETERMINISTIC": False}

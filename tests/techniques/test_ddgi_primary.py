@@ -1,4 +1,4 @@
-"""DDGI primary shading on the causes of the black walls (issue 11, item 1) and the distance clamp (item 2).
+"""DDGI primary shading: the causes of black walls on real scenes, and the distance clamp.
 
 * camera rays pass straight through ``dielectric`` / ``thindielectric`` / ``null``
   surfaces, scaled by the transmittance of each interface;

@@ -1,4 +1,4 @@
-"""``nee-pt`` (issue 17 item 1 and 5): every light selector and direction sampler estimates the same
+"""``nee-pt``: every light selector and direction sampler estimates the same
 image (z-tests against ``lights=uniform``), the image is Mitsuba's ``path`` at ``max_depth = 3`` on a
 diffuse scene, five rays per path, and clear errors for unavailable choices."""
 from __future__ import annotations
@@ -83,7 +83,7 @@ def test_five_rays_per_path_and_stats(backend):
         assert {"preprocess", "trace", "adapt"} <= set(s["ms"])
         assert "preprocess_ms" in s["selector"] and s["octree"]["leaves"] >= 8
     assert tech.tris.count == 256          # 128 quad lights = 256 triangle lights
-    # thresholds at this resolution: the floor of issue 17 item 2
+    # thresholds at this resolution: the octree's floor
     assert (tech.octree.split_threshold, tech.octree.collapse_threshold) == (512, 256)
     assert stats[-1]["selector"]["lights_in_cache"] > 0
 

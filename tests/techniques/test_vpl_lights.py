@@ -1,4 +1,4 @@
-"""``lights=`` on the VPL techniques (issue 29 item 3, issue 24 item 3): the radiosity of ``smcir``'s and
+"""``lights=`` on the VPL techniques: the radiosity of ``smcir``'s and
 ``mir``'s VPLs is estimated by the path walk, whose NEE goes through a light sampler
 (:class:`dyngi.lights.nee.LightNEE`); ``ir`` and ``tcas`` carry radiosity on photons, whose lights the
 sampler chooses (:mod:`dyngi.vpl.emission`: 'uniform' and 'power', samplers without a shading point)."""

@@ -1,4 +1,4 @@
-"""Acceptance of "all call it" (issue 24, item 4): outside the transport layer (and the light- and
+"""Acceptance of "all call it": outside the transport layer (and the light- and
 direction-sampler layers), no module samples a BSDF or an emitter direction itself, except the listed
 modules below, each with its reason. Read statically from the source: the test fails on a new caller
 (use :mod:`dyngi.transport.path_walk` or add it here with a reason) and on a listed module that no
@@ -17,7 +17,7 @@ CALL = re.compile(r"\bbsdf\w*\.sample\(|\.bsdf\([^)]*\)\.sample\(|\.sample\(\s*(
                   r"|sample_emitter_direction\(")
 
 ALLOWED = {
-    # the light-sampling strategies (the lights/ layer's forerunner, issue 24 item 3)
+    # the light-sampling strategies (the lights/ layer's forerunner)
     "sampling/lights.py": "EmitterSampling: Mitsuba's emitter sampling behind the strategy interface",
     # a delta transmission lobe's weight for shadow rays through glass (no direction is sampled)
     "sampling/passthrough.py": "thin-glass transmittance of shadow rays",

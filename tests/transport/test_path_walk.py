@@ -1,4 +1,4 @@
-"""The transport layer's path walk (dyngi.transport.path_walk, issue 24): from a surface interaction it
+"""The transport layer's path walk (dyngi.transport.path_walk): from a surface interaction it
 is the walk from the camera ray that reached it; a terminate hook ends paths as a depth limit does; the
 per-vertex NEE/emission hooks partition the estimate (z-test of the parts' sum against the full walk)."""
 import numpy as np

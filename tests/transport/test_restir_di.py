@@ -1,4 +1,4 @@
-"""The ReSTIR DI component (dyngi.transport.restir_di.ReSTIRDI, issue 24): its shading is unbiased
+"""The ReSTIR DI component (dyngi.transport.restir_di.ReSTIRDI): its shading is unbiased
 against Mitsuba's direct lighting (`path` with max_depth = 2), with temporal and spatial reuse, for the
 default target and for another one (the target is a parameter)."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The device k-NN (:class:`dyngi.vpl.density.KNNGrid`, issue 29) against a brute-force search."""
+"""The device k-NN (:class:`dyngi.vpl.density.KNNGrid`) against a brute-force search."""
 from __future__ import annotations
 
 import numpy as np

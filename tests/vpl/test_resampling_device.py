@@ -1,5 +1,5 @@
 """MIR's importance resampling on the device (:func:`dyngi.vpl.smc.resample_with_replacement_device`,
-Segovia et al. 2007 as Hedman et al. 2017 run it, Sec. 5.1; issue 29): the drawn indices follow the
+Segovia et al. 2007 as Hedman et al. 2017 run it, Sec. 5.1): the drawn indices follow the
 target density ``w_i / sum(w)`` (Pearson chi^2, several seeds), zero weights are never drawn; and the
 whole ``mir`` estimator (resampling weight ``mean(c) / (I c q)``) is unbiased in the mean against the
 path-traced indirect reference."""

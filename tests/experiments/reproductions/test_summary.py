@@ -1,4 +1,4 @@
-"""The reproductions' shared summary writer (issue 30, item 4): every reproduction gets a top-level
+"""The reproductions' shared summary writer: every reproduction gets a top-level
 ``report.html`` (claim table, plots, links to each scene's report) and a ``summary.json`` whose
 ``techniques`` table the command line's failure check reads, merged from the sub-folders."""
 import json

@@ -21,7 +21,7 @@ Rows beside the paper's four: ``ir:photons=fixed`` (one photon set for the seque
 coherent variant the paper's IR lacks, reported as its own row, never as the paper's IR) and
 ``smcir:density_k=16`` beside ``smcir`` (Eq. 8's k = 1): k = 1 over-estimates 1/p on the blue-noise-like
 VPL set that replacements produce, so each sequence states both rows' brightness (mean indirect / the
-reference's, over all frames) -- the bias of the paper's own estimator (tests/techniques/test_smcir_bias.py).
+reference's, over all frames) -- the bias of the paper's own estimator (tests/techniques/smcir/test_bias.py).
 Table 2's stage breakdown comes from smcir's per-stage ms.
 
 Each (sequence, seed) saves its figures in ``OUT/SEQ/seedN/figures.json`` as it ends and a later run

@@ -24,7 +24,7 @@ miss the scene carry ``-g`` through the residual sample. ``cv_kind`` chooses ``g
   (cornell-static 64x48: 0.310 vs 0.265; /tmp/figs/cv.md).
 
 Both keep the mean of plain resampling given the same probes ("converges to the same (biased)
-solution", Sec. 5.1): ``tests/techniques/test_ddgi_cv.py`` (Welch t-tests on frozen probes, and the rejection of a
+solution", Sec. 5.1): ``tests/techniques/ddgi_resampling/test_control_variate.py`` (Welch t-tests on frozen probes, and the rejection of a
 control variate whose integral is scaled by 1.5). The exact integral assumes a Lambertian diffuse lobe
 (``rho = diffuse_albedo``); for lobes whose diffuse part is not ``rho / pi`` (e.g. plastic's
 Fresnel-weighted one) the correction is approximate.

@@ -65,7 +65,7 @@ always less than or equal to the differential under area measure"); ``'a0'``
 invariance, proportional to the inverse camera footprint); ``'probe'`` ``G_max = gmax / s^2`` with
 ``s`` the mean probe spacing (points closer than about one probe cell go to the BSDF sample; scales
 with the scene; our option). ``gmax = 0`` sends all probe light through the BSDF sample (the
-unpartitioned estimate the z-test in ``tests/techniques/test_ddgi_resampling.py`` compares against).
+unpartitioned estimate the z-test in ``tests/techniques/ddgi_resampling/test_technique.py`` compares against).
 
 Temporal reuse: the M cap (``m_cap``, in multiples of the ``candidates + 1`` a fresh reservoir holds)
 defaults to :data:`M_CAP`, chosen for the steady per-frame error (a sweep over {1, 4, 20},
@@ -246,7 +246,7 @@ class DDGIResamplingTechnique(SecondaryShading):
         ``g = E_DDGI+(x_1) / pi``, a constant radiance over the hemisphere (probes read at the primary
         vertex with DDGI's default biases, 0.05 / 0.2 smallest spacings along the normal / towards the
         viewer); its integral against the diffuse lobe is ``rho_1 g`` exactly for a Lambertian lobe
-        (``rho_1`` :func:`~dyngi.sampling.diffuse.diffuse_albedo`). ``tests/techniques/test_ddgi_cv.py`` checks that
+        (``rho_1`` :func:`~dyngi.sampling.diffuse.diffuse_albedo`). ``tests/techniques/ddgi_resampling/test_control_variate.py`` checks that
         the estimator's mean does not move with the control variate, and that a wrong integral (this
         method's second value scaled) is detected."""
         n = gb.n_sh

@@ -32,7 +32,7 @@ re-uses the selection's random numbers; "the intensities are reestimated for the
 (Sec. 3.2) reads as a fresh estimate. Cost: the <= M_max new VPLs get one extra 16-path estimate per
 frame; when the lighting changes, line 18 traces both streams (2x its rays; the paper's cost:
 ``reestimate='same-seed'``, one estimate for both, the pre-fix behaviour). Tested by a synthetic
-winner's curse (tests/techniques/test_smcir_reestimate.py).
+winner's curse (tests/techniques/smcir/test_reestimate.py).
 
 Where it runs (``impl``): ``'device'`` (the default) keeps the VPL set in Dr.Jit arrays
 (:class:`dyngi.vpl.smc_device.DeviceVPLStore`) and runs lines 3-19 with fixed widths -- the k-NN
@@ -40,7 +40,7 @@ densities on the device grid (:class:`dyngi.vpl.density.KNNGrid`), the resamplin
 Efraimidis-Spirakis keys and a device sort, visibility as masked shadow rays, Eq. 9's quantile and the
 "lowest/highest intensity first" choices by stable sorts, the counts as device values read after the
 image: an iteration (also each warm-up one) reads nothing back and a steady frame compiles nothing
-(tests/techniques/test_smcir_device.py). ``'host'`` runs the same steps on NumPy arrays with a
+(tests/techniques/smcir/test_device.py). ``'host'`` runs the same steps on NumPy arrays with a
 ``cKDTree`` (the CPU fast path: small sets; each iteration reads the candidates back). The two draw
 different random numbers (the host one from NumPy generators), so their VPL sets differ; the radiosity
 of a VPL of a given seed is bit-identical in both (:func:`dyngi.vpl.radiosity.estimate_radiosity` is
@@ -79,7 +79,7 @@ near-field interreflections; ray-traced visibility replaces the paper's shadow m
 (exhaustive shading, 2048 VPLs, mean indirect / the clamped path-tracing reference of
 :mod:`dyngi.experiments.clamped_reference` with the same clamp, 1024 spp; mean of 3 seeds; with
 ``impl='host'``, the same estimator as the device one with other random numbers -- the default's
-bound, tests/techniques/test_smcir_bias.py, runs the device one):
+bound, tests/techniques/smcir/test_bias.py, runs the device one):
 
 =====================================  ==========================  ==========================
 variant                                cornell-static 48x36, 100   corridor-walk f0 48x27, 30

@@ -1,5 +1,5 @@
 """Flicker of the paper's IR baseline against SMC-IR on a static-light sequence (Hedman et al. 2017,
-Table 1 and Sec. 5.1; issue 29): ``ir`` draws a new photon set every frame ("no special consideration
+Table 1 and Sec. 5.1): ``ir`` draws a new photon set every frame ("no special consideration
 for temporal coherence"), so its |E'| (Eq. 10) exceeds ``smcir``'s, whose VPLs persist (at most
 M_max = 16 move per frame); ``ir:photons=fixed`` (one photon set for the sequence) is a different,
 temporally coherent baseline and flickers less than the per-frame one."""

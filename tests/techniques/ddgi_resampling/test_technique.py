@@ -1,4 +1,4 @@
-"""ddgi-secondary / ddgi-resampling (dyngi.techniques.ddgi_resampling; issue 15, item 8).
+"""ddgi-secondary / ddgi-resampling (dyngi.techniques.ddgi_resampling).
 
 * Eq. 7's footprint as the kernels sum it equals a NumPy transcription on random paths;
 * footprint termination: on the glossy floor, the glossy recursion continues exactly where Eq. 8 says
@@ -10,7 +10,7 @@
   Mitsuba's ``path`` with the unbiased options, and the defaults' bias (Alg. 5 visibility reuse,
   approximate supports of reused probe samples) stays bounded (region and image-mean t-tests; a fast
   image-mean version and a slow one);
-* the leak on the thin-walled room (issue item 7) stays small (issue 22), when that scene exists.
+* the leak on the thin-walled room stays small, when that scene exists.
 """
 from __future__ import annotations
 
@@ -204,7 +204,7 @@ LEAK_SCENE = "living-room"
 @pytest.mark.slow   # CI budget: seconds on a cold cache; runs in CI's slow subset
 @pytest.mark.parametrize("name", ["ddgi-secondary", "ddgi-resampling"])
 def test_leak_on_the_thin_walled_room_stays_small(backend, name):
-    """Issue item 7 / issue 22: the thin sunlit walls of ``living-room`` leak little now that its probe
+    """The thin sunlit walls of ``living-room`` leak little now that its probe
     volume lies inside the house. The image mean after 16 frames (48x36, 64 rays per probe) against a
     256-spp reference stays within LEAK_MAX of it (measured 2026-12-02: +1.8% / +4.0% for ddgi-secondary /
     ddgi-resampling; with the volume over the whole house, outer layers in the sun: +74% / +78%, which

@@ -1,4 +1,4 @@
-"""The device paths of SMC-IR and its baselines (issue 29): ``smcir`` (``impl='device'``, the default),
+"""The device paths of SMC-IR and its baselines: ``smcir`` (``impl='device'``, the default),
 ``mir`` and ``tcas`` build their VPL sets on the device and ``ir`` draws a new photon set per frame; a
 steady frame of each compiles no new kernel (the frame index, seeds and camera enter as opaque values),
 ``smcir``/``mir``/``tcas`` hand the shader Dr.Jit arrays, and a steady ``smcir`` frame's VPL update

@@ -1,4 +1,4 @@
-"""ddgi-resampling's control-variate variant (Sec. 5.1; issue 15, item 6).
+"""ddgi-resampling's control-variate variant (Sec. 5.1).
 
 The paper: "this algorithm converges to the same (biased) solution as plain DDGI resampling" -- the
 control variate adds ``rho_1 / pi * E_DDGI+(x_1)`` at the primary vertex and subtracts the control
@@ -166,9 +166,9 @@ def test_control_variate_with_exact_radiance_matches_mitsuba(backend, kind):
     """With the exact-radiance hook (S(x) path-traced, so plain resampling is unbiased) the control
     variate must keep the estimator unbiased although ``g`` comes from the (biased) probes: the image
     mean over 40 independent frames agrees with a 256-spp Mitsuba ``path`` render (|z| < 3.3, the
-    hook's own test in tests/techniques/test_ddgi_resampling.py). Power, measured: the CV integral scaled by 1.5
+    hook's own test in tests/techniques/ddgi_resampling/test_technique.py). Power, measured: the CV integral scaled by 1.5
     gives z = 3.7 (nearest-ray); the frozen-probe test above is the sharper check of that sabotage."""
-    from tests.techniques.test_ddgi_resampling import RES as R2, _mitsuba, _run
+    from tests.techniques.ddgi_resampling.test_technique import RES as R2, _mitsuba, _run
 
     scene = load_scene("cornell-static")
     D = 5

@@ -6,8 +6,8 @@ The measure: per-frame MAPE against Mitsuba's ``path`` with accumulation off (``
 averaged over the steady frames (probes and reservoirs warmed), per seed; one-sided paired t-test
 over seeds that ``ddgi-resampling``'s is below ``ddgi-secondary``'s.
 
-The module also holds the ablation harness the issue's figures come from (:func:`steady_errors`); run
-``python tests/techniques/test_ddgi_resampling_claim.py SCENE SPEC [SPEC...] [--seeds N] ...`` to print
+The module also holds the ablation harness the figures on docs/techniques/ddgi-resampling.md come from (:func:`steady_errors`); run
+``python tests/techniques/ddgi_resampling/test_claim.py SCENE SPEC [SPEC...] [--seeds N] ...`` to print
 mean and spread per spec.
 """
 from __future__ import annotations

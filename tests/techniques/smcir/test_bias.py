@@ -1,11 +1,11 @@
-"""The brightness bias of ``smcir`` at its shipped defaults (Hedman et al. 2017, Eq. 7-8; issue 29).
+"""The brightness bias of ``smcir`` at its shipped defaults (Hedman et al. 2017, Eq. 7-8).
 
 Eq. 8 gives k = 1 for the rendering density (line 19) at the paper's budgets (2048, 512 VPLs). On the
 blue-noise-like VPL set that the replacements produce, nearest-neighbour areas ``pi r_1^2`` exceed each
 VPL's share of the surface, so 1/p and the indirect light come out too bright: the paper's estimator's
 own bias (Sec. 3.3: "biased but consistent"), kept as the default and documented in
 :mod:`dyngi.techniques.smcir`. Every other energy test of smcir sets ``density_k`` (the furnace: 32;
-test_smcir.py: 16); this one runs the defaults unchanged, so it fails if the default's bias grows.
+test_technique.py: 16); this one runs the defaults unchanged, so it fails if the default's bias grows.
 
 Measured (2026-12-02, 32x24, cornell-static, defaults: 2048 VPLs, 100 warm-up iterations, interleaved
 shading, candidate k = 1; mean indirect / the path-traced indirect reference at 1024 spp): 1.39, 1.42,
