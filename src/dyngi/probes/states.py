@@ -19,6 +19,13 @@ faces negative as ``-0.2 t``):
   (:mod:`dyngi.probes.trace`): without the check a probe inside a slab thinner
   than ``min_frontface`` (or pushed from one face of a thin wall) left through
   the other side -- the roof layer of a sealed room ended above the sunlit roof.
+  **The exit is a face on the grid's side** (ours; issue 36): of the back faces a probe
+  inside geometry sees, the closest one whose ray does not point out of the grid through
+  a boundary side of the probe's neighbourhood (see classification) is its exit; only a probe
+  with no such back face takes the closest one. A boundary layer that starts inside a wall,
+  floor or roof (a loaded scene's bounding-box grid around thick slabs) otherwise left through
+  the slab's nearer *outer* face and the room lost that layer (``sunlit-classroom``: ddgi
+  1.12 of Mitsuba's mean; docs/probes.md).
 * **classification**: a probe is inactive when its back-face ratio exceeds the
   threshold or no front-face hit lies within its cell neighbourhood
   (``|t w_i| <= spacing_i`` on every axis, unbounded outwards for probes on the
@@ -153,16 +160,21 @@ def _summaries_numpy(volume, pid, dirs, dist, shared):
     t_back = np.where(back, dist * np.float32(-1.0 / BACKFACE_DISTANCE_SCALE), np.float32(np.inf))
     t_front = np.where(front, dist, np.float32(np.inf))
     rows = np.arange(len(pid))
-    i_back, i_front = np.argmin(t_back, 1), np.argmin(t_front, 1)
+    i_front = np.argmin(t_front, 1)
     lo, hi = _cell_extents(volume, pid)
     # per ray: distance at which it leaves the neighbourhood box, min over axes
     t_exit = np.full(dist.shape, np.inf, np.float32)
+    outward = np.zeros(dist.shape, bool)
     with np.errstate(divide="ignore", invalid="ignore"):
         for i in range(3):
             di = dirs[:, i][None, :] if shared else dirs[..., i]
             inv = np.float32(1.0) / np.abs(di)
             lim = np.where(di > 0, hi[:, i:i + 1] * inv, lo[:, i:i + 1] * inv)
             np.minimum(t_exit, np.nan_to_num(lim, nan=np.inf), out=t_exit)
+            outward |= (di != 0) & np.isinf(np.where(di > 0, hi[:, i:i + 1], lo[:, i:i + 1]))
+    # the exit of a probe inside geometry: the closest back face not out of the grid (ours), else the closest
+    t_in = np.where(outward, np.float32(np.inf), t_back)
+    i_back = np.where(np.isfinite(t_in).any(1), np.argmin(t_in, 1), np.argmin(t_back, 1))
     return {"back_ratio": back.sum(1) / n, "t_back": t_back[rows, i_back], "t_front": t_front[rows, i_front],
             "i_back": i_back, "i_front": i_front, "near_any": (front & (dist <= t_exit)).any(1)}
 
@@ -184,7 +196,7 @@ def _summaries_drjit(volume, pid, dirs, dist):
     hi_d = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(hi).ravel()), dr.arange(mi.UInt32, P))
     base = dr.arange(mi.UInt32, P) * nn
 
-    def body(r, n_back, n_near, tb, tf, ib, i_f):
+    def body(r, n_back, n_near, tb, tf, ib, i_f, b_out):
         x = dr.gather(mi.Float, d, base + r)
         back = x < 0.0
         front = (x > 0.0) & dr.isfinite(x)
@@ -194,20 +206,24 @@ def _summaries_drjit(volume, pid, dirs, dist):
         ext = dr.select(w > 0.0, hi_d, lo_d)
         t_axis = dr.select(dr.abs(w) > 0.0, ext / dr.abs(w), inf)
         t_exit = dr.minimum(dr.minimum(t_axis.x, t_axis.y), t_axis.z)
+        out = (((dr.abs(w.x) > 0.0) & ~dr.isfinite(ext.x)) | ((dr.abs(w.y) > 0.0) & ~dr.isfinite(ext.y))
+               | ((dr.abs(w.z) > 0.0) & ~dr.isfinite(ext.z)))      # out of the grid's boundary side
         n_back += mi.UInt32(back)
         n_near += mi.UInt32(front & (x <= t_exit))
-        nb = back & (t_back < tb)         # strict: the first ray reaching the minimum (argmin)
+        # strict: the first ray reaching the minimum (argmin); a back face not out of the grid first (ours)
+        nb = back & ((b_out & ~out) | ((b_out == out) & (t_back < tb)))
         nf = front & (t_front < tf)
         tb = dr.select(nb, t_back, tb)
         ib = dr.select(nb, r, ib)
+        b_out = dr.select(nb, out, b_out)
         tf = dr.select(nf, t_front, tf)
         i_f = dr.select(nf, r, i_f)
-        return r + 1, n_back, n_near, tb, tf, ib, i_f
+        return r + 1, n_back, n_near, tb, tf, ib, i_f, b_out
 
     big = dr.zeros(mi.UInt32, P) + nn   # N when the probe has no such hit
     init = (mi.UInt32(0), dr.zeros(mi.UInt32, P), dr.zeros(mi.UInt32, P), dr.full(mi.Float, inf, P),
-            dr.full(mi.Float, inf, P), big, mi.UInt32(big))
-    _, n_back, n_near, tb, tf, ib, i_f = dr.while_loop(init, lambda r, *_: r < nn, body)
+            dr.full(mi.Float, inf, P), big, mi.UInt32(big), dr.full(mi.Bool, True, P))
+    _, n_back, n_near, tb, tf, ib, i_f, _ = dr.while_loop(init, lambda r, *_: r < nn, body)
     dr.eval(n_back, n_near, tb, tf, ib, i_f)
     return lambda: {"back_ratio": np.asarray(n_back, np.float64) / N, "t_back": np.asarray(tb, np.float32),
                     "t_front": np.asarray(tf, np.float32), "i_back": np.minimum(np.asarray(ib, np.int64), N - 1),
