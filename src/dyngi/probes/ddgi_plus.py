@@ -276,7 +276,8 @@ class DDGIPlusVolume:
         self.grid = ProbeGrid.from_scene(scene, counts)
         self.volume = ProbeVolume(self.grid, p["irradiance_texels"], p["distance_texels"],
                                   max_distance=max(p["max_distance"] * self.grid.max_spacing,
-                                                   self.grid.cell_diagonal), two_sided=p["two_sided"])
+                                                   self.grid.cell_diagonal), two_sided=p["two_sided"],
+                                  hit_lobes=p["hit_lobes"])
         self.query = ProbeQuery(self.volume, p["normal_bias"], p["view_bias"], visibility=p["visibility"])
         # the previous probes as the update reads them at probe-ray hits (Sec. 3.5): the view-path offset
         # replaces DDGI's normal/view offsets, so that query has none (the consumers' query where it has none)

@@ -14,7 +14,8 @@ from __future__ import annotations
 
 from .. import lights as light_samplers
 from ..errors import DyngiError
-from .trace import DEFAULT_DIRECT, DEFAULT_TWO_SIDED, DIRECT_MODES, HIT_LOOKUPS, TWO_SIDED_RULES
+from .trace import (DEFAULT_DIRECT, DEFAULT_HIT_LOBES, DEFAULT_TWO_SIDED, DIRECT_MODES, HIT_LOBES,
+                    HIT_LOOKUPS, TWO_SIDED_RULES)
 
 
 def spec(default, doc: str = "", choices: tuple | None = None, min: float | None = None,
@@ -57,6 +58,12 @@ COMMON_SPECS = {
                        "probe is enclosed by something thinner than a cell along that line (a slab, a thick "
                        "wall), else a front face; 'front' always a front face; 'back' always a back face "
                        "(dyngi.probes.trace, 'The two-sided rule')", choices=TWO_SIDED_RULES),
+    "hit_lobes": spec(DEFAULT_HIT_LOBES, "which lobes a probe-ray hit reflects as diffuse light: 'layered' (ours) "
+                      "the diffuse lobe plus a coated BSDF's (plastic, roughplastic, principled) rough glossy "
+                      "reflection albedo, one BSDF sample per ray; 'diffuse' the diffuse lobe only (DDGI, "
+                      "Majercik et al. 2019, Sec. 3.1). The DDGI+ volume's Eq. 5 hits (mode 'plus') "
+                      "read the diffuse lobe and Eq. 6's glossy term instead (dyngi.probes.trace, 'the hit-lobe "
+                      "rule')", choices=HIT_LOBES),
     "glossy": spec(False, "add the glossy probe lookup (DDGI Resampling Eq. 6: one glossy-lobe BSDF sample, "
                     "the probe irradiance along it / pi) at the primary hit; False: diffuse indirect only, "
                     "as DDGI (dyngi.probes.primary)"),

@@ -9,8 +9,21 @@ estimated as in DDGI (Majercik et al., JCGT 2019, Sec. 3.1):
 with ``E_direct`` from next-event estimation (one light sample; its shadow ray is skipped when the
 sample lies below the shading normal, where it adds nothing) and
 ``E_probes`` read from the *previous* frame's probes (multi-bounce through
-the cache). ``albedo`` is the diffuse lobe's reflectance only
-(:func:`dyngi.sampling.diffuse.diffuse_albedo`: 0 for metals and glass).
+the cache). ``albedo`` is the albedo the hit reflects as diffuse light, :func:`hit_albedo` under the
+volume's **hit-lobe rule** (:attr:`~dyngi.probes.volume.ProbeVolume.hit_lobes`, parameter ``hit_lobes``
+of every probe technique):
+
+* ``'layered'`` (default, ours): the diffuse lobe's albedo
+  (:func:`dyngi.sampling.diffuse.diffuse_albedo`: 0 for metals and glass) plus, on a BSDF that has a
+  diffuse lobe under a rough coating (``plastic``, ``roughplastic``, ``principled``), the directional
+  albedo of its rough glossy reflection lobes, one BSDF sample per ray (``f cos / pdf`` of a
+  glossy-only sample: unbiased, and nearly constant for the coatings' small roughness). A probe ray
+  asks how much light the hit sends back; the coating reflects ~4-10% of it in every direction the
+  probes' many rays see, and dropping it lost that share at every bounce of the multi-bounce
+  feedback (the wooden staircase's painted walls and wood: ddgi 0.90 of Mitsuba's mean without it,
+  0.98 with it; docs/probes.md, issue 36). Metals stay 0 (no diffuse lobe: DDGI's diffuse GI);
+* ``'diffuse'``: the diffuse lobe only (DDGI, Majercik et al. 2019, Sec. 3.1: the hit is shaded as
+  Lambertian with its diffuse albedo).
 Back-face hits return a negative distance ``-0.2 t`` (the DDGI/RTXGI
 convention used for classification and relocation) and radiance 0. The back of
 a two-sided surface is *shaded* like its front (:func:`shading_side`: Mitsuba
@@ -82,7 +95,7 @@ import numpy as np
 from ..backend import dr, mi
 from ..errors import unknown_choice
 from ..lights.nee import TracedNEE
-from ..sampling.diffuse import diffuse_albedo
+from ..sampling.diffuse import diffuse_albedo, front_wi, has_diffuse_lobe
 from ..sampling.lights import EmitterSubsetSampling, sample_traced
 from ..sampling.passthrough import intersect_through_glass, scene_has_glass
 from ..sampling.rng import make_sampler
@@ -94,6 +107,9 @@ from .rays import RayPlan
 DIRECT_MODES = ("sun", "sky", "nee", "emissive")
 DEFAULT_DIRECT = "sun"
 BACKFACE_DISTANCE_SCALE = 0.2
+HIT_LOBES = ("layered", "diffuse")
+"""Which lobes a probe-ray hit reflects as diffuse light (module docstring, the hit-lobe rule)."""
+DEFAULT_HIT_LOBES = "layered"
 TWO_SIDED_RULES = ("enclosed", "front", "back")
 """How the back of a two-sided surface signs a probe ray's distance (module docstring, "The two-sided rule")."""
 DEFAULT_TWO_SIDED = "enclosed"
@@ -104,6 +120,29 @@ def check_two_sided(rule: str) -> str:
     if rule not in TWO_SIDED_RULES:
         raise unknown_choice("two-sided rule", rule, TWO_SIDED_RULES)
     return rule
+
+
+def check_hit_lobes(rule: str) -> str:
+    if rule not in HIT_LOBES:
+        raise unknown_choice("probe-hit lobe rule", rule, HIT_LOBES)
+    return rule
+
+
+def hit_albedo(bsdf, si, active, u1, u2, rule: str = DEFAULT_HIT_LOBES):
+    """Albedo a probe-ray hit reflects as diffuse light (module docstring, the hit-lobe rule): the diffuse
+    lobe's (:func:`~dyngi.sampling.diffuse.diffuse_albedo`) and, under ``'layered'`` (ours), on lanes with a
+    diffuse lobe, the rough glossy reflection lobes' directional albedo estimated by one BSDF sample from
+    ``(u1, u2)`` with ``type_mask = GlossyReflection`` (its ``f cos / pdf``). Clamped to [0, 1]."""
+    albedo = diffuse_albedo(bsdf, si, active)
+    if check_hit_lobes(rule) == "diffuse":
+        return albedo
+    coated = (mi.Bool(active) & has_diffuse_lobe(bsdf)
+              & mi.has_flag(bsdf.flags(), mi.BSDFFlags.GlossyReflection))
+    ctx = mi.BSDFContext()
+    ctx.type_mask = int(mi.BSDFFlags.GlossyReflection)
+    bs, w = bsdf.sample(ctx, front_wi(si), u1, u2, coated)
+    ok = coated & (bs.pdf > 0.0) & dr.all(dr.isfinite(mi.Color3f(w)))
+    return dr.clip(albedo + dr.select(ok, mi.Color3f(w), 0.0), 0.0, 1.0)
 
 
 def check_direct_mode(mode: str) -> str:
@@ -303,6 +342,9 @@ class DiffuseHitShader:
     away; the ``ddgi`` technique's default).
     """
 
+    hit_lobes = DEFAULT_HIT_LOBES
+    """The hit-lobe rule (module docstring); :func:`trace_probe_rays` sets the traced volume's."""
+
     def __init__(self, direct: str = DEFAULT_DIRECT, lights=None, lookup: str = "filtered"):
         self.direct = check_direct_mode(direct)
         self.lights = lights   # None: NEE over the light the probes do not carry (nee_lights)
@@ -319,8 +361,8 @@ class DiffuseHitShader:
         L = mi.Color3f(0.0)
         if routing.probes_carry_emitters:
             L = routing.probe_emission(scene, si, hit, front, active)
-        # -- diffuse albedo (the diffuse lobe only: 0 for metals and glass) --
-        albedo = diffuse_albedo(bsdf, si, front)
+        # -- the albedo the hit reflects as diffuse light (the hit-lobe rule; 0 for metals and glass) --
+        albedo = hit_albedo(bsdf, si, front, sampler.next_1d(), sampler.next_2d(), self.hit_lobes)
         # -- direct light by NEE (one light sample; no shadow ray below the shading normal) --
         lights = self.lights if self.lights is not None else routing.nee
         if getattr(lights, "walk_aware", False):     # a dyngi.lights sampler: its selection number from `sampler`
@@ -402,6 +444,8 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
             si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
             t_hit = si.t
         sampler = make_sampler(n, seed, frame, stream)
+        if isinstance(shader, DiffuseHitShader):      # the volume's hit-lobe rule (module docstring)
+            shader.hit_lobes = getattr(volume, "hit_lobes", DEFAULT_HIT_LOBES)
         L, hit, front, shadow = shader.shade(mscene, ray, si, sampler, query, active)
         if glass:
             L = L * throughput

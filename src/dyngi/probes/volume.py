@@ -32,7 +32,7 @@ import numpy as np
 from ..backend import dr, mi
 from ..errors import DyngiError
 from .grid import PROBE_ACTIVE, ProbeGrid
-from .trace import check_two_sided
+from .trace import DEFAULT_HIT_LOBES, check_hit_lobes, check_two_sided
 
 
 class _DeviceBacked:
@@ -170,6 +170,8 @@ class ProbeVolume:
     two_sided : str = 'enclosed'  the two-sided rule: how the tracer signs a ray that hits the back of a
                                   two-sided surface, for the distance moments, relocation and classification
                                   alike (:mod:`dyngi.probes.trace`, "The two-sided rule")
+    hit_lobes : str = 'layered'   the hit-lobe rule: which lobes a probe-ray hit reflects as diffuse light
+                                  (:mod:`dyngi.probes.trace`, :func:`~dyngi.probes.trace.hit_albedo`; ours)
 
     ``geometry``: the Mitsuba scene the probes were last traced in (set by the tracer,
     :func:`~dyngi.probes.trace.trace_probe_rays`); relocation checks its moves against it
@@ -177,7 +179,8 @@ class ProbeVolume:
     """
 
     def __init__(self, grid: ProbeGrid, irradiance_texels: int = 8, distance_texels: int = 16,
-                 max_distance: float | None = None, two_sided: str = "enclosed"):
+                 max_distance: float | None = None, two_sided: str = "enclosed",
+                 hit_lobes: str = DEFAULT_HIT_LOBES):
         for name, t in (("irradiance_texels", irradiance_texels), ("distance_texels", distance_texels)):
             if int(t) < 3:
                 raise DyngiError(f"parameter '{name}' must be >= 3 (1-texel border on each side), got {t}")
@@ -187,6 +190,7 @@ class ProbeVolume:
         self.max_distance = (float(max_distance) if max_distance is not None
                              else max(1.5 * grid.max_spacing, grid.cell_diagonal))
         self.two_sided = check_two_sided(two_sided)
+        self.hit_lobes = check_hit_lobes(hit_lobes)
         self.geometry = None
         self.state = ProbeVolumeState.zeros(grid.n_probes, self.irradiance_texels, self.distance_texels)
         self.device: DeviceAtlas | None = None

@@ -54,7 +54,8 @@ class _ProbeTechniqueBase(Technique):
         # then rejects probes that see the point
         self.volume = ProbeVolume(self.grid, irradiance_texels, distance_texels,
                                   max_distance=max(p["max_distance"] * self.grid.max_spacing,
-                                                   self.grid.cell_diagonal), two_sided=p["two_sided"])
+                                                   self.grid.cell_diagonal), two_sided=p["two_sided"],
+                                  hit_lobes=p["hit_lobes"])
         self.query = ProbeQuery(self.volume, p["normal_bias"], p["view_bias"], visibility=p["visibility"])
         kind = p.get("lights", "scene")
         self.light_nee = LightNEE(self.scene, kind) if kind != "scene" else None
