@@ -102,7 +102,8 @@ DDGI_SPECS = {
                         "(Pharr et al. 2024), 'filtered' DDGI's 8 probes x bilinear texels",
                         choices=HIT_LOOKUPS),
     "update_offscreen": spec(True, "update probes outside the (extended) camera frustum"),
-    "relocate": spec(True, "move probes out of geometry"),
+    "relocate": spec(True, "move probes out of geometry (ours: never through a surface, and a probe inside "
+                     "geometry leaves through a face on the grid's side; dyngi.probes.states)"),
     "classify": spec(True, "deactivate probes inside geometry or far from any surface"),
     "reclassify_interval": spec(8, "frames between re-tests of inactive probes (0: never)", min=0),
 }
