@@ -1,4 +1,4 @@
-"""ADGI's probe-sampling time against Q-DDGI's at a large probe grid (issue 25; the paper's Table 4 claim:
+"""ADGI's probe-sampling time against Q-DDGI's at a large probe grid (the paper's Table 4 claim:
 probe sampling 10.97 vs 22.3 ms on Bistro, about 1/2).
 
 Both techniques are created once in one process on ``tunnel-gate`` with ``probe_counts`` (default
@@ -16,7 +16,10 @@ one-line summary at the end::
 each runs at its defaults (the paper's protocol). ``--adgi`` / ``--qddgi``: extra ``key=value,...``
 settings (e.g. ``--adgi impl=device``). At the defaults it takes about a minute on the shared 2-core box
 at load 2-4 with a warm kernel cache (the first frame of each, with the warm-up, 5-25 s; the others
-0.4-1 s). Results go to docs/benchmarks.md with the machine load.
+0.4-1 s). Results go to docs/techniques/adgi.md with the machine load.
+
+Recorded in ``docs/techniques/adgi.md`` ("probe sampling at 98,304 probes"), beside the command, resolution,
+seeds and machine load of each run.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Does a refactoring change what techniques render? Snapshot, then compare (issues 23 and 24).
+"""Does a refactoring change what techniques render? Snapshot, then compare.
 
 ``snapshot OUT.npz --suite S``: render each technique spec of suite ``S`` for a few frames on each of its
 scenes (fixed seeds, small resolution) and store every frame's image and indirect image, plus the suite's
@@ -20,6 +20,9 @@ Suites:
 
     .venv/bin/python benchmarks/before_after.py snapshot /tmp/before.npz --suite probes
     .venv/bin/python benchmarks/before_after.py compare /tmp/before.npz /tmp/after.npz
+
+Recorded in ``docs/transport.md`` ("Renders before and after; the probe techniques' before/after records are
+in git history"), beside the command, resolution, seeds and machine load of each run.
 """
 from __future__ import annotations
 

@@ -18,6 +18,9 @@ sweep      `dyngi sweep ddgi SCENE --grid hysteresis=0.9,0.97 --grid rays_per_pr
 
 Overhead of the cluster = ray-1 job time - serial-1t time (the same work on one thread), as a fraction of
 the job. Speed-up of ray-N = ray-1 / ray-N (ideal N while N <= cores).
+
+Recorded in ``docs/cluster.md`` ("Measured"), beside the command, resolution, seeds and machine load of each
+run.
 """
 from __future__ import annotations
 

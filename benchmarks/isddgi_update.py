@@ -1,6 +1,6 @@
-"""IS-DDGI's probe-update time against DDGI's on the analog scenes of ``dyngi reproduce isddgi`` (issue 26;
-the paper's abstract: 3.29-6.64x faster probe tracing, 1.27-2.47x faster in total; issue 26's target: the
-update at least 2x faster than ``ddgi``'s).
+"""IS-DDGI's probe-update time against DDGI's on the analog scenes of ``dyngi reproduce isddgi`` (the
+paper's abstract: 3.29-6.64x faster probe tracing, 1.27-2.47x faster in total; our target: the update at
+least 2x faster than ``ddgi``'s).
 
 Per scene and seed both techniques (their defaults; ``--isddgi`` / ``--ddgi`` add ``key=value,...``
 settings) are created in one process and stepped **alternately** frame by frame (``isddgi``, ``ddgi``,
@@ -18,7 +18,10 @@ before and after; then a one-line summary per scene::
 Defaults: the quick reproduction's three scenes (``--all``: its five), seeds 0-2, 45 frames at 32x24 (1.5 s of
 animation: corridor-rooms' first light switch at 1 s and tunnel-gate's gate opening fall inside; with
 ``--frames 12`` both are still static). About 2 minutes for the three scenes, 4 for ``--all``, on the shared
-2-core box at load ~3 with a warm kernel cache. Results go to docs/benchmarks.md with the machine load.
+2-core box at load ~3 with a warm kernel cache. Results go to docs/techniques/isddgi.md with the machine load.
+
+Recorded in ``docs/techniques/isddgi.md`` ("Update and trace speed-up on the five analog scenes"), beside the
+command, resolution, seeds and machine load of each run.
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Probe leaks through thick two-sided geometry (issue 22): probe techniques against Mitsuba's ``path``.
+"""Probe leaks through thick two-sided geometry: probe techniques against Mitsuba's ``path``.
 
 For each technique: the sealed room's image mean over the open room's (``sealed-rooms`` /
 ``sealed-rooms-open``; Mitsuba: 0), the ``stair-hall`` mean over Mitsuba's, and the mean over Mitsuba's on
@@ -6,11 +6,14 @@ the real scenes of ``../shared/scenes`` (those present). Each run renders ``--fr
 static scene at ``--res`` and averages the second half; references are Mitsuba ``path`` at ``--ref-spp``
 with the scene's own depth (cached, :mod:`dyngi.experiments.reference`).
 
-To measure the code before issue 22, run this script from a ``git worktree`` of that commit with
+To measure the code before the two-sided rule, run this script from a ``git worktree`` of that commit with
 ``PYTHONPATH=<worktree>/src`` after copying ``src/dyngi/scene/builtin_probe_leaks.py`` into it (the analog
 scenes are new). Example::
 
     .venv/bin/python benchmarks/probe_leaks.py --techniques ddgi --res 64x36 --frames 12
+
+Recorded in ``docs/techniques/ddgi.md`` ("Probe leaks through thick two-sided geometry"), beside the command,
+resolution, seeds and machine load of each run.
 """
 from __future__ import annotations
 

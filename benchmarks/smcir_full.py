@@ -6,6 +6,9 @@ exists is skipped, so the run can be stopped, resumed or split over processes. `
 --out OUT`` (or ``reproduce_smcir(OUT)``) then reads the finished pairs back instead of rerunning them.
 
     nice .venv/bin/python benchmarks/smcir_full.py OUT street-canyon:0 atrium-sun:0 maze:0,1,2
+
+Recorded in ``docs/techniques/smcir.md`` ("Table 1 and Table 2 at full size, 3 seeds"), beside the command,
+resolution, seeds and machine load of each run.
 """
 from __future__ import annotations
 

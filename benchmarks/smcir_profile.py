@@ -1,4 +1,4 @@
-"""Where a steady frame of the SMC-IR reproduction's techniques spends its time (issue 29).
+"""Where a steady frame of the SMC-IR reproduction's techniques spends its time.
 
 For each technique spec: ``--frames`` frames of the sequence at ``--res`` (the sequence's own camera
 path, frame ``i`` at ``scene.frame_time(i)``, seed 0, as ``dyngi reproduce smcir`` runs them); prints per
@@ -7,6 +7,9 @@ kernels launched (count, launches with their execution time when Dr.Jit records 
 (``os.getloadavg``) before and after.
 
     nice .venv/bin/python benchmarks/smcir_profile.py corridor-walk --techniques mir --res 160x90 --frames 4
+
+Recorded in ``docs/vpl.md`` ("Where the SMC-IR reproduction spends its time"), beside the command, resolution,
+seeds and machine load of each run.
 """
 from __future__ import annotations
 

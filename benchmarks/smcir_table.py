@@ -4,10 +4,13 @@ Reads ``OUT/SEQ/seedN/figures.json`` (:func:`dyngi.experiments.reproductions.smc
 ``dyngi reproduce smcir --out OUT`` or ``benchmarks/smcir_full.py OUT ...``), whatever seeds each sequence
 has, and prints per sequence |E| and |E'| of the 8 tracked pixels (mean [min-max] over its seeds) for
 every technique row beside the paper's Table 1, the brightness (mean indirect / the reference's), the
-steady ms per frame, smcir's |E'| rank per seed with the stability verdict of issue 29 (one seed: not
+steady ms per frame, smcir's |E'| rank per seed with the stability verdict of the reproduction (one seed: not
 judged), each run's wall time, and smcir's stage ms (Table 2).
 
     .venv/bin/python benchmarks/smcir_table.py /tmp/smcir-full
+
+Recorded in ``docs/techniques/smcir.md`` ("Table 1 and Table 2 at full size, 3 seeds"), beside the command,
+resolution, seeds and machine load of each run.
 """
 from __future__ import annotations
 

@@ -5,6 +5,9 @@ For a built-in scene and a real scene (../shared/scenes, when present):
 * dyngi ``path`` rays/s (camera + bounce + shadow rays, counted in the kernel) at 320x240;
 * Mitsuba's own ``path`` integrator wall time at the same resolution, spp and depth;
 and the ratios. Usage: python benchmarks/throughput.py [--res 320x240] [--spp 4]
+
+Recorded in ``docs/techniques/path.md`` ("Path tracer against raw ray tracing and Mitsuba's `path`"), beside
+the command, resolution, seeds and machine load of each run.
 """
 from __future__ import annotations
 

@@ -7,7 +7,10 @@ one websocket client as the page does (error view off, playing), counts the fram
 ``--seconds`` after a 3-s warm-up, then switches technique three times and times each switch: from
 sending the command to receiving the first frame of the new spec, beside that frame's own render time
 (its kernel compilation) and the spec's steady frame time. Prints one Markdown block for
-docs/benchmarks.md.
+docs/harness.md.
+
+Recorded in ``docs/harness.md`` ("The viewer"), beside the command, resolution, seeds and machine load of each
+run.
 """
 from __future__ import annotations
 

@@ -82,7 +82,7 @@ def limit_blas_threads() -> int | None:
     core. An OpenBLAS pool beside it busy-waits after every matrix product
     (the probe blend, :mod:`dyngi.probes.blend`) and steals those cores: on the
     2-core machine a DDGI frame's Dr.Jit kernels ran up to 2x slower with two
-    BLAS threads than with one (docs/benchmarks.md, "BLAS threads"). Without
+    BLAS threads than with one (docs/techniques/ddgi.md, "BLAS threads"). Without
     ``threadpoolctl`` installed only libraries loaded after this call are limited.
     """
     try:

@@ -207,7 +207,7 @@ def test_tiny_reproduction_measures_against_the_indirect_reference(backend, tmp_
     sub-folder's summary.json has them), the reference is the techniques' indirect light at their depth
     (``mir`` and ``smcir:density_k=16`` come out within 20 % of its brightness; a full-light or
     wrong-depth reference would not), ``mir``'s |E| is below per-frame ``ir``'s (as in every measured
-    row of docs/benchmarks.md), and a second call reads the saved figures back instead of rerunning."""
+    row of docs/techniques/smcir.md), and a second call reads the saved figures back instead of rerunning."""
     from dyngi.experiments.reproductions import smcir as rs
 
     monkeypatch.setenv("DYNGI_CACHE", str(tmp_path / "cache"))

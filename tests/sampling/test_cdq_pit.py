@@ -6,7 +6,7 @@ at 96x54) ``nee-pt:directions=cdq`` has at most 1/:data:`PIT_FACTOR` of ``direct
 
 All pixels, not the indirectly lit ones: at this size the indirect region's 1-spp MSE is still a lottery over
 40 frames (per-seed ratios 3.6-33 measured), the whole image's is not (10-23). At nee-pt's default thresholds
-(~50 samples per leaf and frame) the measured ratios were 4.8-13 over 150 frames (docs/benchmarks.md)."""
+(~50 samples per leaf and frame) the measured ratios were 4.8-13 over 150 frames (docs/techniques/nee-pt.md)."""
 from __future__ import annotations
 
 import numpy as np

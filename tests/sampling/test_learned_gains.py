@@ -23,7 +23,7 @@ from dyngi.backend import mi
 
 VLC_FACTOR = 1.5
 """lights=vlc must have at most 1/1.5 of lights=uniform's MSE on warehouse-rooms at 48x27 (measured 1/1.8-1/3.2 in
-pixel variance: 0.31, 0.55, 0.35; the VLC's missed lights cost it fireflies, docs/benchmarks.md)."""
+pixel variance: 0.31, 0.55, 0.35; the VLC's missed lights cost it fireflies, docs/techniques/nee-pt.md)."""
 CDQ_FACTOR = 2.0
 """directions=cdq must have at most 1/2 of directions=bsdf's MSE in :func:`skylight_room` at 96x72 (measured 0.40,
 0.38, 0.37 over 3 seeds; 0.57 at 64x48 and ~1.0 at 32x24: coarse octree leaves blur the guide). Not on the

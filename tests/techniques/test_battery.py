@@ -59,7 +59,7 @@ Capabilities (class attributes):
 ``BUDGETS``, ``HAS_INDIRECT`` (base class) are checked too: the steady-state test runs
                            each declared budget; True -> every frame has ``indirect``, False -> none.
 
-Durations of the fast and slow parts: docs/benchmarks.md ("Steady frames compile nothing").
+Durations of the fast and slow parts: docs/harness.md ("Steady frames compile nothing").
 """
 from __future__ import annotations
 
@@ -136,7 +136,7 @@ PROFILES = {
             "FURNACE_PARAMS": {"vpls": 512, "resampling_rate": 32, "shading": "exhaustive"},
             "FURNACE_TOL": 0.05},
     # Eq. 8's k = 1 over-estimates the furnace's indirect light once replacements have made the set
-    # blue-noise-like (+26-28% at 2048 VPLs; density_k=32: +2-3%, docs/benchmarks.md): the furnace checks
+    # blue-noise-like (+26-28% at 2048 VPLs; density_k=32: +2-3%, docs/techniques/smcir.md): the furnace checks
     # the rest of the machinery with k = 32 (the kNN bias of Sec. 3.3); the defaults' own bias is bounded
     # by tests/techniques/smcir/test_bias.py
     "smcir": {"BATTERY_PARAMS": {"vpls": 32, "warmup": 2, "radiosity_spp": 4, "candidate_rate": 8},

@@ -110,7 +110,7 @@ def test_visibility_reuse_bias_is_bounded(backend):
     unbiased MIS weights count every domain whose unshadowed target is positive, so near shadow edges a
     neighbour that cannot see the sample still dilutes it (a darkening). On the Cornell box, direct light, 16 runs x 32 frames:
     the image mean stays within [-3 %, +1 %] of Mitsuba's and the per-pixel test rejects under 15 % of
-    the pixels (figures: docs/benchmarks.md)."""
+    the pixels (figures: docs/techniques/ddgi-resampling.md)."""
     a, b = _stacks("cornell-static", 2, K=16, frames=32)      # the default: visibility_reuse='candidate'
     rel = (a.mean() - b.mean()) / b.mean()
     assert -0.03 < rel < 0.01, rel

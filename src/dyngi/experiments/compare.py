@@ -96,7 +96,7 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
     """Run the comparison and write the outputs described in the module docstring; return ``out_dir``.
 
     ``techniques``: specs ``NAME[:KEY=VALUE...]``. ``metrics``: names from :data:`dyngi.metrics.METRICS`
-    (default all five). HDR-FLIP costs ~10 us per pixel on 2 CPU cores (docs/benchmarks.md); leave it
+    (default all five). HDR-FLIP costs ~10 us per pixel on 2 CPU cores (docs/harness.md); leave it
     out for long sequences (the FLIP maps of the image grid are computed regardless). ``ref_depth``:
     the reference's max depth (default: the scene's own, :func:`~dyngi.experiments.reference.scene_max_depth`).
     ``indirect``: compare the techniques' indirect-only images (``FrameResult.indirect``) against an

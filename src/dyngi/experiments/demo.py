@@ -29,7 +29,7 @@ Sizes (:data:`SIZES`): ``tour`` (the default: 96x54, 8 frames, 64-spp references
 twice the resolution; the figures are small-sample readings of one run, the reproductions
 ``dyngi reproduce NAME`` are the measurements) and ``quick`` (32x18, 2 frames, 4 spp: the tour's
 structure, for tests; its figures are noise). References are cached (``~/.cache/dyngi``), so a second
-run only renders the techniques; how long the tour takes is in docs/benchmarks.md ("Demo tour").
+run only renders the techniques; how long the tour takes is in docs/harness.md ("The demo tour").
 """
 from __future__ import annotations
 
@@ -265,7 +265,7 @@ SECTIONS: tuple[Section, ...] = (
         "worst in this instance\" (Fig. 8 a, 1 spp).",
         measure_vlc, span=2.0, res_scale=2, check="the VLC's MSE below the light tree's",
         note="At our resolution an octree leaf gets ~256-512 samples per frame, the paper's 2048-4096 at "
-             "1080p: the VLC's gain grows with resolution (dyngi reproduce vlc, docs/benchmarks.md)."),
+             "1080p: the VLC's gain grows with resolution (dyngi reproduce vlc, docs/techniques/nee-pt.md)."),
     Section(
         "cdq", "CDQ path guiding vs BSDF sampling: the sunlit pit",
         "Dittebrandt, Hanika, Dachsbacher, \"Temporal Sample Reuse for Next Event Estimation and Path "

@@ -124,7 +124,7 @@ MAX_SAMPLES_PER_PASS = 1 << 24
 MAX_SPP_PER_PASS = 64
 """Samples per pixel per ``mi.render`` call: a reference of 1024 spp is 16 seeded passes, so its frame can
 be split into up to 16 chunks on a cluster (:func:`chunk_ranges`); the extra calls cost nothing measurable
-(docs/benchmarks.md, "Cluster")."""
+(docs/cluster.md, "Measured")."""
 FORMAT_VERSION = 3
 """Bump when the way references are computed changes: invalidates every cached entry."""
 SENSOR = "perspective+independent"

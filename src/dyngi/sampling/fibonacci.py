@@ -50,7 +50,7 @@ def coherent_order(dirs: np.ndarray, bits: int = 10) -> np.ndarray:
     along the curve, the rays of one packet leave a probe in nearby
     directions, so they traverse similar BVH nodes and hit nearby points
     whose multi-bounce lookups touch the same probes and texels (measured in
-    docs/benchmarks.md). The spherical-Fibonacci index order, in contrast,
+    docs/techniques/ddgi.md). The spherical-Fibonacci index order, in contrast,
     jumps by the golden angle in azimuth from one ray to the next.
     """
     q = np.clip(((oct_encode_np(dirs) * 0.5 + 0.5) * (1 << bits)).astype(np.int64), 0, (1 << bits) - 1)

@@ -54,7 +54,7 @@ class EmitterSubsetSampling:
     With a single emitter in the subset (a Cornell box, a sun) the emitter's
     own ``sample_direction`` is traced into the kernel directly instead of
     through a virtual call on a gathered emitter pointer (about 2 ms less per
-    258k probe-ray hits on the 2-core machine, docs/benchmarks.md).
+    258k probe-ray hits on the 2-core machine, docs/techniques/ddgi.md).
     """
 
     name = "emitter-subset"

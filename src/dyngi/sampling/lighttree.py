@@ -485,7 +485,7 @@ class LightTreeSelector:
             raise DyngiError(f"lighttree: build must be one of {', '.join(BUILDS)}, got '{build}'")
         # auto: the device build on CUDA; on the CPU the host build is the declared fast path (the device
         # build's ~1000 small kernel launches per build cost several times the NumPy levels there,
-        # docs/benchmarks.md)
+        # docs/techniques/nee-pt.md)
         self.device_build = build == "device" or (build == "auto" and "cuda" in mi.variant())
         self.tris = tris
         self.count = int(tris.count)

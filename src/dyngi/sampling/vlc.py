@@ -109,7 +109,7 @@ Samples per leaf: the paper's leaves hold 2048-4096 samples per frame (split 409
 samples per leaf per frame on warehouse-rooms from 64x36 to 640x360 at the defaults, ~950 with
 ``leaf_samples=4096``); ``reproduce vlc`` states the count beside each figure. With few samples per
 leaf a light visible from a small part of a leaf is often missing from its cache and is then reached
-only by exploration: fireflies (docs/benchmarks.md, "VLC + CDQ (issue 28)").
+only by exploration: fireflies (docs/techniques/nee-pt.md, "VLC against SLL and the light tree").
 """
 from __future__ import annotations
 

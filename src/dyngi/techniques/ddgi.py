@@ -124,7 +124,7 @@ class DDGITechnique(_ProbeTechniqueBase):
         if rpp < GAMMA_BIAS_RAYS and p["irradiance_gamma"] > 1.0:
             stats["warnings"] = [f"{rpp} rays per probe with the perceptual blend (irradiance_gamma="
                                  f"{p['irradiance_gamma']:g}): biased low by ~3% on average, up to ~18% in texels "
-                                 "facing a small bright source (docs/benchmarks.md, gamma 5 blend bias); "
+                                 "facing a small bright source (docs/techniques/ddgi.md, gamma 5 blend bias); "
                                  "irradiance_gamma=1 is unbiased"]
         self._measure(stats, info["probes_traced"], rpp)
         return FrameResult(image=img, indirect=ind, stats=stats)

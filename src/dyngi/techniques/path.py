@@ -36,7 +36,7 @@ freeze : bool = False   replay the trace of a static frame with ``dr.freeze`` (D
                         by the camera (a PyTree of its parameters), resolution, spp and a motion epoch that
                         advances on every non-static frame; at most two recordings are kept. Off by default
                         (our choice): Dr.Jit 1.5 aborted the process once while recording (a garbage
-                        collection inside the frozen call, fresh clone, cold kernel cache; docs/benchmarks.md)
+                        collection inside the frozen call, fresh clone, cold kernel cache; docs/harness.md)
 
 Budgets: with ``Frame.ray_budget`` the frame's spp is the budget divided by
 the rays per sample measured on the previous frame; with

@@ -58,7 +58,7 @@ Bias: none with ``combine='mis'`` or ``'1/z'`` and ``visibility_reuse='none'``
 (tested by a per-pixel z-test against Mitsuba's ``path``). The default
 visibility reuse is Bitterli's biased-but-consistent Alg. 5: a slight darkening
 at shadow edges, its image-mean bias bounded in ``tests/techniques/test_restir.py``
-(figures: docs/benchmarks.md, issue 27's section). Besides, two documented approximations on
+(figures: docs/techniques/ddgi-resampling.md, "The mechanism"). Besides, two documented approximations on
 *dynamic* scenes: (a) the previous pixel's target is evaluated with the lights
 as they are now (its emitter may have changed since), (b) a reservoir's ``W``
 from the previous frame is reused although the lights may have moved; both
@@ -68,7 +68,7 @@ bias is measured in ``tests/techniques/test_restir.py`` (Cornell box, direct lig
 30 of 432 pixels rejected by the per-pixel test). Shadow rays do not pass through
 glass (unlike the DDGI family's NEE), so the reference is Mitsuba's ``path``.
 
-Measured frame times and errors against ``path``: docs/benchmarks.md ("restir-pt").
+Measured frame times and errors against ``path``: docs/techniques/restir-pt.md.
 """
 from __future__ import annotations
 

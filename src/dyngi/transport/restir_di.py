@@ -11,7 +11,7 @@ Resampling family; issue 24). The target is a parameter of each reuse stage.
    unshadowed contribution without the BSDF, so any neighbour's or the previous frame's target is
    exact and needs only a G-buffer's position and normal. **Visibility reuse** (Bitterli Alg. 5,
    ``visibility_reuse``; default ``'none'`` here, ``'candidate'`` in ``ddgi-resampling``'s unified reservoir;
-   measured: docs/benchmarks.md, issue 27's sections): one
+   measured: docs/techniques/ddgi-resampling.md): one
    shadow ray to the chosen candidate before any reuse, ``W = 0`` (and no weight in merges) if occluded;
    ``'final'`` writes the final shadow ray's visibility into the stored reservoir instead (no extra ray);
    ``'none'``: neither.
@@ -81,7 +81,7 @@ PARAM_SPECS = {
     "visibility_reuse": dict(default="none", doc="visibility in the reservoirs (Bitterli Alg. 5): 'candidate' "
                              "a shadow ray to the initial candidate before reuse (W = 0 if occluded), 'final' "
                              "the final shadow ray's visibility written back into the stored reservoir, 'none' (the default: in a room "
-                             "lit through windows 'candidate' left the image 12-17% dark, docs/benchmarks.md)",
+                             "lit through windows 'candidate' left the image 12-17% dark, docs/techniques/ddgi-resampling.md)",
                              choices=VISIBILITY_REUSE),
     "combine": dict(default="mis", doc="reservoir combination: unbiased 'mis' or '1/z', or 'biased'",
                     choices=COMBINE_MODES),

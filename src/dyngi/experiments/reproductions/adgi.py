@@ -34,7 +34,7 @@ Issue 12 item 8, on our analog scenes, with the paper's figures beside ours (``s
   indirect luminance over the reference's, and the per-stage ms beside Table 4's "Sponza - Glossy" row
   (the timings Fig. 10 quotes, 19.7 vs 31.6 ms). Fig. 10's SSIM/MSE are quoted beside ours; our floor is
   untextured, so its "without texture" pairs are the closer analog. Run in ``--quick`` too. Figures
-  measured with it: docs/benchmarks.md ("Moved from module docstrings").
+  measured with it: docs/techniques/adgi.md.
 
 Our substitutions (also in the summary): a procedural tunnel and atrium for Bistro and Sponza; a CPU
 (Dr.Jit LLVM) at low resolution instead of an RTX 2080 Ti at 1920x1080; our probe grids (tunnel 8x6x32 =
@@ -47,7 +47,7 @@ compare SSIM and the rankings, not the MSE values.
 
 ``--quick``: 32x24, dt = 0.25 s, few held frames, 32 spp ground truth (a few minutes on the shared
 2-core box); the full run: 64x48, dt = 1/15 s (every other frame of the scenes' 30 fps), 30 held frames,
-128 spp, the probe reference at 16x16 texels x 4 rays -- what the shared box allows (docs/benchmarks.md
+128 spp, the probe reference at 16x16 texels x 4 rays -- what the shared box allows (docs/techniques/adgi.md
 records how long it took).
 """
 from __future__ import annotations
@@ -542,7 +542,7 @@ def equal_rays_recovery(specs=("adgi",), baseline: str = "qddgi", **cfg) -> dict
     :func:`settle_frames`), ``reach`` (frames from gate-open until, after its peak, relMSE is within 10% of
     the baseline's final value; None: never) and the steady rays per frame. ``cfg`` overrides
     :data:`RECOVERY`. Used by tests/techniques/adgi/test_recovery.py; :func:`recovery_table` prints it
-    (docs/benchmarks.md has the command)."""
+    (docs/techniques/adgi.md has the command)."""
     from ...scene import load_scene
     from ...techniques.base import create_technique
     from ..reference import reference_halves, scene_max_depth

@@ -15,7 +15,7 @@ Three parts, each beside the paper's statements (issue 18 item 6):
     with probability ~1e-5 and then returns ~1e4), so we give the mean over frames (the estimate of
     the expected MSE) and the median (the typical frame). Paper: "the CDQ improves sampling by two
     to three orders of magnitude for these regions". (``cdq_memory``, our temporal memory of the
-    statistics, is no row here: it did not lower the means, docs/benchmarks.md.)
+    statistics, is no row here: it did not lower the means, docs/techniques/nee-pt.md.)
 (b) **Fig. 10** on ``rotating-hidden-light-9`` / ``-36``: the CDQ adapts for ``pre`` frames, the light
     then turns by
     9 or 36 degrees over one frame (scene time 0 for ``pre`` frames, then 1 s: the state after its
@@ -47,7 +47,7 @@ Every part-(a) figure is given for ``seeds_a`` seeds (mean over seeds of the per
 and each seed's BSDF/CDQ ratio, so the spread shows).
 
 ``--quick``: fewer frames (minutes on the 2-core box). Measured figures are recorded in the summary this
-writes (and in docs/benchmarks.md).
+writes (and in docs/techniques/nee-pt.md).
 """
 from __future__ import annotations
 

@@ -58,7 +58,7 @@ CPU's small resolutions the update traces tens of rays per pixel and dominates t
 320 x 180, up to 256 measured frames, six scenes (hours on 2 CPU cores: a reference of 10^4 spp at
 320 x 180 alone takes minutes per scene). Options through the environment (:data:`OPTIONS`): a longer
 measured ``restir-pt`` run (``DYNGI_RESAMPLING_PT_FRAMES``), a subset of scenes, more seeds. CPU (LLVM)
-timings, not the paper's RTX 3090: compare ratios. Figures measured with it: docs/benchmarks.md.
+timings, not the paper's RTX 3090: compare ratios. Figures measured with it: docs/techniques/ddgi-resampling.md.
 """
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ with a speedup of 1.27x to 2.47x in total DDGI time and 3.29x to 6.64x in probes
 Both techniques run their defaults at equal frames (no budget); hardware, resolution and scenes differ
 from the paper's, so compare ratios and trends. ``--quick``: three scenes, few frames, small images.
 
-Figures measured with it: docs/benchmarks.md.
+Figures measured with it: docs/techniques/isddgi.md.
 """
 from __future__ import annotations
 

@@ -34,7 +34,7 @@ techniques' frames.
 The full configuration (:data:`SMCIR_FULL`, the command's default: five sequences, 160x90, 60 frames,
 the paper's VPL counts, mir at 256:1, 3 seeds) is the issue-29 size; ``--quick``: two sequences, 4
 frames at 32x24, one seed, few warm-up iterations. The Python API takes a ``config`` to run a scaled
-version (what docs/benchmarks.md records when the full one does not fit a shared 2-core box).
+version (what docs/techniques/smcir.md records when the full one does not fit a shared 2-core box).
 Our sequences are shorter (6 s instead of 20-30 s) and our images smaller; the paper's numbers are
 beside ours for the ranking, not for the values.
 """

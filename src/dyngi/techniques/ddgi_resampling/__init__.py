@@ -34,7 +34,7 @@ probe parameters               those of :func:`dyngi.probes.ddgi_plus.plus_param
                                emission heuristic, Sec. 3.5's ``update_view_path_bias`` at probe-ray
                                hits, ...); ``normal_bias``/``view_bias`` default 0
 
-Measured frame times, errors and leaks: docs/benchmarks.md ("DDGI Resampling family").
+Measured frame times, errors and leaks: docs/techniques/ddgi-resampling.md.
 
 Bias: the probes' (blur at the probe spacing, leaks through thin walls, hysteresis lag), hidden behind
 one diffuse bounce (or a footprint-limited glossy chain); temporal reuse of part-1 samples keeps the

@@ -22,7 +22,7 @@ previous frame's target gathers that pixel's surface interaction (the G-buffer k
 its BSDF. Off: ``cos_x`` alone (the BSDF-free target ``restir-pt`` uses).
 
 **Visibility in the reservoir** (Bitterli et al. Alg. 5; ``visibility_reuse`` of the ReSTIR DI component,
-default ``'candidate'``, chosen by measurement: docs/benchmarks.md, issue 27's section): the emitter
+default ``'candidate'``, chosen by measurement: docs/techniques/ddgi-resampling.md): the emitter
 part's chosen candidate gets one shadow ray before it meets the BSDF candidate and before any reuse; an
 occluded one weighs 0, so in shadow the reservoir keeps the (always visible) BSDF candidate instead of an
 occluded light sample. ``'final'``: the final shadow ray's visibility is written into the stored
@@ -36,7 +36,7 @@ where the point is the first hit from its pixel, so strictly a domain's target f
 needs a shadow ray to it, both when it is merged (temporal, spatial) and in the MIS weights of the
 other domains (as unbiased ReSTIR GI does); without it a neighbour that cannot see the sample still
 takes a share of its MIS weight (a darkening bias where neighbours are occluded). Off by default (our
-choice: +50 % frame time; figures in docs/benchmarks.md), on for the strictly unbiased estimator.
+choice: +50 % frame time; figures in docs/techniques/ddgi-resampling.md), on for the strictly unbiased estimator.
 
 ``L_y`` is a random value (glossy recursion, NEE, or the exact hook's path tracing) that can be 0 where
 its expectation is not; a target that vanishes there would lose that light (the resampled vertex is
@@ -69,7 +69,7 @@ unpartitioned estimate the z-test in ``tests/techniques/ddgi_resampling/test_tec
 
 Temporal reuse: the M cap (``m_cap``, in multiples of the ``candidates + 1`` a fresh reservoir holds)
 defaults to :data:`M_CAP`, chosen for the steady per-frame error (a sweep over {1, 4, 20},
-docs/benchmarks.md, issue 27's section); ``restir-pt`` keeps Bitterli's 20. The spatial radius is
+docs/techniques/ddgi-resampling.md); ``restir-pt`` keeps Bitterli's 20. The spatial radius is
 ``restir-pt``'s: pixels at 1080p, scaled with the image width.
 """
 from __future__ import annotations
@@ -102,7 +102,7 @@ def bounded_fraction(J, gmax):
 
 M_CAP = 4.0
 """ddgi-resampling's temporal M cap in multiples of a fresh reservoir's M (our choice, measured for the
-steady per-frame error: docs/benchmarks.md, issue 27's section). A larger cap lets the previous frame's
+steady per-frame error: docs/techniques/ddgi-resampling.md). A larger cap lets the previous frame's
 reservoir outweigh the new candidates; where the target changes between the jittered primary points of
 two frames (grazing secondary points) the balance heuristic amplifies an old sample's weight up to that
 ratio, so a sample sticks for more frames."""
@@ -113,7 +113,7 @@ def _resampling_params():
     out["m_cap"] = Param(M_CAP, "temporal M cap in multiples of the candidates per pixel (restir-pt: 20; "
                          "see the module docstring)", min=0.0, max=1e4)
     # Alg. 5 in the unified reservoir by default here (per-frame MAPE villa-sun 0.30 vs 1.08 with 'none'), though
-    # in a room lit through windows it leaves the image ~10% dark (living-room; docs/benchmarks.md); the
+    # in a room lit through windows it leaves the image ~10% dark (living-room; docs/techniques/ddgi-resampling.md); the
     # ReSTIR DI component's own default is 'none'
     out["visibility_reuse"] = Param("candidate", "visibility in the unified reservoir (Bitterli Alg. 5): 'candidate' a "
                                     "shadow ray to the initial emitter candidate before reuse (W = 0 if occluded), "

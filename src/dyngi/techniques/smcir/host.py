@@ -37,7 +37,7 @@ class HostAlgorithm1:
             dr.eval(c)
         with t.stage("resampling"):
             # line 6's density of the raw hits among themselves, k = 1 (impl='host'): the device grid on the
-            # GPU; on the CPU the host k-d tree (faster there; docs/benchmarks.md)
+            # GPU; on the CPU the host k-d tree (faster there; docs/techniques/smcir.md)
             if mi.variant().startswith("cuda"):
                 dens = knn_density_device(c["pos"], k=CANDIDATE_K, valid=c["ok"])
                 dr.eval(dens)
