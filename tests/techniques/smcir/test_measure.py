@@ -86,7 +86,7 @@ def test_reproduce_smcir_quick(backend, tmp_path):
                 assert 0.2 < f["brightness"] < 5.0, (sc, label, f["brightness"])
         assert set(d["ranking"][sc]) >= {"ranks", "ci95", "stable", "lowest"}
     quantities = [r["quantity"] for r in d["rows"]]
-    assert "targets (issue 29)" in quantities and any("Table 2" in q for q in quantities)
+    assert "targets (the paper's ranking)" in quantities and any("Table 2" in q for q in quantities)
     # the paper's Table 1 stands beside ours, and the plots sit at the top level of the report
     assert any("0.0075" in r["paper"] for r in d["rows"] if r["quantity"].startswith("maze: |E'|"))
     assert (tmp_path / "r" / "flicker.png").exists() and (tmp_path / "r" / "error.png").exists()

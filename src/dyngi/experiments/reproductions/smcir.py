@@ -246,7 +246,7 @@ def _rows(figs: dict, cfg: dict) -> list:
                      + f"; ir used {np.mean([r[labels[1]]['vpls_used'] or 0 for r in runs]):.0f} of "
                        f"{runs[0][labels[1]]['vpl_budget']} VPLs"))
     n = sum(1 for sc, _ in SEQUENCES if sc in figs)
-    rows.append(("targets (issue 29)", "lowest |E'| on 5/5, lowest |E| on 4/5",
+    rows.append(("targets (the paper's ranking)", "lowest |E'| on 5/5, lowest |E| on 4/5",
                  f"smcir lowest |E'| on {n_lowest_d}/{n}; |E| within 1.2x of the best other on {n_within_e}/{n}"))
     # Table 2: per-stage ms of smcir
     for scene, _ in SEQUENCES:
