@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import mi
+from .animation import RigidMotion, Track
 from .builder import SceneBuilder
 from .camera import Camera
 from .geometry import box, diffuse, merge
@@ -47,7 +48,7 @@ def sunlit_classroom(elevation: float = CLASS_SUN[0], azimuth: float = CLASS_SUN
     Nine desks (wooden tops on chrome ``conductor`` legs) with chairs, ``conductor`` shelves of books along
     the +x wall and a blackboard. The probe grid (10 x 6 x 8) spans the room *with* its slabs: its outer
     layers start inside the walls, floor and roof, 0.1 m from their outer faces (as the bounding-box grid of
-    a loaded scene does). Static (the tests hold t = 0).
+    a loaded scene does). The chair seats and backs slide 0.3 m and back over 4 s (the tests hold t = 0: static).
     """
     X, H, Z, T = CLASS_X, CLASS_H, CLASS_Z, CLASS_WALL
     b = SceneBuilder("sunlit-classroom")
@@ -90,6 +91,8 @@ def sunlit_classroom(elevation: float = CLASS_SUN[0], azimuth: float = CLASS_SUN
                      "to_world": mi.ScalarTransform4f().rotate([1.0, 0.0, 0.0], -90.0),
                      "albedo": {"type": "rgb", "value": [0.3, 0.3, 0.3]},
                      "sun_scale": CLASS_EXPOSURE, "sky_scale": CLASS_EXPOSURE})
+    b.animate(RigidMotion("seats", translate=Track([0.0, 2.0, 4.0], [[0.0, 0.0, 0.0], [0.0, 0.0, 0.3],
+                                                                    [0.0, 0.0, 0.0]], interp="smooth", loop=True)))
     cam = Camera((3.6, 1.7, -2.6), (-2.0, 0.6, 1.0), (0, 1, 0), 70.0)
     e = CLASS_PROBE_INSET
     return b.build(cam, "Sunlit classroom with metal furniture", duration=4.0,
