@@ -207,17 +207,17 @@ def test_alternation_measure():
 @pytest.mark.parametrize("name", PROBE_TECHNIQUES)
 def test_sealed_room_dark_on_every_frame_from_frame_0(backend, name):
     """The sealed room below 1% of the open room on each of frames 0-19, under the dim sun (issue 36).
-    Before the fix ``adgi`` 0.034 / 0.038 on even / odd frames (the real scene: 0.028 / 0.036)."""
+    Before the fix ``adgi`` 0.043 / 0.018 on even / odd frames (the real scene: 0.028 / 0.036)."""
     r, lit = _sealed_ratios(name)
     print(f"{name}: sealed/open per frame " + " ".join(f"{x:.4f}" for x in r))
-    assert np.all(lit > 0.001), lit          # the open room is lit (0.0019 at frame 0 to 0.0043)
+    assert np.all(lit > 0.001), lit          # the open room is lit
     assert np.all(r < 0.01), r
 
 
 @pytest.mark.parametrize("name", PROBE_TECHNIQUES)
 def test_sealed_ratio_does_not_alternate(backend, name):
     """No back-and-forth of the sealed/open ratio between consecutive frames above 0.002 (before the fix
-    ``adgi`` 0.005: its convolved irradiance toggled one code every frame, issue 36)."""
+    ``adgi`` 0.023: its convolved irradiance toggled one code every frame, issue 36)."""
     r, _ = _sealed_ratios(name)
     a = alternation(r)
     print(f"{name}: alternation {a:.5f}")

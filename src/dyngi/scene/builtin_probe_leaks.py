@@ -71,11 +71,12 @@ OPEN_CAMERA = Camera((-1.2, 1.6, -2.6), (-4.8, 0.6, 2.0), (0, 1, 0), 75.0)
 SLAB = (0.72, 0.70, 0.66)
 
 
-def sealed_rooms_geometry(b: SceneBuilder, sun_irradiance=SEALED_SUN_IRRADIANCE) -> None:
-    """The building of ``sealed-rooms`` (shapes ``ground``, ``roof``, ``walls``) and its sun."""
+def sealed_rooms_geometry(b: SceneBuilder, sun_irradiance=SEALED_SUN_IRRADIANCE, slab=SLAB) -> None:
+    """The building of ``sealed-rooms`` (shapes ``ground``, ``roof``, ``walls``; ``slab`` the albedo of the
+    roof and walls) and its sun."""
     T, X, Z, H = SEALED_SLAB, SEALED_X, SEALED_Z, SEALED_H
     b.mesh("ground", box((-16.0, -T, -12.0), (16.0, 0.0, 12.0)), _twosided((0.5, 0.45, 0.4)))
-    b.mesh("roof", box((-X, H, -Z), (X, H + T, Z)), _twosided(SLAB))
+    b.mesh("roof", box((-X, H, -Z), (X, H + T, Z)), _twosided(slab))
     x0, x1, y0, y1 = SEALED_WINDOW
     walls = [box((-X, 0.0, -Z), (-X + T, H, Z)), box((X - T, 0.0, -Z), (X, H, Z)),      # outer x walls
              box((-X, 0.0, -Z), (X, H, -Z + T)),                                          # -z wall
@@ -84,15 +85,15 @@ def sealed_rooms_geometry(b: SceneBuilder, sun_irradiance=SEALED_SUN_IRRADIANCE)
              # +z wall of the open room, around its window
              box((-X, 0.0, Z - T), (x0, H, Z)), box((x1, 0.0, Z - T), (-T / 2, H, Z)),
              box((x0, 0.0, Z - T), (x1, y0, Z)), box((x0, y1, Z - T), (x1, H, Z))]
-    b.mesh("walls", merge(walls), _twosided(SLAB))
+    b.mesh("walls", merge(walls), _twosided(slab))
     b.add("sun", _sun(SEALED_SUN, sun_irradiance))
     b.animate(SunMotion("sun", Track([0.0, 1.0, 2.0, 4.0], [SEALED_SUN, SEALED_SUN, SEALED_SUN_LATER,
                                                            SEALED_SUN_LATER], interp="smooth")))
 
 
-def _sealed(name: str, camera: Camera, what: str, sun_scale: float = 1.0):
+def _sealed(name: str, camera: Camera, what: str, sun_scale: float = 1.0, slab=SLAB):
     b = SceneBuilder(name)
-    sealed_rooms_geometry(b, tuple(sun_scale * c for c in SEALED_SUN_IRRADIANCE))
+    sealed_rooms_geometry(b, tuple(sun_scale * c for c in SEALED_SUN_IRRADIANCE), slab)
     return b.build(camera, f"Two rooms of thick two-sided slabs, one sealed, a sun outside: {what}",
                    duration=4.0, probe_box=SEALED_PROBE_BOX, probe_counts=SEALED_PROBE_COUNTS)
 
@@ -113,25 +114,30 @@ def sealed_rooms_open():
     return _sealed("sealed-rooms-open", OPEN_CAMERA, "view into the open room")
 
 
-SEALED_DIM_SCALE = 0.05
-"""Sun of :func:`sealed_rooms_dim`: 1/20 of ``sealed-rooms``' (irradiance 0.3, 0.28, 0.25)."""
+SEALED_DIM_SCALE = 0.1
+"""Sun of :func:`sealed_rooms_dim`: 1/10 of ``sealed-rooms``' (irradiance 0.6, 0.56, 0.5)."""
+SEALED_DIM_SLAB = (0.85, 0.82, 0.78)
+"""Roof and walls of :func:`sealed_rooms_dim`: white paint (``sealed-rooms``: 0.72, 0.70, 0.66)."""
 
 
 def sealed_rooms_dim(view: str = "sealed"):
-    """The ``sealed-rooms`` building under a sun 20x dimmer (:data:`SEALED_DIM_SCALE`); ``view`` 'sealed' or
-    'open' (the cameras of ``sealed-rooms`` / ``sealed-rooms-open``). Mitsuba: the sealed view black.
+    """The ``sealed-rooms`` building painted white (:data:`SEALED_DIM_SLAB`) under a sun 10x dimmer
+    (:data:`SEALED_DIM_SCALE`); ``view`` 'sealed' or 'open' (the cameras of ``sealed-rooms`` /
+    ``sealed-rooms-open``). Mitsuba: the sealed view black.
 
-    Issue 36's variant: an encoded probe texel cannot hold less than one code above 0 (ADGI's 9-9-8 log
-    words: one code is ~6.5e-4 in R and G), an amount fixed in absolute units, so a leak of one code weighs
-    20x more against a dimmer open room. At this level ``adgi`` before the fix showed the real two-room
-    scene's figures: the sealed room at 0.034 / 0.038 of the open one, alternating on even and odd frames
-    (0.028 / 0.036 on the real scene); at the full sun the same defect gave 0.0025 / 0.0037. Not a
-    registered scene (a test fixture of ``tests/probes/test_probe_leaks.py``)."""
+    Issue 36's variant. An encoded probe texel holds nothing between 0 and one code (ADGI's 9-9-8 log
+    words: one code is ~6.5e-4 in R and G), an amount fixed in absolute units, so a leak of a code weighs
+    more against a dimmer open room; and the brighter the walls, the more of a code's light the sealed
+    room's inter-reflection hands back to its probes (what kept ``adgi``'s toggling codes alive). Here
+    ``adgi`` before the fix showed the real two-room scene's defect: the sealed room at 0.043 / 0.018 of
+    the open one on even / odd frames (the real scene: 0.028 / 0.036); ``sealed-rooms`` itself (full sun,
+    grey slabs) showed it at 0.0025 / 0.0037 only. Figures: docs/probes.md. Not a registered scene (a
+    fixture of ``tests/probes/test_probe_leaks.py``)."""
     if view not in ("sealed", "open"):
         raise ValueError(f"sealed_rooms_dim: view must be 'sealed' or 'open', not {view!r}")
     cam = SEALED_CAMERA if view == "sealed" else OPEN_CAMERA
-    return _sealed(f"sealed-rooms-dim-{view}", cam, f"under a dim sun, view into the {view} room",
-                   SEALED_DIM_SCALE)
+    return _sealed(f"sealed-rooms-dim-{view}", cam, f"white, under a dim sun, view into the {view} room",
+                   SEALED_DIM_SCALE, SEALED_DIM_SLAB)
 
 
 # -- stair hall --------------------------------------------------------------------------------------
