@@ -79,3 +79,36 @@ def test_sunlit_classroom_within_10_percent_of_mitsuba(backend, name):
     ratio = img.mean() / ref.mean()
     print(f"{name}: sunlit-classroom mean ratio {ratio:.3f}")
     assert abs(ratio - 1.0) < 0.10, ratio
+
+
+@pytest.mark.parametrize("summaries", ["numpy", "drjit"])
+def test_a_boundary_probe_inside_a_slab_leaves_on_the_grid_side(backend, summaries):
+    """A roof slab y in [1.0, 1.3], two-sided; the grid's top layer at y = 1.25 (0.05 from the slab's outer
+    face, 0.25 from its inner one). The probes leave downwards, into the grid, on both summary paths (the
+    closest back face, upwards, would take them out of the grid); the middle layer at y = 0.25, inside an
+    interior slab y in [0.2, 0.4], still leaves through its closest face (downwards)."""
+    from dyngi.backend import mi
+    from dyngi.probes import FixedSFDirections, ProbeGrid, ProbeStates, ProbeVolume
+    from dyngi.probes.trace import trace_probe_distances
+    from dyngi.scene.geometry import box, make_mesh, merge
+
+    V, F = merge([box((-5, 1.0, -5), (5, 1.3, 5)), box((-5, 0.2, -5), (5, 0.4, 5))])
+    tw = {"type": "twosided", "bsdf": {"type": "diffuse"}}
+    slab = mi.load_dict({"type": "scene", "s": make_mesh("s", V, F, tw)})
+    grid = ProbeGrid.from_box((-1.0, -0.75, -1.0), (1.0, 1.25, 1.0), (3, 3, 3))  # layers y = -0.75, 0.25, 1.25
+    vol = ProbeVolume(grid)
+    ids = np.arange(vol.n_probes, dtype=np.uint32)
+    states = ProbeStates()
+    for f in range(3):
+        plan = FixedSFDirections(64, stream=5).plan(f, 0, ids)
+        dist = trace_probe_distances(slab, vol, plan)
+        if summaries == "numpy":
+            dist = np.asarray(dist).reshape(len(ids), -1)
+        states.update(vol, ids, plan.shared_directions, dist)
+    y = vol.positions()[:, 1]
+    top = np.isclose(grid.base_positions()[:, 1], 1.25)
+    assert top.sum() == 9
+    assert np.all((y[top] < 1.0) & (y[top] > 0.4)), y[top]                   # below the roof, into the grid
+    mid = np.isclose(grid.base_positions()[:, 1], 0.25)
+    assert mid.sum() == 9
+    assert np.all(y[mid] < 0.2), y[mid]                                     # out through the closest face
