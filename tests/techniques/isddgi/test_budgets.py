@@ -1,4 +1,4 @@
-"""IS-DDGI under comparison budgets (issue 13 follow-up, item 2): equal rays are met exactly in probe rays
+"""IS-DDGI under comparison budgets: equal rays are met exactly in probe rays
 (and within 5% in total rays over a run against ``ddgi``), equal time is recorded and steers the rays."""
 from __future__ import annotations
 
@@ -75,9 +75,9 @@ def test_equal_rays_against_ddgi_and_equal_time_recorded(backend):
 
 
 def test_keyed_shading_repeats_a_ray_exactly(backend):
-    """Paired visits (issue 13 follow-up item 1): a ray traced again with its key (a check visit) returns the
-    same radiance although the frame's sampler differs; without keys, one NEE sample over corridor-rooms'
-    14 lights makes the two traces differ (the test has power)."""
+    """Paired visits (the change measure, supplement Sec. 4.4): a ray traced again with its key (a check
+    visit) returns the same radiance although the frame's sampler differs; without keys, one NEE sample
+    over corridor-rooms' 14 lights makes the two traces differ (the test has power)."""
     from dyngi.probes.trace import trace_probe_rays
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique

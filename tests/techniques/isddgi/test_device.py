@@ -1,4 +1,4 @@
-"""IS-DDGI's device planner (issue 26: :mod:`dyngi.techniques.isddgi.device_planner`, the default
+"""IS-DDGI's device planner (:mod:`dyngi.techniques.isddgi.device_planner`, the default
 ``impl='device'``): the same rays and state as the host planner where both are deterministic, importance
 draws that follow the supplement's allocation pdf (chi^2), the per-set cap, and a steady frame that compiles
 nothing and reads back only the two small per-probe buffers (slow)."""

@@ -1,5 +1,5 @@
-"""IS-DDGI (issue 13, item 8): allocation pdf, rotation, stratified weights, importance after a light
-switch, integration, static convergence to ``ddgi``, and the quick reproduction (slow)."""
+"""IS-DDGI (Liu et al. 2023, supplement Secs. 1-4): allocation pdf, rotation, stratified weights,
+importance after a light switch, integration, static convergence to ``ddgi``, and the quick reproduction (slow)."""
 from __future__ import annotations
 
 import numpy as np
@@ -30,7 +30,7 @@ def test_set_solid_angles_sum_to_4pi_and_differ():
     om = set_solid_angles()
     assert om.shape == (N_SETS,)
     assert abs(om.sum() - 4 * np.pi) < 1e-9
-    assert om.max() / om.min() > 3.0          # why the per-set weights matter (issue 13 item 5)
+    assert om.max() / om.min() > 3.0          # why the per-set weights matter (Algorithm 3)
 
 
 def test_jittered_directions_stay_in_their_set():
@@ -61,7 +61,7 @@ def test_device_allocation_pdf_and_draws_match_the_supplement(backend):
     """The device kernels (:mod:`dyngi.techniques.isddgi.device`): the Dr.Jit pdf equals the supplement's
     allocation (NumPy twin), and 400k prefix-sum + binary-search draws match it (chi^2, 16 cells per
     probe and every (probe, set) pair; a 5% wrong pdf is rejected); a zero-F probe gets no draw. The
-    planner's per-set cap and its draws: tests/techniques/test_isddgi_device.py."""
+    planner's per-set cap and its draws: tests/techniques/isddgi/test_device.py."""
     from dyngi.backend import mi
     from dyngi.techniques.isddgi.device import allocation_pdf_dr, sample_pairs_dr
     rng = np.random.default_rng(3)
@@ -226,7 +226,7 @@ def test_probe_state_algorithm_2():
     # probe 0: front hits, 1/4 back < 0.3 -> ON; probe 1: 2/4 back -> OFF; probe 2: misses only -> OFF
     # (line 17's min over negative distances would have called probe 1's back faces "front"); 3: no rays
     assert on.tolist() == [True, False, False, False]
-    # DDGI's near-surface test on ragged rays (issue 26): spacing 1, probe 0 inside the grid (neighbourhood
+    # DDGI's near-surface test on ragged rays: spacing 1, probe 0 inside the grid (neighbourhood
     # |t w| <= 1), probe 1 on its low-x boundary (unbounded towards -x)
     from types import SimpleNamespace
     from dyngi.techniques.isddgi.estimator import near_surface_hits, near_window
@@ -300,7 +300,7 @@ def test_isddgi_static_scene_converges_to_ddgi(backend):
     ``probes-reference`` (8x8 texels, 16 rays per texel: the irradiance texels of ``ddgi``) with
     ``irradiance_gamma=1``; per-pixel relative RMS difference to ``ddgi`` under 0.35. Before the linear
     running mean (:class:`~dyngi.techniques.isddgi.estimator.LinearMeanHysteresis`) the gamma-5 ratio was
-    ~0.91 (figures: docs/benchmarks.md)."""
+    ~0.91 (figures: docs/techniques/isddgi.md)."""
     from dyngi.scene import load_scene
     scene = load_scene("cornell-moving-box")
     isd = _static_mean_indirect(scene, "isddgi:probe_counts=4:hysteresis=0.8")
@@ -336,14 +336,14 @@ def test_isddgi_update_does_less_work_than_ddgi_with_the_same_stages(backend):
             r = tech.step(Frame(i, t, scene.camera(t), (16, 12), seed=0))
         stages[name] = set(r.stats["ms"]) - {"primary"}
         rays[name] = r.stats["rays"]["trace probes"]
-        vol = tech.volume       # both lobes over the interior texels; isddgi: ddgi's squares (issue 26)
+        vol = tech.volume       # both lobes over the interior texels; isddgi: ddgi's squares
         products[name] = rays[name] * ((vol.irradiance_texels - 2) ** 2 + (vol.distance_texels - 2) ** 2)
         if name == "isddgi":
             assert (vol.irradiance_texels, vol.distance_texels) == (8, 16)
     assert stages["isddgi"] == stages["ddgi"] == {"trace probes", "shade probes", "blend", "states"}, stages
     assert 0 < rays["isddgi"] < 0.5 * rays["ddgi"], rays
     assert products["isddgi"] < 0.5 * products["ddgi"], products
-    # probe states (issue 26): on tunnel-gate (open space above and beside the tunnel) Algorithm 2 alone keeps
+    # probe states: on tunnel-gate (open space above and beside the tunnel) Algorithm 2 alone keeps
     # ~2x ddgi's probes ON; with DDGI's near-surface test isddgi updates no more probes than ddgi
     scene = load_scene("tunnel-gate")
     t = scene.frame_time(0)
