@@ -1,4 +1,4 @@
-"""ADGI's device path (``impl='device'``, issue 25 item 4): a steady frame's probe update (stages P, S, D)
+"""ADGI's device path (``impl='device'``): a steady frame's probe update (stages P, S, D)
 reads nothing back to the host and compiles no new kernel, without a budget and under an equal-ray budget;
 and it samples what the host path samples (the same chains and caps, packed into masked plans instead of
 ragged ones), so the two paths' images agree statistically."""

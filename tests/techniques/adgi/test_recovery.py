@@ -1,5 +1,5 @@
 """ADGI's purpose (Datta et al. 2022, Secs. 1, 4.9, Fig. 8): a faster response to a dynamic change than
-Q-DDGI. The recovery test of issue 25 on ``tunnel-gate`` (the Bistro tunnel whose gate opens), at equal rays
+Q-DDGI. The recovery test on ``tunnel-gate`` (the Bistro tunnel whose gate opens), at equal rays
 (ADGI gets Q-DDGI's rays on every frame, as ``dyngi compare --budget equal-rays``), against the
 path-traced ground truth."""
 import numpy as np
@@ -8,8 +8,8 @@ import pytest
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "measured (docs/benchmarks.md, issue 25 recovery): ADGI's relMSE is below Q-DDGI's on every frame after "
-    "the gate opens and ends at ~0.4x of it, but it keeps falling longer: by the 10% band around each "
+    "measured (docs/techniques/adgi.md, the recovery at equal rays): ADGI's relMSE is below Q-DDGI's on "
+    "every frame after the gate opens and ends at ~0.4x of it, but it keeps falling longer: by the 10% band around each "
     "technique's own final value ADGI settles in a median 79 frames against Q-DDGI's 76"))
 def test_equal_rays_recovery_on_the_opening_tunnel(backend):
     """Frames from gate-open (t = 0.5 s) until the ground-truth relMSE enters and stays within 10% of its

@@ -1,6 +1,6 @@
 """ADGI storage and budgets: the 6-10-10 heuristics word (Sec. 4.3), Table 3's visibility rounding, the
 guide's coarser mip (Sec. 4.8), relocation/classification after the warm-up, and the equal-time budget
-scaling the chain counts (issue 12, items 2-5 of the follow-up)."""
+scaling the chain counts (our budget rule)."""
 import numpy as np
 import pytest
 
