@@ -1,6 +1,6 @@
 """ADGI's chain planner under a budget (Sec. 4.9 with our budget rule): the dynamic budget keeps the
-highest-guide proxy octants first (a scripted guide), the device counting sort against a NumPy brute force, and repeated Metropolis
-states traced once with their multiplicity (against a NumPy brute force)."""
+highest-guide proxy octants first (a scripted guide), the device counting sort against a NumPy brute
+force, and repeated Metropolis states traced once with their multiplicity (against a NumPy brute force)."""
 import numpy as np
 import pytest
 

@@ -9,8 +9,8 @@ import pytest
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
     "measured (docs/techniques/adgi.md, the recovery at equal rays): ADGI's relMSE is below Q-DDGI's on "
-    "every frame after the gate opens and ends at ~0.4x of it, but it keeps falling longer: by the 10% band around each "
-    "technique's own final value ADGI settles in a median 79 frames against Q-DDGI's 76"))
+    "every frame after the gate opens and ends at ~0.4x of it, but it keeps falling longer: by the 10% band "
+    "around each technique's own final value ADGI settles in a median 79 frames against Q-DDGI's 76"))
 def test_equal_rays_recovery_on_the_opening_tunnel(backend):
     """Frames from gate-open (t = 0.5 s) until the ground-truth relMSE enters and stays within 10% of its
     final value (:func:`~dyngi.experiments.reproductions.adgi.settle_frames`), median of 3 seeds at 64x48
