@@ -90,6 +90,16 @@ def test_wooden_staircase_within_10_percent_of_mitsuba(backend, name):
     assert abs(ratio - 1.0) < 0.10, ratio
 
 
+@pytest.mark.slow
+def test_wooden_staircase_depth_is_its_files():
+    """Its file's ``max_depth`` -1 is -1 (Mitsuba prints it as 4294967295, which the reference integrator
+    refused: ``dyngi compare`` on the scene failed before any frame)."""
+    from conftest import shared_scene
+    from dyngi.experiments.reference import scene_max_depth
+
+    assert scene_max_depth(load_scene(shared_scene("wooden-staircase/scene.xml"))) == -1
+
+
 # -- the piece -------------------------------------------------------------------------------------------
 
 def _interaction(n: int, cos: float):

@@ -807,11 +807,16 @@ def scene_max_depth(scene) -> int:
 
     Read from the loaded integrator's description (Mitsuba resolves ``$max_depth``
     defaults of the XML); built-in scenes have no integrator and get the default.
+    Mitsuba prints the depth as an unsigned 32-bit number, so a file's ``-1`` reads
+    4294967295: values from 2^31 up are the negative ones they wrap (the wooden
+    staircase's -1 reached the reference integrator as 4294967295 and failed).
     """
     integ = scene.mi_scene.integrator() if hasattr(scene.mi_scene, "integrator") else None
     m = _DEPTH_RE.search(str(integ)) if integ is not None else None
     if m:
         d = int(m.group(1))
-        if d >= 1 or d == -1:
+        if d >= 1 << 31:
+            d -= 1 << 32
+        if 1 <= d < 1 << 31 or d == -1:
             return d
     return DEFAULT_MAX_DEPTH
