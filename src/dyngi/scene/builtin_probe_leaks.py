@@ -52,7 +52,7 @@ import numpy as np
 
 from .animation import ParamTrack, SunMotion, Track
 from .builder import SceneBuilder
-from .builtin import _sun, _sun_dir, _twosided
+from .builtin import _sky, _sun, _sun_dir, _twosided
 from .camera import Camera
 from .geometry import box, merge
 from .library import builtin
@@ -71,10 +71,11 @@ OPEN_CAMERA = Camera((-1.2, 1.6, -2.6), (-4.8, 0.6, 2.0), (0, 1, 0), 75.0)
 SLAB = (0.72, 0.70, 0.66)
 
 
-def sealed_rooms_geometry(b: SceneBuilder, sun_irradiance=SEALED_SUN_IRRADIANCE, slab=SLAB) -> None:
+def sealed_rooms_geometry(b: SceneBuilder, sun_irradiance=SEALED_SUN_IRRADIANCE, slab=SLAB,
+                          thickness: float = SEALED_SLAB) -> None:
     """The building of ``sealed-rooms`` (shapes ``ground``, ``roof``, ``walls``; ``slab`` the albedo of the
-    roof and walls) and its sun."""
-    T, X, Z, H = SEALED_SLAB, SEALED_X, SEALED_Z, SEALED_H
+    roof and walls, ``thickness`` that of every slab) and its sun."""
+    T, X, Z, H = thickness, SEALED_X, SEALED_Z, SEALED_H
     b.mesh("ground", box((-16.0, -T, -12.0), (16.0, 0.0, 12.0)), _twosided((0.5, 0.45, 0.4)))
     b.mesh("roof", box((-X, H, -Z), (X, H + T, Z)), _twosided(slab))
     x0, x1, y0, y1 = SEALED_WINDOW
@@ -91,11 +92,14 @@ def sealed_rooms_geometry(b: SceneBuilder, sun_irradiance=SEALED_SUN_IRRADIANCE,
                                                            SEALED_SUN_LATER], interp="smooth")))
 
 
-def _sealed(name: str, camera: Camera, what: str, sun_scale: float = 1.0, slab=SLAB):
+def _sealed(name: str, camera: Camera, what: str, sun_scale: float = 1.0, slab=SLAB, thickness=SEALED_SLAB,
+            probe_box=SEALED_PROBE_BOX, probe_counts=SEALED_PROBE_COUNTS, sky=None):
     b = SceneBuilder(name)
-    sealed_rooms_geometry(b, tuple(sun_scale * c for c in SEALED_SUN_IRRADIANCE), slab)
+    sealed_rooms_geometry(b, tuple(sun_scale * c for c in SEALED_SUN_IRRADIANCE), slab, thickness)
+    if sky is not None:
+        b.add("sky", _sky(sky))
     return b.build(camera, f"Two rooms of thick two-sided slabs, one sealed, a sun outside: {what}",
-                   duration=4.0, probe_box=SEALED_PROBE_BOX, probe_counts=SEALED_PROBE_COUNTS)
+                   duration=4.0, probe_box=probe_box, probe_counts=probe_counts)
 
 
 @builtin("sealed-rooms", "Two rooms of thick (0.6 m) two-sided slabs side by side, one fully sealed, a sun "
@@ -138,6 +142,33 @@ def sealed_rooms_dim(view: str = "sealed"):
     cam = SEALED_CAMERA if view == "sealed" else OPEN_CAMERA
     return _sealed(f"sealed-rooms-dim-{view}", cam, f"white, under a dim sun, view into the {view} room",
                    SEALED_DIM_SCALE, SEALED_DIM_SLAB)
+
+
+SEALED_MIDSLAB = 1.2
+"""Slab thickness of :func:`sealed_rooms_midslab`."""
+SEALED_MIDSLAB_PROBE_BOX = ((-6.4, -0.6, -3.4), (6.4, 3.6, 3.4))
+SEALED_MIDSLAB_PROBE_COUNTS = (10, 2, 8)
+SEALED_MIDSLAB_SKY = (0.3, 0.35, 0.45)
+
+
+def sealed_rooms_midslab(view: str = "sealed"):
+    """The ``sealed-rooms`` building of 1.2 m slabs under its sun and a constant sky, with a 10 x 2 x 8 grid
+    whose boundary layers lie on the slabs' *mid-planes* (y = -0.6 in the ground, 3.6 in the roof, x = +-6.4
+    and z = +-3.4 in the outer walls); ``view`` 'sealed' or 'open'. Mitsuba: the sealed view black.
+
+    Issue 36's second variant: a probe on a mid-plane sees both faces of its slab at one distance, so which
+    one relocation takes it through is decided by its own rays. ``isddgi`` rotates its rays per probe, and
+    before the rule that a probe leaves on the grid's side (:mod:`dyngi.probes.states`) its roof-layer probes
+    went up above the sunlit roof or down into the rooms at random: the sealed room at 0.12-0.14 of the open
+    one from frame 0, where ``ddgi`` (one direction set for all probes: every probe of a layer chose alike)
+    gave 0.004. Figures: docs/probes.md. Not a registered scene (a fixture of
+    ``tests/probes/test_probe_leaks.py``)."""
+    if view not in ("sealed", "open"):
+        raise ValueError(f"sealed_rooms_midslab: view must be 'sealed' or 'open', not {view!r}")
+    cam = SEALED_CAMERA if view == "sealed" else OPEN_CAMERA
+    return _sealed(f"sealed-rooms-midslab-{view}", cam, f"1.2 m slabs, probe layers on their mid-planes, view "
+                   f"into the {view} room", thickness=SEALED_MIDSLAB, probe_box=SEALED_MIDSLAB_PROBE_BOX,
+                   probe_counts=SEALED_MIDSLAB_PROBE_COUNTS, sky=SEALED_MIDSLAB_SKY)
 
 
 # -- stair hall --------------------------------------------------------------------------------------
