@@ -42,6 +42,10 @@ storey -- so neither room nor the lower storey kept a probe, and their
 points interpolated the probes on the lit side through the Chebyshev floor
 and the fallback: the sealed room as bright as the open one, the hall over-lit.
 
+Two unregistered variants of the sealed rooms (their sealed view is black; fixtures of the every-frame
+tests of ``tests/probes/test_probe_leaks.py``, issue 36): :func:`sealed_rooms_dim` (white slabs, a sun 10x
+dimmer) and :func:`sealed_rooms_midslab` (1.2 m slabs, probe layers on their mid-planes, a sky).
+
 All three are static for the first second (the tests hold t = 0); then the sun of the sealed rooms
 rises (elevation 35 -> 50 degrees) and the hall's light dims to half, between t = 1 and 2 s; 4 s clips.
 The sealed room stays sealed throughout.
@@ -159,9 +163,9 @@ def sealed_rooms_midslab(view: str = "sealed"):
     Issue 36's second variant: a probe on a mid-plane sees both faces of its slab at one distance, so which
     one relocation takes it through is decided by its own rays. ``isddgi`` rotates its rays per probe, and
     before the rule that a probe leaves on the grid's side (:mod:`dyngi.probes.states`) its roof-layer probes
-    went up above the sunlit roof or down into the rooms at random: the sealed room at 0.12-0.14 of the open
+    went up above the sunlit roof or down into the rooms at random: the sealed room at 0.10-0.12 of the open
     one from frame 0, where ``ddgi`` (one direction set for all probes: every probe of a layer chose alike)
-    gave 0.004. Figures: docs/probes.md. Not a registered scene (a fixture of
+    gave 0.005. Figures: docs/probes.md. Not a registered scene (a fixture of
     ``tests/probes/test_probe_leaks.py``)."""
     if view not in ("sealed", "open"):
         raise ValueError(f"sealed_rooms_midslab: view must be 'sealed' or 'open', not {view!r}")
