@@ -100,6 +100,18 @@ def test_wooden_staircase_depth_is_its_files():
     assert scene_max_depth(load_scene(shared_scene("wooden-staircase/scene.xml"))) == -1
 
 
+def test_hit_lobe_rule_changes_only_coated_scenes(backend):
+    """``hit_lobes='layered'`` draws its numbers after every other draw of the probe-ray shading, so a scene
+    without coated surfaces (``stair-hall``: plain ``diffuse``) renders bit for bit as under ``'diffuse'``;
+    on ``coated-hall`` it adds the coating's light."""
+    for scene, same in (("stair-hall", True), ("coated-hall", False)):
+        sc = load_scene(scene)
+        a, b = (_mean_image("ddgi", sc, (32, 18), 3, 0, {"hit_lobes": r, "warmup": 2}) for r in ("layered", "diffuse"))
+        assert np.array_equal(a, b) == same, scene
+        if not same:
+            assert a.mean() > 1.05 * b.mean(), (a.mean(), b.mean())
+
+
 # -- the piece -------------------------------------------------------------------------------------------
 
 def _interaction(n: int, cos: float):

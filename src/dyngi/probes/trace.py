@@ -128,21 +128,27 @@ def check_hit_lobes(rule: str) -> str:
     return rule
 
 
-def hit_albedo(bsdf, si, active, u1, u2, rule: str = DEFAULT_HIT_LOBES):
-    """Albedo a probe-ray hit reflects as diffuse light (module docstring, the hit-lobe rule): the diffuse
-    lobe's (:func:`~dyngi.sampling.diffuse.diffuse_albedo`) and, under ``'layered'`` (ours), on lanes with a
-    diffuse lobe, the rough glossy reflection lobes' directional albedo estimated by one BSDF sample from
-    ``(u1, u2)`` with ``type_mask = GlossyReflection`` (its ``f cos / pdf``). Clamped to [0, 1]."""
-    albedo = diffuse_albedo(bsdf, si, active)
-    if check_hit_lobes(rule) == "diffuse":
-        return albedo
+def coating_albedo(bsdf, si, active, u1, u2):
+    """The rough glossy reflection lobes' directional albedo towards ``si.wi`` on lanes whose BSDF also has a
+    diffuse lobe (a coating: ``plastic``, ``roughplastic``, ``principled``), else 0: one BSDF sample from
+    ``(u1, u2)`` with ``type_mask = GlossyReflection``, its ``f cos / pdf`` (unbiased)."""
     coated = (mi.Bool(active) & has_diffuse_lobe(bsdf)
               & mi.has_flag(bsdf.flags(), mi.BSDFFlags.GlossyReflection))
     ctx = mi.BSDFContext()
     ctx.type_mask = int(mi.BSDFFlags.GlossyReflection)
     bs, w = bsdf.sample(ctx, front_wi(si), u1, u2, coated)
     ok = coated & (bs.pdf > 0.0) & dr.all(dr.isfinite(mi.Color3f(w)))
-    return dr.clip(albedo + dr.select(ok, mi.Color3f(w), 0.0), 0.0, 1.0)
+    return dr.select(ok, mi.Color3f(w), 0.0)
+
+
+def hit_albedo(bsdf, si, active, u1, u2, rule: str = DEFAULT_HIT_LOBES):
+    """Albedo a probe-ray hit reflects as diffuse light (module docstring, the hit-lobe rule): the diffuse
+    lobe's (:func:`~dyngi.sampling.diffuse.diffuse_albedo`) plus, under ``'layered'`` (ours),
+    :func:`coating_albedo` from ``(u1, u2)``. Clamped to [0, 1]."""
+    albedo = diffuse_albedo(bsdf, si, active)
+    if check_hit_lobes(rule) == "diffuse":
+        return albedo
+    return dr.clip(albedo + coating_albedo(bsdf, si, active, u1, u2), 0.0, 1.0)
 
 
 def check_direct_mode(mode: str) -> str:
@@ -361,8 +367,8 @@ class DiffuseHitShader:
         L = mi.Color3f(0.0)
         if routing.probes_carry_emitters:
             L = routing.probe_emission(scene, si, hit, front, active)
-        # -- the albedo the hit reflects as diffuse light (the hit-lobe rule; 0 for metals and glass) --
-        albedo = hit_albedo(bsdf, si, front, sampler.next_1d(), sampler.next_2d(), self.hit_lobes)
+        # -- diffuse albedo (the diffuse lobe only: 0 for metals and glass; the coating's below) --
+        albedo = diffuse_albedo(bsdf, si, front)
         # -- direct light by NEE (one light sample; no shadow ray below the shading normal) --
         lights = self.lights if self.lights is not None else routing.nee
         if getattr(lights, "walk_aware", False):     # a dyngi.lights sampler: its selection number from `sampler`
@@ -376,6 +382,11 @@ class DiffuseHitShader:
         if query is not None:
             E += query.irradiance(si.p, n, -ray.d, active=front,
                                   sampler=sampler if self.lookup == "stochastic" else None)
+        # -- the hit-lobe rule: a coating's glossy albedo reflected as diffuse light too (ours). Its numbers
+        # are drawn last, so that the draws above (NEE, the stochastic lookup) are those of 'diffuse' --
+        if check_hit_lobes(self.hit_lobes) == "layered":
+            albedo = dr.minimum(albedo + coating_albedo(bsdf, si, front, sampler.next_1d(), sampler.next_2d()),
+                                1.0)
         L += diffuse_radiance(albedo, E, front)
         return L, hit, front, shadow
 
