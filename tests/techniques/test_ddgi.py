@@ -80,12 +80,16 @@ def test_qddgi_updates_only_probes_in_the_frustum():
     cam = Camera((0.6, 1.0, 0.6), (0.6, 1.0, -1.0), (0, 1, 0), 40.0)   # sees only a slice of the box
     for name, culled in (("qddgi", True), ("ddgi", False)):
         tech = create_technique(name, sc, {"probe_counts": "6", "classify": False, "rays_per_probe": 32})
-        r = tech.step(Frame(0, 0.0, cam, RES, seed=0))
+        tech.step(Frame(0, 0.0, cam, RES, seed=0))     # the warm-up updates every probe (probes/pipeline.py)
+        before = tech.volume.state.updates.copy()
+        r = tech.step(Frame(1, 0.0, cam, RES, seed=0, static=True))
         n = tech.volume.n_probes
         inside = probes_in_frustum(tech.volume, cam, RES)
+        assert np.all(before > 0)
         if culled:
             assert r.stats["probes_traced"] == inside.sum() < 0.6 * n
-            assert np.all(tech.volume.state.updates[~inside] == 0)
+            assert np.all(tech.volume.state.updates[~inside] == before[~inside])
+            assert np.all(tech.volume.state.updates[inside] > before[inside])
         else:
             assert r.stats["probes_traced"] == n
 
