@@ -7,7 +7,7 @@ and ``qddgi`` run in the fast suite, the others are ``slow``. Each renders
 
 * ``sealed-rooms``: the sealed room's mean is below 1% of the open room's
   (Mitsuba: exactly 0). Before the fix 0.70-0.80 for the DDGI-style techniques,
-  0.38 for ddgi-secondary/-resampling (docs/benchmarks.md, issue 22);
+  0.38 for ddgi-secondary/-resampling (docs/techniques/ddgi.md);
 * ``stair-hall``: the mean is within 10% of Mitsuba's ``path`` (1024 spp).
   Before the fix +42% to +62% (ddgi +53%), probes-reference -14%;
 * veach-bidir (``../shared/scenes``, skipped when absent): the gain of the

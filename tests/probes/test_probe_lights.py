@@ -3,7 +3,7 @@ the primary hit (:func:`dyngi.probes.primary.shade_primary`) and at probe-ray hi
 (:class:`dyngi.probes.trace.DiffuseHitShader`) through :class:`dyngi.lights.nee.TracedNEE`, its samples
 weighted by the ``direct=`` routing (:meth:`dyngi.probes.trace.LightRouting.nee_weight`): a sampler changes
 the noise, never the mean. The default ``'scene'`` renders what it rendered before the parameter, bit for
-bit (docs/benchmarks.md, "lights= on the probe techniques")."""
+bit (docs/lights.md, "lights= on the probe techniques")."""
 from __future__ import annotations
 
 import argparse
@@ -46,7 +46,7 @@ def _render(sc, cam, spec: str, params: dict, seed: int):
 
 MEAN_TEST = {"probe_counts": "4", "rays_per_probe": 32, "warmup": 2, "direct": "nee", "jitter": False,
              "direct_samples": 32}
-"""``ddgi``'s settings of the mean test (and of the table in docs/benchmarks.md)."""
+"""``ddgi``'s settings of the mean test (and of the table in docs/lights.md)."""
 
 
 def sampler_runs(scene: str, kinds, seeds, **params) -> dict:
@@ -124,7 +124,7 @@ def test_steady_frames_with_a_light_sampler_compile_nothing(backend, kind):
 
 
 def _table(seeds: int = 12) -> None:
-    """Prints the z-test table of docs/benchmarks.md ("lights= on the probe techniques"):
+    """Prints the z-test table of docs/lights.md ("lights= on the probe techniques"):
     ``python tests/probes/test_probe_lights.py``."""
     import time
 

@@ -34,7 +34,7 @@ relocation has moved it out. They stand for public scenes that are not in
   the lower storey's probes end up.
 
 What ``ddgi`` did with them before issue 22 (``tests/probes/test_probe_leaks.py``;
-docs/benchmarks.md has the figures): the two-sided rule ``'front'`` (commit
+docs/techniques/ddgi.md has the figures): the two-sided rule ``'front'`` (commit
 7d79077) let no probe find itself inside a slab, and relocation pushed every
 layer out on the far side of its slab -- the ground layer below the ground,
 the roof layer above the sunlit roof, the gallery layer up into the lit upper

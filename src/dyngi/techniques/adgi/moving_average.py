@@ -40,7 +40,7 @@ GPU does not fix either). An earlier rule of ours, ``V = (n o + sum v) / (n + m)
 running-mean weights past saturation: at ``n = 63, m = 64`` it gave the new samples 0.504 where Algorithm
 3 gives ``1 - (63/64)^64 = 0.635``, and a dynamic batch (``N_max`` = 10) over a static count of 63 only
 ``m / (63 + m)`` where Algorithm 3 gives ``1 - 63/64 (10/11)^(m-1)`` -- it made the dynamic stage's
-updates (Sec. 4.9) several times slower than the paper's (docs/benchmarks.md, issue 25).
+updates (Sec. 4.9) several times slower than the paper's (docs/techniques/adgi.md).
 
 :class:`Algorithm3Accumulator` is the same rule behind the temporal
 accumulator interface of :mod:`dyngi.probes.accumulator` (``new`` is the

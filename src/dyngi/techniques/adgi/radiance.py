@@ -9,7 +9,7 @@ samples that landed in it, whatever their density -- the paper's Eq. 8
 argument, which a cosine splat over many texels does not have (there the
 splat's result depends on where in the hemisphere the chains happened to be:
 biased low on the Cornell box probes whose -w rays miss through the open
-front, where the guide is 0; docs/benchmarks.md).
+front, where the guide is 0; docs/techniques/adgi.md).
 
 Irradiance is then a convolution pass over the radiance texels of every probe
 updated this frame (:meth:`RadianceCache.irradiance_estimate`: on a GPU on the device, one lane per
@@ -121,7 +121,7 @@ class RadianceCache:
     def irradiance_estimate(self, probe_ids: np.ndarray) -> TexelEstimate:
         """The convolution pass for ``probe_ids``: :meth:`irradiance_estimate_device` on a GPU backend,
         :meth:`irradiance_estimate_host` (the CPU fast path: the texels are already in host memory, and
-        BLAS is about 3x the symbolic loop there; docs/benchmarks.md) on the LLVM backend."""
+        BLAS is about 3x the symbolic loop there; docs/techniques/adgi.md) on the LLVM backend."""
         if is_cpu_backend():
             return self.irradiance_estimate_host(probe_ids)
         return self.irradiance_estimate_device(probe_ids)

@@ -44,7 +44,7 @@ One frame, in the paper's stages (Table 4; ``stats['ms']`` keys ``P``, ``S``, ``
   snaps such samples to texel centres "to avoid injecting sampling noise" but does not say which
   N_max they use; with 63, a texel visited every other frame at an equal-ray budget keeps ~100
   frames of samples from before a change, and the tunnel's interior lagged Q-DDGI's, measured in
-  docs/benchmarks.md, issue 25).
+  docs/techniques/adgi.md).
 * Culling (Sec. 4.9, ``cull_unused``): the primary pass marks on the device the 8 cage probes of every
   pixel's probe lookup (:class:`CageMarkingQuery`); the next frame's S and D sample only probes of
   ``V_in`` so marked (the paper culls "probes that are not used in deferred shading" in D; ours in S too,
@@ -61,7 +61,7 @@ weights over the texels that hold samples), which removes the closest-entry upda
 mean is not an irradiance). A finer radiance layer (16 per side, the earlier default) spreads a probe's
 samples over 196 texels instead of 36: at an equal-ray budget each texel is then visited about 5x less
 often, and Algorithm 3's count-based memory of up to 63 samples spans 5x more frames -- it slowed ADGI's
-recovery on the opening tunnel (docs/benchmarks.md, issue 25). A cosine
+recovery on the opening tunnel (docs/techniques/adgi.md). A cosine
 splat of each sample over the irradiance texels was tried first and is
 biased wherever the guide is 0 over part of a texel's hemisphere (measured
 -52% on the Cornell box's front probes). The distance of the ``-w`` ray goes
@@ -98,15 +98,15 @@ the last frame's measurements), update counts on the device (:meth:`ProbePipelin
 NEE shadow-ray rate, the unique share) are read after the frame's image. A frame with the warm-up or a
 relocation/classification pass (every ``reclassify_interval`` frames; ``ddgi``'s host states) still
 reads back. ``impl='auto'``: the device path on a GPU; on the LLVM backend the host path, measured faster
-there (masked lanes still cost CPU time, the device convolution is a symbolic loop; docs/benchmarks.md,
+there (masked lanes still cost CPU time, the device convolution is a symbolic loop; docs/techniques/adgi.md,
 issue 25). Either path samples the same chains with the same caps: the images agree statistically (the
 NEE streams follow the ray order).
 
 Speed: an ``adgi`` frame launches several times the kernels of a ``qddgi`` frame; that fixed cost, not the
 rays, makes it slower than ``qddgi`` at small grids, and it is why an equal-time budget below it cannot
 be met (the chains shrink to 1 and the frame overspends; recorded, not hidden). The two trigger
-convolutions (Eqs. 15, 18) share one launch per axis. Figures: docs/benchmarks.md, "Figures moved out of
-the probe docstrings".
+convolutions (Eqs. 15, 18) share one launch per axis. Figures: docs/techniques/adgi.md, "Kernel launches and
+probe-sampling time against grid size".
 
 Probe relocation and classification carry over from ``ddgi`` (the paper is
 silent; ours): during the warm-up updates, then every

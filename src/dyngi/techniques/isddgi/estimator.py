@@ -12,7 +12,7 @@ Table 1 lists every texture IS-DDGI adds to DDGI (allocation, hit information, d
 ~1 KB per probe plus 40 B per set) and no larger irradiance or visibility texture, and the lobes are
 broad next to a set (neighbouring sets' integrals differ little); per-set squares made the blend grow
 with texels x probes (the integration's lanes and the merge's per-texel steps) instead of with the rays
-(issue 26). Figures: docs/benchmarks.md.
+(issue 26). Figures: docs/techniques/isddgi.md.
 
 **Integration** (Algorithm 3, Sec. 4.2): every texel ``ds_ij`` integrates over *all* valid rays of its
 probe, as DDGI does: ``irr_ij = sum_r w_r <ds_ij, r>^+ L_r / sum_r w_r <ds_ij, r>^+`` with the per-ray
@@ -340,7 +340,7 @@ class LinearMeanHysteresis(HysteresisAccumulator):
     is biased low, by more the fewer rays a texel's estimate has. At DDGI's 256 rays per probe the bias is
     negligible; IS-DDGI's static probes trace ``x_min`` (8) uniform rays, and with gamma 5 its converged
     irradiance was ~9% below ``ddgi``'s (as low as ``ddgi`` itself at 8 rays per probe; with gamma 1 both
-    agree within 2%, the sampling is unbiased; the ablation is in docs/benchmarks.md). A linear mean
+    agree within 2%, the sampling is unbiased; the ablation is in docs/techniques/isddgi.md). A linear mean
     removes that bias whatever the ray count, so on a static scene IS-DDGI converges to DDGI's answer at
     the same gamma and hysteresis. With ``gamma = 1`` it is exactly DDGI's accumulator."""
 

@@ -27,7 +27,7 @@ Pieces (numbers refer to the supplement; "ours" marks choices the supplement lea
   picks the same light point and reads the same probe texel, and its luminance differs from the
   reference's only by the drift of the probes it reads. (Fresh shading noise per visit would make one
   NEE sample over many lights read as change: a ray's luminance is then 0 or many times its mean;
-  docs/benchmarks.md has the figure.) Per check ray the larger of the normalised luminance difference
+  docs/techniques/isddgi.md has the figure.) Per check ray the larger of the normalised luminance difference
   ``|Y - Y'| / (Y + Y' + Y_floor)`` and distance difference ``|d - d'| / d_max``
   against the reference ``(Y', d')`` (``d`` clamped to ``d_max``, back faces at ``|d|``; ``Y_floor`` =
   1e-3 + 1/4 of the probe's mean hit luminance of this frame, so that a change of a dark set of a bright
@@ -68,7 +68,7 @@ state is host NumPy (P x 256 entries; vectorised); a frame's plan is built spars
 table is built per frame (rayHitInfo's dense count/prefix tables are built on first use only), and one
 upload per frame (ray hash, set, rays of its pair) lets the device compute directions (Algorithm 1),
 weights and shading keys (:func:`_device_rays`). The sparse plan is about twice as fast as a dense host
-one (docs/benchmarks.md).
+one (docs/techniques/isddgi.md).
 """
 from __future__ import annotations
 

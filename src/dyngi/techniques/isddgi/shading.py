@@ -5,7 +5,7 @@ probe core's shading (:class:`~dyngi.probes.trace.DiffuseHitShader`: one NEE lig
 stochastic multi-bounce lookup, both from a per-frame sampler) two visits of an unchanged set differ by
 their shading noise: in ``corridor-rooms`` one NEE sample over 14 lights makes a single ray's luminance
 0 or ~14x its mean, which hides a light switch (few importance rays reached the switched room;
-docs/benchmarks.md). Here every ray's NEE sample and hit lookup draw from hashes of the
+docs/techniques/isddgi.md). Here every ray's NEE sample and hit lookup draw from hashes of the
 ray's own key (:attr:`ISDDGIPlanInfo.ray_key <dyngi.techniques.isddgi.planner.ISDDGIPlanInfo>`): the planner
 gives the two uniform rays of a *pattern* (two successive visits of a set) the same key and the same
 jitter, so in a static scene they hit the same point, pick the same light point and read the same probe

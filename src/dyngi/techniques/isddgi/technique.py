@@ -50,7 +50,7 @@ kernels over device state (:mod:`.device_planner`); a frame reads back two small
 count per probe, which the pipeline's CSR plan holds on the host, and the new ON flags; nothing per ray or
 per set), and a steady frame compiles no kernel. ``impl='host'``: the former path (NumPy allocation and
 change measure, every ray's radiance and distance read back; :mod:`.planner`), kept for comparison -- it is
-not faster on the CPU (docs/benchmarks.md). Comparison budgets plan on the host in either. Stats per frame:
+not faster on the CPU (docs/techniques/isddgi.md). Comparison budgets plan on the host in either. Stats per frame:
 ``plan_ms``, ``uniform_rays``, ``importance_rays`` (kept after the per-set limit),
 ``importance_dropped``, ``probe_trace_ms`` (the ``trace probes`` stage), ``dynamic_rays``,
 ``changed_probes``, ``check_rays`` (paired visits that measured change), ``mean_uniform_per_probe``.
@@ -65,7 +65,7 @@ noisy per-frame estimates low (Jensen), by more the fewer rays; isddgi's static 
 therefore keeps a *linear* running mean and uses the perceptual space only for the change threshold
 (:class:`~.estimator.LinearMeanHysteresis`): on a static scene with no change detected the uniform rays
 converge to ``ddgi``'s answer at the same gamma and hysteresis (within 3%; the residual ~2% is the
-spread between ``ddgi`` and ``probes-reference`` themselves). Figures: docs/benchmarks.md.
+spread between ``ddgi`` and ``probes-reference`` themselves). Figures: docs/techniques/isddgi.md.
 Texel counts (``irradiance_count``) count frames that gave a texel weight, not rays.
 
 Budgets (``dyngi compare --budget equal-rays|equal-time``; ours): the frame's probe-ray target (equal rays:
