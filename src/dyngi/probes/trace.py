@@ -101,6 +101,7 @@ from ..sampling.passthrough import intersect_through_glass, scene_has_glass
 from ..sampling.rng import make_sampler
 from ..sampling.sunsky import is_sunsky, split_sunsky
 from ..timing import maybe_stage
+from .glossy import sample_glossy
 from .lookup import diffuse_radiance
 from .rays import RayPlan
 
@@ -132,13 +133,9 @@ def coating_albedo(bsdf, si, active, u1, u2):
     """The rough glossy reflection lobes' directional albedo towards ``si.wi`` on lanes whose BSDF also has a
     diffuse lobe (a coating: ``plastic``, ``roughplastic``, ``principled``), else 0: one BSDF sample from
     ``(u1, u2)`` with ``type_mask = GlossyReflection``, its ``f cos / pdf`` (unbiased)."""
-    coated = (mi.Bool(active) & has_diffuse_lobe(bsdf)
-              & mi.has_flag(bsdf.flags(), mi.BSDFFlags.GlossyReflection))
-    ctx = mi.BSDFContext()
-    ctx.type_mask = int(mi.BSDFFlags.GlossyReflection)
-    bs, w = bsdf.sample(ctx, front_wi(si), u1, u2, coated)
-    ok = coated & (bs.pdf > 0.0) & dr.all(dr.isfinite(mi.Color3f(w)))
-    return dr.select(ok, mi.Color3f(w), 0.0)
+    coated = mi.Bool(active) & has_diffuse_lobe(bsdf)
+    _, w, _ = sample_glossy(bsdf, front_wi(si), u1, u2, coated, lobes=mi.BSDFFlags.GlossyReflection)
+    return w
 
 
 def hit_albedo(bsdf, si, active, u1, u2, rule: str = DEFAULT_HIT_LOBES):
