@@ -28,8 +28,7 @@ does when it loads a level), each reading the previous one's probes, so that aft
 cache holds ``k`` bounces. The warm-up updates *every* probe, whatever the frame's ``probe_mask``
 (ours): a technique that culls its updates to the camera frustum (Q-DDGI, ``update_offscreen=False``)
 never updates a probe outside it afterwards, and a probe left at zero there darkens every bounce that
-reads it (the wooden staircase's hall: ``qddgi`` 0.87 of Mitsuba's mean with a culled warm-up, 0.94 with
-every probe warmed; docs/probes.md, issue 36).
+reads it (the wooden staircase's hall; docs/probes.md, "The wooden staircase").
 A planner's optional ``begin_warmup`` / ``end_warmup`` hooks run around
 it; a technique with its own per-update step (IS-DDGI's set integration) passes it as ``step``.
 

@@ -20,8 +20,8 @@ of every probe technique):
   glossy-only sample: unbiased, and nearly constant for the coatings' small roughness). A probe ray
   asks how much light the hit sends back; the coating reflects ~4-10% of it in every direction the
   probes' many rays see, and dropping it lost that share at every bounce of the multi-bounce
-  feedback (the wooden staircase's painted walls and wood: ddgi 0.90 of Mitsuba's mean without it,
-  0.98 with it; docs/probes.md, issue 36). Metals stay 0 (no diffuse lobe: DDGI's diffuse GI);
+  feedback (the wooden staircase's painted walls and wood; docs/probes.md, "The wooden staircase").
+  Metals stay 0 (no diffuse lobe: DDGI's diffuse GI);
 * ``'diffuse'``: the diffuse lobe only (DDGI, Majercik et al. 2019, Sec. 3.1: the hit is shaded as
   Lambertian with its diffuse albedo).
 Back-face hits return a negative distance ``-0.2 t`` (the DDGI/RTXGI

@@ -24,9 +24,10 @@ towards ``si.wi``, clamped to [0, 1]:
   is *not* that for these plugins: it returns the layer's texture, while the
   lobe Mitsuba renders is that texture under the coating,
   ``R (1 - F_i)(1 - F_o) / (eta^2 (1 - R F_dr))`` -- 0.578 read as 0.578 is
-  0.34 rendered by ``roughplastic`` (``intIOR`` 1.5, alpha 0.1, nonlinear) (issue 36: the
-  wooden staircase's painted walls and wood took every probe technique's
-  multi-bounce light +74% over Mitsuba's). The quadrature is ours
+  0.34 rendered by ``roughplastic`` (``intIOR`` 1.5, alpha 0.1, nonlinear) (the wooden
+  staircase's painted walls and wood: every probe technique's multi-bounce
+  light came out far over Mitsuba's; docs/probes.md, "The wooden
+  staircase"). The quadrature is ours
   (:data:`ALBEDO_NODES` virtual calls per lane, exact for a lobe that is a
   polynomial of degree < 8 in the cosine).
 
