@@ -61,7 +61,7 @@ probe shades lie at various distances and not only behind it, and a user may
 correct the remaining brightness bias per scene; against Mitsuba ``path`` on ``cornell-static`` the
 heuristic "slightly underestimates", as Sec. 3.3 says. A smaller clip box fits that scene better but
 fails the isolated test above (our choice: the probe boundary as the paper says, the slider for the
-rest). Figures: docs/benchmarks.md, "Figures moved out of the probe docstrings".
+rest). Figures: docs/techniques/ddgi-resampling.md.
 
 Mode ``'ddgi'`` runs the plain DDGI update instead (``DiffuseHitShader`` with
 the ``direct`` routing; the probes hold bounced light only): what
@@ -99,7 +99,7 @@ DEFAULT_EMISSION_SCALE = 1.0
 DEFAULT_UPDATE_VIEW_PATH_BIAS = 0.0
 """Sec. 3.5's offset at probe-ray hits, in smallest probe spacings; 0 (none) by default, our choice by
 measurement: 0.2 (the secondary-vertex shading's factor) over-lights the two-storey stair hall by 13 %
-against Mitsuba (0 by 3 %) and does not lower the per-frame error (docs/benchmarks.md, issue 27)."""
+against Mitsuba (0 by 3 %) and does not lower the per-frame error (docs/techniques/ddgi-resampling.md)."""
 ATTENUATION_CLIP = 1.0
 """The probe boundary of the emission heuristic: the box probe +- ATTENUATION_CLIP x spacing (module docstring)."""
 

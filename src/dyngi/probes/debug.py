@@ -21,7 +21,7 @@ from .volume import ProbeVolume
 def probe_spheres(volume: ProbeVolume, radius: float = 0.15):
     """(Mitsuba scene of one low-poly sphere per probe, triangles per sphere); ``prim_index // tris`` is the
     probe. Kept on the volume and rebuilt only when the probe positions (relocation) or the radius change:
-    building the mesh's BVH costs far more than the render (docs/benchmarks.md)."""
+    building the mesh's BVH costs far more than the render (docs/techniques/ddgi.md)."""
     r = float(radius) * volume.grid.min_spacing
     pos = volume.positions()
     key = (r, hash(np.ascontiguousarray(pos, np.float64).tobytes()))

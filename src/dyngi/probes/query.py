@@ -73,7 +73,7 @@ def bilinear_gather(atlas, probe, coords, texels: int, channels: int):
     """Bilinear read of a bordered probe square: ``atlas`` flat Float, ``probe`` UInt32, ``coords`` texel coords.
 
     Returns a Vector2f (2 channels) or Color3f (3 channels). Unmasked: masked
-    gathers made the query slower in Dr.Jit's LLVM backend (docs/benchmarks.md),
+    gathers made the query slower in Dr.Jit's LLVM backend (docs/techniques/ddgi.md),
     so callers point lanes they do not need at a valid, cached texel instead.
     """
     cls = mi.Color3f if channels == 3 else mi.Vector2f

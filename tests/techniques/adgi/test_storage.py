@@ -242,3 +242,13 @@ def test_cache_update_is_algorithm_2_and_3_and_table3_memory(adgi):
     mem = a.memory_per_probe()
     assert mem["irradiance"] + mem["visibility"] == 8 * 8 * 4 + 16 * 16 * 4 == 1280
     assert mem["heuristics"] == 32 and mem["radiance_layer"] == 36 * 16
+
+
+def test_ray_cap_of_a_budget_fits_a_uint32():
+    """An equal-time budget far above a frame's cost converts to more rays than a UInt32 holds: the cap
+    saturates instead of overflowing ``dr.opaque`` (it failed the test above on a slow machine)."""
+    from dyngi.techniques.adgi.planner import _ray_cap
+
+    assert _ray_cap(1000, 0.5) == 400 and _ray_cap(1e20, 0.5) == 2 ** 32 - 1
+    assert _ray_cap(float("inf"), 1.0) == 2 ** 32 - 1
+    assert _ray_cap(-3, 1.0) == 0 and _ray_cap(float("nan"), 1.0) == 0

@@ -54,6 +54,16 @@ GUIDE_LEVELS = 1024       # f_d's levels in the 6-10-10 word (Sec. 4.3): the bud
 STAGES = ("static", "dynamic")
 
 
+def _ray_cap(rays, shadow_rate: float) -> int:
+    """Primary rays a budget of ``rays`` (each with ``shadow_rate`` shadow rays and its continuation) allows,
+    as a UInt32: an equal-time budget far above a frame's cost converts to more rays than 2^32 - 1 (it
+    overflowed ``dr.opaque(UInt32, ...)``), and a budget below zero to none."""
+    r = float(rays)
+    if r != r or r <= 0.0:
+        return 0
+    return int(min(r / (2.0 + shadow_rate), 2.0 ** 32 - 1))
+
+
 def sorted_plan(probe, direction, weight, n_probes: int) -> RayPlan:
     """A ragged :class:`RayPlan` from unordered per-sample probe ids: samples grouped by probe with a stable
     host sort (one host copy of the ids; deterministic order). Directions/weights follow the sort."""
@@ -327,7 +337,7 @@ class ADGIChainPlanner:
         if rays is None and self._static_lanes:    # 1.25x the last frame's samples (ours: early iterations first)
             width = min(width, max(-(-int(1.25 * self._static_lanes) // 4096), 1) * 4096)
         if rays is not None:
-            cap = limit if limit is not None else dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
+            cap = limit if limit is not None else dr.opaque(mi.UInt32, _ray_cap(rays, shadow_rate))
             bound = rays if rays_max is None else rays_max
             width = min(width, int(max(bound // (2.0 + shadow_rate), 0)) + 1)
         ok &= dr.prefix_sum(mi.UInt32(ok)) < cap
@@ -422,7 +432,7 @@ class ADGIChainPlanner:
             # (on LLVM that bakes n_marked into the kernel, a new kernel whenever it changes)
             per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27) * R
             key = guide_level(dr.gather(mi.Float, table, marked), GUIDE_LEVELS)
-            budget = dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
+            budget = dr.opaque(mi.UInt32, _ray_cap(rays, shadow_rate))
             keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
             ok &= dr.gather(mi.Bool, keep_m, m)
             dr.eval(ok)
@@ -477,7 +487,7 @@ class ADGIChainPlanner:
         key = guide_level(dr.select(m_ok, dr.gather(mi.Float, table, marked), 0.0), GUIDE_LEVELS)
         budget = dr.opaque(mi.UInt32, width)     # evaluated values either way: one set of kernels
         if rays is not None:
-            budget = limit if limit is not None else dr.opaque(mi.UInt32, int(max(rays // (2.0 + shadow_rate), 0)))
+            budget = limit if limit is not None else dr.opaque(mi.UInt32, _ray_cap(rays, shadow_rate))
         budget = dr.minimum(budget, dr.opaque(mi.UInt32, width))
         keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
         ok &= dr.gather(mi.Bool, keep_m, m)
