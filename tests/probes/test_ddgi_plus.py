@@ -1,4 +1,4 @@
-"""DDGI+ probes, the glossy lookup and ``ddgi-primary`` (issue 15, items 1-3; DDGI Resampling Secs. 3.1-3.4).
+"""DDGI+ probes, the glossy lookup and ``ddgi-primary`` (DDGI Resampling Secs. 3.1-3.4).
 
 * ``test_glossy_furnace_pi_normalisation`` -- Eq. 6's glossy lookup in a furnace
   of constant probe radiance ``L`` returns ``albedo_g x L`` with the divisor

@@ -1,4 +1,4 @@
-"""The probe pipeline (issue 23 item 1): its parts are checked against the protocols, and a planner
+"""The probe pipeline: its parts are checked against the protocols, and a planner
 alone (docs/probes.md's example) makes a probe technique: warm-up, ragged plans, the scatter estimator
 and relocation/classification grouped by ray count."""
 import numpy as np

@@ -1,5 +1,5 @@
 """Probe core for any update strategy: ragged ray plans, estimators (BLAS / scatter), temporal
-accumulators (hysteresis, moving average, mean), device encodings and texel counts (issue 11 items 2-5)."""
+accumulators (hysteresis, moving average, mean), device encodings and texel counts."""
 import numpy as np
 import pytest
 

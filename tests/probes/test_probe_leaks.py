@@ -1,4 +1,4 @@
-"""Probe leaks through thick two-sided geometry (issue 22), for **every probe technique**.
+"""Probe leaks through thick two-sided geometry, for **every probe technique**.
 
 The techniques are the registry's probe techniques (``PROBE_TECHNIQUE``,
 :func:`dyngi.techniques.base.probe_technique_names`), not a hand list; ``ddgi``
@@ -16,7 +16,7 @@ and ``qddgi`` run in the fast suite, the others are ``slow``. Each renders
   technique's own recorded floor where its other biases hold it lower --
   every figure is identical before and after the fix).
 
-* the sealed room on every frame from frame 0 (issue 36): on ``sealed_rooms_dim`` (the same building,
+* the sealed room on every frame from frame 0: on ``sealed_rooms_dim`` (the same building,
   white, under a dimmer sun) and ``sealed_rooms_midslab`` (1.2 m slabs, probe layers on their mid-planes;
   both :mod:`dyngi.scene.builtin_probe_leaks`), sealed/open below 1% on each of frames 0-19, and no
   back-and-forth of that ratio between consecutive frames above 0.002 (before the fixes: ``adgi`` 0.043 /
@@ -55,7 +55,7 @@ HALL_SETTINGS = {"ddgi-secondary": {"emission_attenuation": "none"},
                  "ddgi-resampling": {"emission_attenuation": "none"}}
 VEACH_SETTINGS = {"probes-reference": {"texels": 8, "rays_per_texel": 16}}
 VEACH_FLOOR = 0.79
-"""veach-bidir mean / Mitsuba's at least this (issue 22: ddgi 0.79 at 160x90; 0.82 here) ..."""
+"""veach-bidir mean / Mitsuba's at least this (ddgi 0.79 at 160x90; 0.82 here) ..."""
 VEACH_FLOORS = {"qddgi": 0.72, "isddgi": 0.74, "ddgi-primary": 0.72, "ddgi-secondary": 0.58,
                 "ddgi-resampling": 0.58}
 """... or these technique floors, recorded 2026-12-02 (64x36, frames 6-11), the same before and after issue
@@ -171,7 +171,7 @@ def test_veach_bidir_keeps_the_two_sided_gain(backend, name):
     assert ratio >= VEACH_FLOORS.get(name, VEACH_FLOOR), ratio
 
 
-# -- the sealed room on every frame from frame 0 (issue 36) ---------------------------------------------
+# -- the sealed room on every frame from frame 0 ---------------------------------------------
 
 SEQUENCE = 20          # frames 0-19, as the real two-room scene was measured
 ALTERNATION = 0.002    # the most a sealed/open ratio may go back and forth between consecutive frames
@@ -219,7 +219,7 @@ def test_alternation_measure():
 @pytest.mark.parametrize("variant", SEALED_VARIANTS)
 @pytest.mark.parametrize("name", PROBE_TECHNIQUES)
 def test_sealed_room_dark_on_every_frame_from_frame_0(backend, name, variant):
-    """The sealed room below 1% of the open room on each of frames 0-19 (issue 36). Before the fixes: 'dim'
+    """The sealed room below 1% of the open room on each of frames 0-19. Before the fixes: 'dim'
     ``adgi`` 0.043 / 0.018 on even / odd frames (the real scene: 0.028 / 0.036); 'midslab' ``isddgi``
     0.11-0.12 from frame 0 (fixed by the relocation rule of :mod:`dyngi.probes.states`)."""
     r, lit = _sealed_ratios(name, variant)
@@ -232,7 +232,7 @@ def test_sealed_room_dark_on_every_frame_from_frame_0(backend, name, variant):
 @pytest.mark.parametrize("name", PROBE_TECHNIQUES)
 def test_sealed_ratio_does_not_alternate(backend, name, variant):
     """No back-and-forth of the sealed/open ratio between consecutive frames above 0.002 (before the fix
-    ``adgi`` 0.023: its convolved irradiance toggled one code every frame, issue 36)."""
+    ``adgi`` 0.023: its convolved irradiance toggled one code every frame)."""
     r, _ = _sealed_ratios(name, variant)
     a = alternation(r)
     print(f"{name} {variant}: alternation {a:.5f}")

@@ -1,4 +1,4 @@
-"""``lights=`` on the probe techniques (issue 24 item 3): a :mod:`dyngi.lights` sampler drives the NEE at
+"""``lights=`` on the probe techniques: a :mod:`dyngi.lights` sampler drives the NEE at
 the primary hit (:func:`dyngi.probes.primary.shade_primary`) and at probe-ray hits
 (:class:`dyngi.probes.trace.DiffuseHitShader`) through :class:`dyngi.lights.nee.TracedNEE`, its samples
 weighted by the ``direct=`` routing (:meth:`dyngi.probes.trace.LightRouting.nee_weight`): a sampler changes

@@ -144,13 +144,13 @@ def test_stochastic_lookup_loop_matches_unrolled(cornell_volume):
     assert np.allclose(a, b, rtol=1e-5, atol=1e-7)
 
 
-# -- fallback when the 8 probes of a cell carry no weight (issue 11, item 1) --------------------------------
+# -- fallback when the 8 probes of a cell carry no weight --------------------------------
 
 def _dead_cell_volume(values=None, seed=0):
     """A 4x4x4 unit grid whose centre cell (probes (1..2)^3) is all inactive; the other probes hold
     ``values`` (default: random per probe and texel) as stored E/pi, and distance moments of open space
     (nothing nearer than the clamp): the fallback reads only candidates that the visibility test accepts
-    (issue 22), and zero moments would put every point behind a wall."""
+    (a wall between), and zero moments would put every point behind a wall."""
     vol = ProbeVolume(ProbeGrid.from_box((0.0, 0.0, 0.0), (3.0, 3.0, 3.0), (4, 4, 4)))
     vol.state.distance[..., 0] = vol.max_distance
     vol.state.distance[..., 1] = vol.max_distance ** 2

@@ -1,4 +1,4 @@
-"""Probe GI on real interiors within 10% of Mitsuba (issue 36), for **every probe technique**.
+"""Probe GI on real interiors within 10% of Mitsuba, for **every probe technique**.
 
 ``coated-hall`` (:mod:`dyngi.scene.builtin_real_interiors`) is the analog of ``../shared/scenes/wooden-staircase``:
 a hall whose walls and wood are ``roughplastic``. Its mean over settled frames must be within 10% of
@@ -6,7 +6,7 @@ Mitsuba's ``path`` (1024 spp, equal depth 12) for every technique the registry f
 (``ddgi`` and ``qddgi`` fast, the others ``slow``; the DDGI Resampling family without Sec. 3.3's emission
 heuristic, as ``tests/probes/test_probe_leaks.py`` runs it in its hall). Before the fix (a coated BSDF's
 diffuse texture taken as its albedo) ``ddgi`` was 2.02x Mitsuba's mean there, ``qddgi`` 1.91x
-(docs/probes.md, "Issue 36: the wooden staircase").
+(docs/probes.md, "The wooden staircase: a coated surface's diffuse albedo").
 
 The real ``wooden-staircase`` (``../shared/scenes``, skipped when absent) at 54x96, depth 12, frames 20-29:
 within 10% for ``ddgi``, ``qddgi``, ``adgi``, ``isddgi`` (slow; each prints its time). Before the fix

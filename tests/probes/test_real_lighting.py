@@ -1,4 +1,4 @@
-"""Real-scene lighting correctness (issue 11, item 1): sun/sky routing, diffuse-only albedo, glass pass-through.
+"""Real-scene lighting correctness: sun/sky routing, diffuse-only albedo, glass pass-through.
 
 Every image test compares against Mitsuba's own ``path`` integrator on a built-in analog scene at a
 small resolution: the reference's mean has a relative noise far below the 10% bound (48x36 pixels at
@@ -41,7 +41,7 @@ def _head_on_si(bsdf_dict):
     ({"type": "dielectric"}, 0.0),
     ({"type": "thindielectric"}, 0.0),
     ({"type": "null"}, 0.0),
-    # coated: the diffuse lobe under the coating, not the texture (issue 36: "lobe" = its Monte Carlo albedo)
+    # coated: the diffuse lobe under the coating, not the texture ("lobe" = its Monte Carlo albedo)
     ({"type": "roughplastic", "diffuse_reflectance": {"type": "rgb", "value": [0.3, 0.3, 0.3]}}, "lobe"),
     ({"type": "plastic", "diffuse_reflectance": {"type": "rgb", "value": [0.4, 0.4, 0.4]}}, "lobe"),
     ({"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.7, 0.7, 0.7]}}, 0.7),
@@ -176,7 +176,7 @@ def test_ddgi_matches_mitsuba_on_the_analog_scenes(name):
 @pytest.mark.slow   # CI budget (10-30 s on a cold cache); runs in CI's slow subset
 def test_the_old_sky_split_misses_the_sun():
     """The failure the default fixes: under direct='sky' the sun of a sunsky is left to the probes, whose
-    blurred, under-sampled sun patch comes out far too dark (issue 11: -10% on a real dining room)."""
+    blurred, under-sampled sun patch comes out far too dark (-10% on a real dining room)."""
     sc = load_scene("room-sun-blinds")
     ref = reference_image(sc, 0.0, RES, spp=REF_SPP).mean()
     assert _converged_means(sc, frames=8, settle=4, direct="sky").mean() < 0.8 * ref

@@ -1,4 +1,4 @@
-"""A sunlit classroom with metal within 10% of Mitsuba, for **every probe technique** (issue 36).
+"""A sunlit classroom with metal within 10% of Mitsuba, for **every probe technique**.
 
 ``sunlit-classroom`` (:mod:`dyngi.scene.builtin_classroom`): thick two-sided walls, floor and roof whose
 outer probe layers start inside the slabs near their outer faces, a sunsky through three windows, chrome
