@@ -282,9 +282,11 @@ def cmd_reproduce(args) -> int:
         raise DyngiError("name an experiment, e.g. 'dyngi reproduce ddgi --quick'; registered experiments: "
                          + ", ".join(experiment_names()))
     get_experiment(args.name)
-    _setup(args)
     out = args.out or os.path.join("out", "reproduce", args.name + ("-smoke" if args.smoke else
                                                                       "-quick" if args.quick else ""))
+    if args.only is not None or args.table:
+        return _smcir_parts(args, out)
+    _setup(args)
     opts = _reference_options(args)
     if opts:       # --reference / --untextured / --no-tracked: only experiments whose function takes them
         import inspect
@@ -309,6 +311,41 @@ def cmd_reproduce(args) -> int:
                                                              smoke=args.smoke))
     print(f"wrote reproduction '{args.name}' to {out} (open {os.path.join(out, 'report.html')})")
     return max(_report_failures(out), bad)
+
+
+def _smcir_parts(args, out) -> int:
+    """``dyngi reproduce smcir --only SEQ:SEEDS ...`` (some runs of the full reproduction, resumable) and
+    ``--table`` (Table 1 / Table 2 from the runs finished in ``out``)."""
+    import json
+
+    from .errors import DyngiError
+    from .experiments.io import check_writable
+
+    if args.name != "smcir":
+        raise DyngiError(f"--only and --table belong to the smcir reproduction, not '{args.name}'")
+    if args.only is not None and args.table:
+        raise DyngiError("--only runs, --table reads: give one of them")
+    if args.table:
+        from .experiments.reproductions.smcir_table import table_markdown
+
+        md = table_markdown(out)
+        if not md:
+            raise DyngiError(f"no finished smcir runs (SEQ/seedN/figures.json) under '{out}'")
+        print(md)
+        return 0
+    from .experiments.clamped_reference import check_reference
+    from .experiments.reproductions.smcir import parse_pairs, run_pairs
+
+    pairs = parse_pairs(args.only)
+    opts = _reference_options(args)
+    check_reference(opts.get("reference", "path"), True)
+    check_writable(out)
+    _setup(args)
+    run_pairs(out, pairs, quick=args.quick, quiet=args.quiet, **opts,
+              on_pair=lambda rec: print(json.dumps(rec), flush=True))
+    print(f"finished {len(pairs)} smcir run(s) in {out}; 'dyngi reproduce smcir --out {out} --table' prints the "
+          f"tables, 'dyngi reproduce smcir --out {out}' the report once every run is there")
+    return 0
 
 
 def _reference_options(args) -> dict:
@@ -561,6 +598,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
                    help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.add_argument("--only", nargs="+", default=None, metavar="SEQ[:SEEDS]",
+                   help="smcir: run only these (sequence, seed) runs, e.g. maze:0,1 atrium-sun (seed 0); each is "
+                        "saved in --out as it ends and skipped when saved before (split a full run over processes)")
+    s.add_argument("--table", action="store_true",
+                   help="smcir: print Table 1 and Table 2 (Markdown) from the runs finished in --out; runs nothing")
     _reference_flags(s, None)
     _cluster_flag(s)
     s.set_defaults(fn=cmd_reproduce)

@@ -26,7 +26,7 @@ Table 2's stage breakdown comes from smcir's per-stage ms.
 
 Each (sequence, seed) saves its figures in ``OUT/SEQ/seedN/figures.json`` as it ends and a later run
 with the same settings reads them back (:func:`run_pair`): a full run can be resumed, or split over
-processes (``benchmarks/smcir_full.py``) and gathered by one more ``dyngi reproduce smcir --out OUT``. The
+processes (``dyngi reproduce smcir --only SEQ:SEEDS``) and gathered by one more ``dyngi reproduce smcir --out OUT``. The
 references (image and tracked pixels) do not depend on the technique seed: they are rendered once per
 sequence and frame and cached on disk (:mod:`dyngi.experiments.reference`), so seeds 2 and 3 cost only the
 techniques' frames.
@@ -144,6 +144,51 @@ def run_pair(scene_name: str, cfg: dict, out_root: str, seed: int, quiet: bool =
                   default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
     os.replace(tmp, path)
     return figs, False
+
+
+def parse_pairs(items) -> list[tuple[str, int]]:
+    """``['maze:0,1', 'street-canyon']`` as (sequence, seed) pairs (no seeds: seed 0); unknown sequences and
+    bad seeds are one :class:`DyngiError` naming the valid ones, before any work."""
+    from ...errors import DyngiError
+
+    names = [sc for sc, _ in SEQUENCES]
+    out = []
+    for item in items:
+        scene, _, seeds = str(item).partition(":")
+        if scene not in names:
+            raise DyngiError(f"--only: unknown smcir sequence '{scene}'; valid sequences: {', '.join(names)}")
+        try:
+            sds = [int(x) for x in (seeds or "0").split(",") if x.strip()]
+        except ValueError:
+            raise DyngiError(f"--only {item}: seeds must be comma-separated integers >= 0") from None
+        if not sds or min(sds) < 0:
+            raise DyngiError(f"--only {item}: seeds must be comma-separated integers >= 0")
+        out += [(scene, sd) for sd in sds if (scene, sd) not in out]
+    return out
+
+
+def run_pairs(out_root: str, pairs, quick: bool = False, quiet: bool = True, reference: str = "path",
+              untextured: bool = False, tracked: bool = True, on_pair=None) -> list[dict]:
+    """Only these (sequence, seed) runs of the reproduction (full configuration, or quick), one after the
+    other, each saved as it ends and skipped when already saved (:func:`run_pair`): a full run split over
+    processes or sessions (ours: hours on a small CPU). ``on_pair(record)`` after each; returns the records
+    (sequence, seed, whether it was saved before, wall seconds, load, |E'| per technique)."""
+    import time
+
+    from ..clamped_reference import check_reference
+
+    check_reference(reference, True)
+    cfg = SMCIR_QUICK if quick else SMCIR_FULL
+    out = []
+    for scene, sd in pairs:
+        t0 = time.time()
+        got, cached = run_pair(scene, cfg, out_root, sd, quiet, reference, untextured, tracked)
+        rec = {"scene": scene, "seed": sd, "cached": cached, "wall_s": round(time.time() - t0, 1),
+               "load": os.getloadavg()[0], "E'": {k: round(v["E_prime_tracked"], 4) for k, v in got.items()}}
+        out.append(rec)
+        if on_pair is not None:
+            on_pair(rec)
+    return out
 
 
 def _pair_walls(out_root: str, pairs) -> dict:

@@ -1,29 +1,27 @@
-"""Markdown Table 1 / Table 2 of the SMC-IR reproduction from the (sequence, seed) runs finished so far.
+"""Table 1 / Table 2 of the SMC-IR reproduction as Markdown, from the (sequence, seed) runs finished so far.
 
 Reads ``OUT/SEQ/seedN/figures.json`` (:func:`dyngi.experiments.reproductions.smcir.run_pair`, written by
-``dyngi reproduce smcir --out OUT`` or ``benchmarks/smcir_full.py OUT ...``), whatever seeds each sequence
-has, and prints per sequence |E| and |E'| of the 8 tracked pixels (mean [min-max] over its seeds) for
-every technique row beside the paper's Table 1, the brightness (mean indirect / the reference's), the
-steady ms per frame, smcir's |E'| rank per seed with the stability verdict of the reproduction (one seed: not
-judged), each run's wall time, and smcir's stage ms (Table 2).
-
-    .venv/bin/python benchmarks/smcir_table.py /tmp/smcir-full
-
-Recorded in ``docs/techniques/smcir.md`` ("Table 1 and Table 2 at full size, 3 seeds"), beside the command,
-resolution, seeds and machine load of each run.
+``dyngi reproduce smcir --out OUT``, whole or ``--only SEQ:SEEDS``), whatever seeds each sequence has, and
+gives per sequence |E| and |E'| of the 8 tracked pixels (mean [min-max] over its seeds) for every
+technique row beside the paper's Table 1, the brightness (mean indirect / the reference's), the steady ms
+per frame, smcir's |E'| rank per seed with the reproduction's stability verdict (one seed: not judged),
+each run's wall time, and smcir's stage ms (Table 2). ``dyngi reproduce smcir --out OUT --table`` prints it;
+docs/techniques/smcir.md records it.
 """
 from __future__ import annotations
 
 import glob
 import json
 import os
-import sys
 
 import numpy as np
 
+from .smcir import METHODS, SEQUENCES, TABLE1, TABLE2, TABLE2_STAGES, ranking
 
-def load(out: str) -> dict:
-    """``{sequence: [(seed, figures, wall_s), ...]}`` sorted by seed."""
+
+def load_runs(out: str) -> dict:
+    """``{sequence: [(seed, figures, wall_s), ...]}`` of the finished (sequence, seed) runs under ``out``, sorted by
+    seed."""
     runs = {}
     for p in sorted(glob.glob(os.path.join(out, "*", "seed*", "figures.json"))):
         with open(p) as f:
@@ -32,14 +30,13 @@ def load(out: str) -> dict:
     return {k: sorted(v) for k, v in runs.items()}
 
 
-def main(argv=None) -> int:
-    from dyngi.experiments.reproductions.smcir import METHODS, SEQUENCES, TABLE1, TABLE2, TABLE2_STAGES, ranking
-
-    argv = sys.argv[1:] if argv is None else argv
-    runs = load(argv[0])
+def table_markdown(out: str) -> str:
+    """Table 1 and Table 2 as Markdown from the runs finished under ``out`` (empty string: none yet)."""
+    runs = load_runs(out)
     if not runs:
-        print(f"no figures.json under {argv[0]}")
-        return 1
+        return ""
+    lines = []
+    print = lines.append          # noqa: A001  (the rows below are written as lines)
     specs = list(next(iter(runs.values()))[0][1])
     labels = [next(s for s in specs if s.split(":")[0] == m) for m in METHODS]
     order = labels + [s for s in specs if s not in labels]
@@ -84,12 +81,9 @@ def main(argv=None) -> int:
                  "atrium-sun": "Crytek Sponza", "street-canyon-moving-sun": "Epic Citadel"}[scene]
         stage_rows.append(f"| {scene} | " + " | ".join(f"{np.mean([s.get(k, 0.0) for s in sm]):.0f}" for k in TABLE2_STAGES)
                           + f" | {paper}: " + " / ".join(f"{v}" for v in TABLE2[paper]) + " |")
-    print()
+    print("")
     print("| sequence | " + " | ".join(TABLE2_STAGES) + " | paper (ms, GTX Titan X, 1920x1080) |")
     print("|---" * (len(TABLE2_STAGES) + 2) + "|")
     print("\n".join(stage_rows))
-    return 0
+    return "\n".join(lines)
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())
