@@ -147,6 +147,136 @@ def _cycles(graph):
     return out
 
 
+# -- module cycles and imports inside functions -------------------------------------------------------
+
+# module-level import cycles that are plug-in discovery (a package's __init__ imports its plug-ins, each
+# plug-in registers itself with the package's base): allowed, named
+ALLOWED_MODULE_CYCLES = {
+    ("dyngi.lights", "dyngi.lights.base"): "lights/__init__ discovers the light samplers, which register in base",
+    ("dyngi.directions", "dyngi.directions.base"): "directions/__init__ discovers the direction samplers",
+}
+
+# imports of dyngi modules inside functions, per module: the count may only fall (a new one fails; a
+# module whose count fell must lower its entry). Permanent reasons (optional dependencies, plug-in
+# discovery, the cluster worker's environment set before Dr.Jit loads) are in FUNCTION_IMPORTS_WHY.
+FUNCTION_IMPORTS: dict[str, int] = {   # one module a line
+    "dyngi.cli": 47,
+    "dyngi.color": 1,
+    "dyngi.directions.base": 1,
+    "dyngi.directions.walk": 2,
+    "dyngi.experiments.clamped_reference": 10,
+    "dyngi.experiments.cluster": 7,
+    "dyngi.experiments.compare": 15,
+    "dyngi.experiments.demo": 8,
+    "dyngi.experiments.denoise": 4,
+    "dyngi.experiments.evaluate": 7,
+    "dyngi.experiments.indirect_reference": 2,
+    "dyngi.experiments.io": 3,
+    "dyngi.experiments.reference": 6,
+    "dyngi.experiments.render": 3,
+    "dyngi.experiments.report": 1,
+    "dyngi.experiments.reproduce": 9,
+    "dyngi.experiments.reproductions.adgi": 18,
+    "dyngi.experiments.reproductions.cdq": 10,
+    "dyngi.experiments.reproductions.ddgi_resampling": 16,
+    "dyngi.experiments.reproductions.isddgi": 3,
+    "dyngi.experiments.reproductions.smcir": 6,
+    "dyngi.experiments.reproductions.vlc": 2,
+    "dyngi.experiments.sweep": 17,
+    "dyngi.experiments.tracked": 5,
+    "dyngi.lights.base": 1,
+    "dyngi.lights.nee": 1,
+    "dyngi.probes.ddgi_plus": 1,
+    "dyngi.probes.pipeline": 1,
+    "dyngi.probes.rays": 1,
+    "dyngi.probes.states": 4,
+    "dyngi.probes.trace": 1,
+    "dyngi.sampling.vlc": 1,
+    "dyngi.scene.library": 1,
+    "dyngi.scene.loaders": 1,
+    "dyngi.techniques.adgi.planner": 1,
+    "dyngi.techniques.isddgi.device_planner": 2,
+    "dyngi.techniques.isddgi.estimator": 3,
+    "dyngi.techniques.isddgi.sets": 1,
+    "dyngi.techniques.isddgi.shading": 1,
+    "dyngi.techniques.isddgi.technique": 1,
+    "dyngi.techniques.neept": 4,
+    "dyngi.techniques.smcir.common": 1,
+    "dyngi.viewer.errorview": 5,
+    "dyngi.viewer.overlays": 7,
+    "dyngi.viewer.server": 4,
+    "dyngi.viewer.session": 5,
+    "dyngi.vpl.density": 5,
+    "dyngi.vpl.radiosity": 3,
+    "dyngi.vpl.smc": 1,
+    "dyngi.vpl.smc_device": 1,
+}
+FUNCTION_IMPORTS_WHY: dict[str, str] = {}
+
+
+def _function_imports(mod: str, path: str) -> list[str]:
+    """The dyngi modules ``mod`` imports inside a function body (one entry per import statement)."""
+    tree = ast.parse(open(path, encoding="utf-8").read(), path)
+    is_pkg = path.endswith("__init__.py")
+    pkg = mod if is_pkg else mod.rsplit(".", 1)[0]
+    out = []
+    for fn in ast.walk(tree):
+        if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        for node in ast.walk(fn):
+            if isinstance(node, ast.Import):
+                out += [a.name for a in node.names if a.name.split(".")[0] == "dyngi"]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = pkg.split(".")
+                    base = base[: len(base) - (node.level - 1)]
+                    target = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    target = node.module or ""
+                if target.split(".")[0] == "dyngi":
+                    out.append(target)
+    return out
+
+
+def function_import_counts() -> dict[str, int]:
+    """``{module: imports of dyngi modules inside its functions}`` (modules with none left out; an import
+    inside a nested function counts once per enclosing function)."""
+    out = {}
+    for mod, path in _modules():
+        n = len(_function_imports(mod, path))
+        if n:
+            out[mod] = n
+    return out
+
+
+def module_cycles() -> list[tuple]:
+    """Import cycles among dyngi modules (every import, in functions too), less the allowed ones."""
+    graph = {}
+    for mod, path in _modules():
+        graph[mod] = {i for i in _imports(mod, path) if i != mod}
+    return [c for c in _cycles(graph) if c not in ALLOWED_MODULE_CYCLES]
+
+
+def test_no_module_cycle():
+    """No circle of modules closed by an import inside a function (or at the top): a module's dependencies
+    are what its top says. Plug-in discovery cycles are allowed and named."""
+    cycles = module_cycles()
+    assert not cycles, "module import cycles: " + "; ".join(" <-> ".join(c) for c in cycles)
+
+
+def test_imports_at_the_top():
+    """Imports of dyngi modules stand at the top of a module, except the counted ones in FUNCTION_IMPORTS
+    (a list that only shrinks) and the permanent ones it explains (FUNCTION_IMPORTS_WHY)."""
+    got = function_import_counts()
+    grown = {m: (n, FUNCTION_IMPORTS.get(m, 0)) for m, n in got.items() if n > FUNCTION_IMPORTS.get(m, 0)}
+    assert not grown, "imports inside functions (move them to the top): " + ", ".join(
+        f"{m} {n} (allowed {a})" for m, (n, a) in sorted(grown.items()))
+    shrunk = {m: (got.get(m, 0), a) for m, a in FUNCTION_IMPORTS.items() if got.get(m, 0) < a}
+    assert not shrunk, "fewer imports inside functions than FUNCTION_IMPORTS allows, lower the entries: " + \
+        ", ".join(f"{m} {n} (allowed {a})" for m, (n, a) in sorted(shrunk.items()))
+    assert set(FUNCTION_IMPORTS_WHY) <= set(FUNCTION_IMPORTS)
+
+
 def test_parser_sees_relative_and_function_level_imports(tmp_path):
     """The checker itself can fail: a module with an upward import hidden in a function is caught."""
     f = tmp_path / "x.py"
