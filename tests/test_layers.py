@@ -207,9 +207,7 @@ FUNCTION_IMPORTS: dict[str, int] = {   # one module a line
     "dyngi.viewer.server": 4,
     "dyngi.viewer.session": 5,
     "dyngi.vpl.density": 5,
-    "dyngi.vpl.radiosity": 3,
     "dyngi.vpl.smc": 1,
-    "dyngi.vpl.smc_device": 1,
 }
 FUNCTION_IMPORTS_WHY: dict[str, str] = {}
 

@@ -21,6 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from ..transport.path_walk import trace_paths_split
+from .points import aligned, padded, to_point, to_vector
 
 RAY_OFFSET = 1e-4
 """Offset of the radiosity ray's origin above y, relative to 1 + max|y| (our choice)."""
@@ -62,7 +64,6 @@ def stream_seeds(seeds: np.ndarray, stream: int) -> np.ndarray:
 def per_lane_sampler(seeds: np.ndarray, spp: int) -> PCGSampler:
     """Lane ``i * spp + s``: PCG32 seeded with ``(seeds[i], s)``."""
     seeds = np.asarray(seeds, np.uint64)
-    from .points import aligned
     st = aligned(np.repeat(seeds, spp), np.uint64)
     seq = aligned(np.tile(np.arange(spp, dtype=np.uint64), len(seeds)), np.uint64)
     rng = mi.PCG32()       # the sized constructor adds the lane index to initseq: seed explicitly
@@ -76,12 +77,9 @@ def estimate_radiosity(mscene, pos: np.ndarray, nrm: np.ndarray, seeds: np.ndarr
 
     ``max_depth`` counts path vertices from ``y`` (1: nothing, 2: direct light at ``y``, 4: up to three
     bounces of light reaching ``y``). The host form of
-    :func:`dyngi.vpl.smc_device.estimate_radiosity_device` (the same lanes and samples, averaged there:
+    :func:`estimate_radiosity_device` (the same lanes and samples, averaged there:
     bit-identical to the device estimate of the same seed).
     """
-    from .points import aligned, padded, to_point, to_vector
-    from .smc_device import estimate_radiosity_device
-
     n = len(pos)
     if n == 0 or max_depth < 2:
         return np.zeros((n, 3), np.float32), 0
@@ -93,3 +91,37 @@ def estimate_radiosity(mscene, pos: np.ndarray, nrm: np.ndarray, seeds: np.ndarr
     dr.eval(L, rays)
     out = np.stack([np.asarray(L[i], np.float32) for i in range(3)], axis=1)[:n]
     return out, int(np.asarray(rays).ravel()[0])
+
+
+def estimate_radiosity_device(mscene, pos, nrm, seeds, spp: int, max_depth: int, active=True, lights=None):
+    """Radiosity L(y) of each point (Color3f, 0 where inactive) and the rays traced (width-1 UInt32).
+
+    The device form of :func:`estimate_radiosity` (which calls it): lane
+    ``i * spp + s`` runs PCG32 seeded ``(seeds[i], s)`` from just above y_i along ``-n_i`` through the
+    shared path walk (:func:`dyngi.transport.path_walk.trace_paths_split`, NEE + MIS, ``max_depth``
+    vertices from y), y's own emission subtracted; each sample clamped to finite, non-negative values
+    and the ``spp`` samples averaged by a block sum (deterministic order)."""
+    n = dr.width(pos)
+    spp = int(spp)
+    if max_depth < 2:                  # no vertex beyond y: no light reaches it
+        return dr.zeros(mi.Color3f, n), mi.UInt32(0)
+    idx = dr.arange(mi.UInt32, n * spp)
+    v = idx // spp
+    act = dr.gather(mi.Bool, mi.Bool(active) if not isinstance(active, bool) else dr.full(mi.Bool, active, n), v)
+    P = dr.gather(mi.Point3f, mi.Point3f(pos), v)
+    N = dr.gather(mi.Vector3f, mi.Vector3f(nrm), v)
+    eps = dr.opaque(mi.Float, RAY_OFFSET) * (1.0 + dr.max(dr.abs(P)))
+    ray = mi.Ray3f(P + N * eps, -N)
+    rng = mi.PCG32()       # the sized constructor adds the lane index to initseq: seed explicitly
+    rng.seed(dr.gather(mi.UInt64, mi.UInt64(seeds), v), mi.UInt64(idx % spp))
+    L, _, n_rays, _ = trace_paths_split(mscene, PCGSampler(rng), ray, act, int(max_depth), int(max_depth) + 1,
+                                        lights, True, split=False)
+    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=act)
+    L = L - mi.Color3f(si.emitter(mscene).eval(si, act))
+    dr.eval(L, n_rays)     # the walk once: each reduction below would otherwise evaluate (re-trace) it anew
+    chans = []
+    for i in range(3):
+        c = dr.select(act & dr.isfinite(L[i]), dr.maximum(L[i], 0.0), 0.0)
+        chans.append(dr.block_sum(c, spp) / float(spp))
+    rays = dr.sum(dr.select(act, n_rays, 0)) + dr.count(act)
+    return mi.Color3f(*chans), mi.UInt32(rays)

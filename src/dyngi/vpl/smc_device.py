@@ -1,7 +1,8 @@
 """SMC instant radiosity's per-iteration steps on the device (Hedman et al. 2017, Algorithm 1, Sec. 3.2).
 
-The device twins of :mod:`dyngi.vpl.smc`, :func:`dyngi.vpl.points.segment_clear` /
-:func:`~dyngi.vpl.points.camera_sees` and :func:`dyngi.vpl.radiosity.estimate_radiosity`: Dr.Jit arrays
+The device twins of :mod:`dyngi.vpl.smc` and :func:`dyngi.vpl.points.segment_clear` /
+:func:`~dyngi.vpl.points.camera_sees` (the radiosity estimate's own,
+:func:`dyngi.vpl.radiosity.estimate_radiosity_device`, lives with its host form): Dr.Jit arrays
 in, Dr.Jit arrays out, fixed widths (the VPL budget I, its candidates, I * V validation rays), counts
 kept as width-1 device arrays. :class:`DeviceVPLStore` holds the VPL set between iterations, so that an
 iteration of ``smcir`` reads nothing back to the host (issue 29); :meth:`DeviceVPLStore.to_host` is the
@@ -25,7 +26,6 @@ import numpy as np
 
 from ..backend import dr, mi
 from .points import RAY_EPS
-from .radiosity import RAY_OFFSET, PCGSampler
 from .store import VPLStore
 
 _GOLDEN = 0x9E3779B97F4A7C15
@@ -42,42 +42,6 @@ def stream_seeds_device(seeds, stream: int):
     x = (x ^ (x >> 27)) * mi.UInt64(0x94D049BB133111EB)
     x = x ^ (x >> 31)
     return x >> 2
-
-
-def estimate_radiosity_device(mscene, pos, nrm, seeds, spp: int, max_depth: int, active=True, lights=None):
-    """Radiosity L(y) of each point (Color3f, 0 where inactive) and the rays traced (width-1 UInt32).
-
-    The device form of :func:`dyngi.vpl.radiosity.estimate_radiosity` (which calls it): lane
-    ``i * spp + s`` runs PCG32 seeded ``(seeds[i], s)`` from just above y_i along ``-n_i`` through the
-    shared path walk (:func:`dyngi.transport.path_walk.trace_paths_split`, NEE + MIS, ``max_depth``
-    vertices from y), y's own emission subtracted; each sample clamped to finite, non-negative values
-    and the ``spp`` samples averaged by a block sum (deterministic order)."""
-    from ..transport.path_walk import trace_paths_split
-
-    n = dr.width(pos)
-    spp = int(spp)
-    if max_depth < 2:                  # no vertex beyond y: no light reaches it
-        return dr.zeros(mi.Color3f, n), mi.UInt32(0)
-    idx = dr.arange(mi.UInt32, n * spp)
-    v = idx // spp
-    act = dr.gather(mi.Bool, mi.Bool(active) if not isinstance(active, bool) else dr.full(mi.Bool, active, n), v)
-    P = dr.gather(mi.Point3f, mi.Point3f(pos), v)
-    N = dr.gather(mi.Vector3f, mi.Vector3f(nrm), v)
-    eps = dr.opaque(mi.Float, RAY_OFFSET) * (1.0 + dr.max(dr.abs(P)))
-    ray = mi.Ray3f(P + N * eps, -N)
-    rng = mi.PCG32()       # the sized constructor adds the lane index to initseq: seed explicitly
-    rng.seed(dr.gather(mi.UInt64, mi.UInt64(seeds), v), mi.UInt64(idx % spp))
-    L, _, n_rays, _ = trace_paths_split(mscene, PCGSampler(rng), ray, act, int(max_depth), int(max_depth) + 1,
-                                        lights, True, split=False)
-    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=act)
-    L = L - mi.Color3f(si.emitter(mscene).eval(si, act))
-    dr.eval(L, n_rays)     # the walk once: each reduction below would otherwise evaluate (re-trace) it anew
-    chans = []
-    for i in range(3):
-        c = dr.select(act & dr.isfinite(L[i]), dr.maximum(L[i], 0.0), 0.0)
-        chans.append(dr.block_sum(c, spp) / float(spp))
-    rays = dr.sum(dr.select(act, n_rays, 0)) + dr.count(act)
-    return mi.Color3f(*chans), mi.UInt32(rays)
 
 
 def _segment_clear(mscene, A, na, B, nb, ok):

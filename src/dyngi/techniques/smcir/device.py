@@ -10,10 +10,10 @@ from ...color import luminance
 from ...sampling.rng import make_sampler, mix_seed
 from ...vpl.density import MIN_RADIUS, KNNGrid, knn_density_device, knn_k
 from ...vpl.points import raw_candidates_device
-from ...vpl.radiosity import RENDER_STREAM
+from ...vpl.radiosity import RENDER_STREAM, estimate_radiosity_device
 from ...vpl.smc import resample_with_replacement_device
-from ...vpl.smc_device import (camera_sees_device, estimate_radiosity_device, quantile_device, ranks,
-                               sample_without_replacement_device, segment_clear_device, stream_seeds_device)
+from ...vpl.smc_device import (camera_sees_device, quantile_device, ranks, sample_without_replacement_device,
+                               segment_clear_device, stream_seeds_device)
 from ..base import Frame, StageTimer
 from .common import _S_CAND, _S_RESAMPLE, _S_SEEDS, _S_VALID, CANDIDATE_K, begin_iteration, lighting_signature, warm_up
 
