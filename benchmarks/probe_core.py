@@ -59,7 +59,7 @@ def environment(d: np.ndarray) -> np.ndarray:
 def gamma_bias(frames: int) -> list:
     from dyngi.probes import HysteresisBlend, ProbeGrid, ProbeVolume, UniformSFDirections
     from dyngi.probes.trace import ProbeRayResults
-    from dyngi.probes.volume import upload
+    from dyngi.probes.arrays import upload
     from dyngi.sampling.fibonacci import spherical_fibonacci_np
     from dyngi.sampling.octahedral import texel_directions
     from dyngi.scene import load_scene

@@ -188,8 +188,6 @@ FUNCTION_IMPORTS: dict[str, int] = {   # one module a line
     "dyngi.lights.nee": 1,
     "dyngi.probes.ddgi_plus": 1,
     "dyngi.probes.pipeline": 1,
-    "dyngi.probes.rays": 1,
-    "dyngi.probes.states": 4,
     "dyngi.probes.trace": 1,
     "dyngi.sampling.vlc": 1,
     "dyngi.scene.library": 1,

@@ -8,11 +8,11 @@ from dyngi.errors import DyngiError
 from dyngi.probes import (DiffuseHitShader, HysteresisBlend, MatrixEstimator, CappedMeanBlend, ProbeBlend,
                           ProbeGrid, ProbeQuery, ProbeUpdater, ProbeVolume, RayPlan, ScatterEstimator,
                           TrueAverage, UniformSFDirections)
+from dyngi.probes.arrays import upload
 from dyngi.probes.accumulator import MeanAccumulator
 from dyngi.probes.encoding import (IRR_BETA, IRR_GAMMA, SQ_BETA, SQ_GAMMA, ADGIEncoding, Fp32Encoding,
                                    QDDGIEncoding, log_step)
 from dyngi.probes.trace import ProbeRayResults
-from dyngi.probes.volume import upload
 from dyngi.sampling.octahedral import texel_directions
 from dyngi.scene import load_scene
 from helpers import assert_steady_state_compiles_nothing

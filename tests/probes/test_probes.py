@@ -348,7 +348,7 @@ def _gather4_kernel_hash(src) -> str:
 def test_upload_copies_and_does_not_depend_on_numpy_alignment():
     """Device atlases own their memory: host writes do not show through, and the kernel that gathers
     from them is the same whatever the alignment of the NumPy source (else: a recompile per upload)."""
-    from dyngi.probes.volume import upload
+    from dyngi.probes.arrays import upload
     buf = np.arange(4 * 64 + 4, dtype=np.float32)
     hashes = set()
     for off in range(4):

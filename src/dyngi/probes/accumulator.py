@@ -36,7 +36,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..sampling.octahedral import border_source_index
-from .volume import upload
+from .arrays import upload
 
 CHANGE_HYSTERESIS_DROP = 0.75
 BRIGHTNESS_DAMPING = 0.25

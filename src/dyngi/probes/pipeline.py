@@ -44,12 +44,13 @@ from contextlib import contextmanager
 
 import numpy as np
 
+from .arrays import upload
 from .accumulator import merge_into_volume, merge_slots_into_volume
 from .protocols import check_part
 from .rays import FixedSFDirections
 from .states import ProbeStates
 from .trace import trace_probe_distances, trace_probe_rays, vector_to_numpy
-from .volume import ProbeVolume, upload
+from .volume import ProbeVolume
 from ..backend import mi
 from ..timing import StageTimer, maybe_stage
 

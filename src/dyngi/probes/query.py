@@ -56,7 +56,8 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..sampling.octahedral import direction_to_texel_coords
-from .volume import ProbeVolume, upload
+from .arrays import upload
+from .volume import ProbeVolume
 
 WRAP_OFFSET = 0.2          # constant added to the wrap weight so back-side probes still count a little
 CHEBYSHEV_FLOOR = 0.05     # lower bound of the Chebyshev visibility factor

@@ -47,6 +47,7 @@ from ..errors import DyngiError
 from ..sampling.fibonacci import coherent_order, rotation_for_frame, spherical_fibonacci_np
 from ..sampling.octahedral import texel_directions
 from ..sampling.rng import make_sampler
+from .arrays import upload as _upload
 
 
 @dataclass
@@ -184,7 +185,6 @@ def compact(active, capacity: int):
 
 
 def upload(array: np.ndarray, cls):
-    from .volume import upload as _upload      # volume imports nothing from here; keep the import local
     return _upload(array, cls) if np.size(array) else cls()
 
 

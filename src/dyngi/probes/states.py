@@ -37,6 +37,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import dr, mi
+from ..sampling.passthrough import intersect_through_glass, scene_has_glass
+from .arrays import upload
 from .grid import PROBE_ACTIVE, PROBE_INACTIVE
 from .trace import BACKFACE_DISTANCE_SCALE
 from .volume import ProbeVolume
@@ -184,8 +187,6 @@ def _summaries_drjit(volume, pid, dirs, dist):
     direction set: one lane per probe walks its ``N`` rays in a symbolic loop (``N`` opaque: a budget
     changes it per frame, and a block reduction over ``N`` rays would bake it into the kernels);
     launched here without waiting; returns a function that collects the (P,) arrays on the host."""
-    from ..backend import dr, mi
-
     P, N = len(pid), len(dirs)
     d = mi.Float(dist)
     nn = dr.opaque(mi.UInt32, N)
@@ -242,10 +243,6 @@ def safe_moves(mscene, p0: np.ndarray, p1: np.ndarray, cross: np.ndarray, cleara
     before the second, the others stop before the first. Before a surface at distance ``s`` from the
     segment's start (or from the crossed surface) a probe keeps ``min(clearance, s / 2)``. Clear
     surfaces (glass) are no geometry here, as for the probe rays. Two masked ray casts (Dr.Jit)."""
-    from ..backend import dr, mi
-    from ..sampling.passthrough import intersect_through_glass, scene_has_glass
-    from .volume import upload
-
     p0 = np.asarray(p0, np.float64)
     p1 = np.asarray(p1, np.float64)
     M = len(p0)

@@ -6,10 +6,10 @@ import pytest
 from dyngi.backend import dr, mi
 from dyngi.errors import DyngiError
 from dyngi.probes import ProbeGrid, ProbeVolume, RayPlan, ScatterEstimator
+from dyngi.probes.arrays import upload
 from dyngi.probes.accumulator import merge_into_volume
 from dyngi.probes.encoding import Fp32Encoding
 from dyngi.probes.trace import ProbeRayResults
-from dyngi.probes.volume import upload
 from dyngi.sampling.octahedral import texel_directions
 from dyngi.techniques.adgi.moving_average import (N_MAX_DYNAMIC, N_MAX_STATIC, Algorithm3Accumulator,
                                                   batch_update, moving_average_update)

@@ -203,7 +203,7 @@ def test_cache_update_is_algorithm_2_and_3_and_table3_memory(adgi):
     from dyngi.backend import mi
     from dyngi.probes import RayPlan
     from dyngi.probes.trace import ProbeRayResults
-    from dyngi.probes.volume import upload
+    from dyngi.probes.arrays import upload
     from dyngi.sampling.octahedral import texel_directions
     from dyngi.techniques import create_technique
 

@@ -87,9 +87,9 @@ import numpy as np
 
 from ...backend import dr, mi
 from ...errors import DyngiError
+from ...probes.arrays import upload
 from ...probes.rays import RayPlan
 from ...probes.pipeline import probes_in_frustum
-from ...probes.volume import upload
 from ...sampling.rng import mix_seed
 
 OCTANTS = 8

@@ -43,8 +43,8 @@ from __future__ import annotations
 import numpy as np
 
 from ...backend import dr, mi
+from ...probes.arrays import upload
 from ...probes.rays import RayPlan, compact
-from ...probes.volume import upload
 from ...sampling.metropolis import ChainState, MetropolisChains
 from ...sampling.octahedral import direction_to_texel_coords, texel_directions
 from .heuristics import OCTANTS, octant_of, octant_signs, static_guide

@@ -29,9 +29,9 @@ from __future__ import annotations
 import numpy as np
 
 from ...backend import dr, mi
+from ...probes.arrays import upload
 from ...probes.estimator import TexelEstimate, fixed_point_sum, is_cpu_backend
 from ...probes.trace import vector_to_numpy
-from ...probes.volume import upload
 from ...sampling.octahedral import direction_to_texel_coords, texel_directions, texel_solid_angles
 from .moving_average import batch_update
 

@@ -150,6 +150,7 @@ import numpy as np
 from ...backend import dr, mi
 from ...errors import DyngiError
 from ...probes import DiffuseHitShader, HysteresisBlend, ProbeStates, RayPlan, ScatterEstimator, UniformSFDirections
+from ...probes.arrays import upload
 from ...probes.accumulator import MeanAccumulator, pull_from
 from ...probes.estimator import is_cpu_backend
 from ...probes.rays import compact
@@ -157,7 +158,6 @@ from ...probes.encoding import get_encoding
 from ...probes.lookup import diffuse_radiance
 from ...probes.pipeline import ProbePipeline
 from ...probes.trace import HIT_LOOKUPS, ProbeRayResults
-from ...probes.volume import upload
 from ...sampling.diffuse import diffuse_albedo
 from ...sampling.metropolis import ADGI_DIRECTION_STEP
 from ..base import Frame, FrameResult, Param, StageTimer, register

@@ -49,8 +49,8 @@ import time
 import numpy as np
 
 from ...backend import dr, mi
+from ...probes.arrays import upload
 from ...probes.rays import RayPlan, compact
-from ...probes.volume import upload
 from ...sampling.rng import mix_seed
 from .device import _LOCAL, allocation_pdf_dr, sample_pairs_dr
 from .planner import ISDDGIPlanner, ISDDGIState

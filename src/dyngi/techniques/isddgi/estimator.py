@@ -49,10 +49,10 @@ from __future__ import annotations
 import numpy as np
 
 from ...backend import dr, mi
+from ...probes.arrays import upload
 from ...probes.accumulator import BRIGHTNESS_DAMPING, CHANGE_HYSTERESIS_DROP, HysteresisAccumulator, _count_sum
 from ...probes.blend import HysteresisBlend
 from ...probes.estimator import MIN_BLEND_WEIGHT, TexelEstimate, _int_power_dr
-from ...probes.volume import upload
 from .sets import N_SETS
 
 MIN_BUCKET = 8

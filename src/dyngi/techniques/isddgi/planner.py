@@ -80,8 +80,8 @@ import numpy as np
 from ...backend import mi
 from ...errors import DyngiError, unknown_choice
 from ...sampling.rng import mix_seed
+from ...probes.arrays import upload
 from ...probes.rays import RayPlan
-from ...probes.volume import upload
 from .sets import (SETS_PER_SIDE, N_SETS, RAYS_LIMIT, VARIANTS, LUMINANCE_FLOOR, PROBE_MEAN_SHARE, CHANGE_EPS,
                    NEIGHBOUR_SHARE, _NB, BUDGET_REDRAWS, SHADE_STREAM, set_solid_angles, _hash_u32, ray_hash,
                    _noise_from_hash, _dirs_from_noise, probe_shift, allocation_pdf, conditional_pdf, _device_rays,

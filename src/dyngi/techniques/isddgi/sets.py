@@ -14,9 +14,9 @@ import numpy as np
 
 from ...backend import dr, mi
 from ...errors import DyngiError
+from ...probes.arrays import upload
 from ...sampling.octahedral import oct_decode_np, texel_solid_angles
 from ...sampling.rng import mix_seed
-from ...probes.volume import upload
 
 SETS_PER_SIDE = 16
 N_SETS = SETS_PER_SIDE * SETS_PER_SIDE      # 256 direction sets per probe
