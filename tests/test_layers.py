@@ -163,7 +163,6 @@ FUNCTION_IMPORTS: dict[str, int] = {   # one module a line
     "dyngi.cli": 47,
     "dyngi.color": 1,
     "dyngi.directions.base": 1,
-    "dyngi.directions.walk": 2,
     "dyngi.experiments.clamped_reference": 10,
     "dyngi.experiments.cluster": 7,
     "dyngi.experiments.compare": 15,
@@ -185,13 +184,7 @@ FUNCTION_IMPORTS: dict[str, int] = {   # one module a line
     "dyngi.experiments.sweep": 17,
     "dyngi.experiments.tracked": 5,
     "dyngi.lights.base": 1,
-    "dyngi.lights.nee": 1,
-    "dyngi.probes.ddgi_plus": 1,
-    "dyngi.probes.pipeline": 1,
-    "dyngi.probes.trace": 1,
-    "dyngi.sampling.vlc": 1,
     "dyngi.scene.library": 1,
-    "dyngi.scene.loaders": 1,
     "dyngi.techniques.adgi.planner": 1,
     "dyngi.techniques.isddgi.device_planner": 2,
     "dyngi.techniques.isddgi.estimator": 3,
@@ -204,8 +197,6 @@ FUNCTION_IMPORTS: dict[str, int] = {   # one module a line
     "dyngi.viewer.overlays": 7,
     "dyngi.viewer.server": 4,
     "dyngi.viewer.session": 5,
-    "dyngi.vpl.density": 5,
-    "dyngi.vpl.smc": 1,
 }
 FUNCTION_IMPORTS_WHY: dict[str, str] = {}
 

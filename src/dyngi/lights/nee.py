@@ -35,6 +35,7 @@ import numpy as np
 from ..backend import dr, mi
 from ..errors import DyngiError
 from ..sampling.lights import EmitterSubsetSampling
+from ..sampling.octree import AdaptiveOctree, scaled_thresholds
 from ..sampling.rng import make_sampler
 from .base import INVALID, EmitterTable, FrameCtx, entry, make
 
@@ -137,7 +138,6 @@ class LightNEE:
     def begin_frame(self, scene, frame, vertices_per_frame: int = 0) -> None:
         """Refresh the table of moving lights, build the octree (first frame), call the sampler's hook."""
         if self.entry.needs_octree and self.sampler is None:
-            from ..sampling.octree import AdaptiveOctree, scaled_thresholds
             split, collapse = scaled_thresholds(max(int(vertices_per_frame), 1))
             self.octree = AdaptiveOctree(self.bounds[0], self.bounds[1], split, collapse)
             self.sampler = make(self.kind, self.tris, mi_scene=self._ms, bounds=self.bounds, octree=self.octree,

@@ -77,6 +77,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError, unknown_choice
+from ..registry import Param
 from ..sampling.lights import EmitterSubsetSampling, sample_traced
 from ..sampling.octahedral import direction_to_texel_coords
 from ..sampling.sunsky import is_sunsky, split_sunsky
@@ -232,7 +233,6 @@ def plus_params():
     ``ddgi``'s probe parameters (:mod:`dyngi.probes.params`, one table for every probe technique) less
     the primary-shading ones, and the DDGI+ ones below (:class:`~dyngi.registry.Param` entries).
     """
-    from ..registry import Param
     skip = ("jitter", "direct_samples", "encoding", "glossy")
     out = {k: Param(**v) for k, v in {**COMMON_SPECS, **DDGI_SPECS}.items() if k not in skip}
     out.update({

@@ -44,15 +44,16 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from .arrays import upload
+from ..backend import mi
+from ..errors import unknown_choice
+from ..timing import StageTimer, maybe_stage
 from .accumulator import merge_into_volume, merge_slots_into_volume
+from .arrays import upload
 from .protocols import check_part
 from .rays import FixedSFDirections
 from .states import ProbeStates
 from .trace import trace_probe_distances, trace_probe_rays, vector_to_numpy
 from .volume import ProbeVolume
-from ..backend import mi
-from ..timing import StageTimer, maybe_stage
 
 UPDATE_STAGES = ("trace probes", "shade probes", "blend", "states")   # the timer stages of one update
 WARMUP_FRAME_BASE = 1 << 24   # frame indices of warm-up updates: distinct RNG streams from real frames
@@ -91,7 +92,6 @@ class ProbePipeline:
         check_part("planner", planner)
         check_part("shader", shader)
         if state_rays not in STATE_RAYS:
-            from ..errors import unknown_choice
             raise unknown_choice("state_rays", state_rays, STATE_RAYS)
         self.volume = volume
         self.planner = planner

@@ -93,7 +93,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..backend import dr, mi
-from ..errors import unknown_choice
+from ..errors import DyngiError, unknown_choice
 from ..lights.nee import TracedNEE
 from ..sampling.diffuse import diffuse_albedo, front_wi, has_diffuse_lobe
 from ..sampling.lights import EmitterSubsetSampling, sample_traced
@@ -410,7 +410,6 @@ class ProbeRayResults:
         """(radiance (P, N, 3) float32, distance (P, N) float32) for plans with a constant count per probe."""
         n = self.plan.rays_per_probe
         if not n:
-            from ..errors import DyngiError
             raise DyngiError("ProbeRayResults.to_numpy needs a constant ray count per probe; for a ragged "
                              "plan use host() with plan.offsets")
         P = len(self.plan.probe_ids)

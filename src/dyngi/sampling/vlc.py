@@ -122,6 +122,7 @@ from ..color import luminance
 from ..errors import DyngiError
 from .emitter_triangles import INVALID, EmitterTriangles
 from .light_select import FrameCtx, triangle_irradiance
+from .lighttree import LightTreeSelector
 
 CAPACITY = 32          # bucket capacity (Sec. 7)
 HYSTERESIS = 0.75      # capacity factor when the bucket count would drop (Sec. 4.2: "e.g., 75%")
@@ -295,7 +296,6 @@ class VLCSelector:
         self.explorer = explorer
         self._lh = None
         if explorer == "lighttree" and self.L:
-            from .lighttree import LightTreeSelector
             self._lh = LightTreeSelector(tris)
         self._lights_changed = False
         self._carry = None

@@ -18,7 +18,7 @@ import numpy as np
 from ..backend import mi
 from ..errors import DyngiError
 from .camera import Camera, CameraPath
-from .core import Scene
+from .core import Scene, scene_bounds
 from .geometry import check_finite, diffuse, make_mesh
 from .library import BUILTINS, builtin_names, make_builtin
 
@@ -64,8 +64,6 @@ def _check_meshes(sc: Scene, path: str) -> None:
 
 
 def _camera_from_bbox(mi_scene) -> Camera:
-    from .core import scene_bounds
-
     lo, hi = scene_bounds(mi_scene)
     c = 0.5 * (lo + hi)
     r = 0.5 * np.linalg.norm(hi - lo)

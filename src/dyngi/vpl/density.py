@@ -16,6 +16,8 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..backend import dr, mi
+
 MIN_RADIUS = 1e-6
 """Floor of r_k (scene units) so that coincident points do not give an infinite density (our choice)."""
 
@@ -74,8 +76,6 @@ class KNNGrid:
     """
 
     def __init__(self, points, valid=None):
-        from ..backend import dr, mi
-
         self.n = n = dr.width(points)
         self.C = C = int(min(CELLS_MAX, max(64, 4 * n)))      # static cell budget
         ok = mi.Bool(True) if valid is None else mi.Bool(valid)
@@ -105,16 +105,12 @@ class KNNGrid:
         dr.eval(self.start, self.count, self.idx, self.pts, self.h, self.lo, self.dims)
 
     def _coords(self, p):
-        from ..backend import dr, mi
-
         g = mi.Vector3f(p - self.lo) / self.h
         return [mi.Int32(dr.clip(mi.Int32(dr.floor(g[i])), 0, self.dims[i] - 1)) for i in range(3)]
 
     def kth_distance(self, queries, k: int, self_index=None):
         """Distance to the k-th nearest point (inf when fewer than k), per query; ``self_index``: each
         query's own index in the point set, excluded (a point's neighbours among the others)."""
-        from ..backend import dr, mi
-
         k = int(k)
         if k < 1:
             raise ValueError("k >= 1")
@@ -128,8 +124,6 @@ class KNNGrid:
 @__import__("drjit").syntax
 def _knn_loop(q, cx, cy, cz, excl, pts, idx, start, count, h, dims, k: int):
     """The ring search of :meth:`KNNGrid.kth_distance`; returns the k-th smallest squared distance."""
-    from ..backend import dr, mi
-
     inf = mi.Float(float("inf"))
     buf = dr.alloc_local(mi.Float, k, inf)
     R = mi.Int32(0)
@@ -177,8 +171,6 @@ def knn_density_device(points, queries=None, k: int = 1, n_total=None, valid=Non
     """Eq. 7 on the device: ``k / (I pi r_k^2)`` at ``queries`` (None: at the points themselves, each
     excluding itself) among the valid ``points``; ``n_total`` (I) defaults to the number of valid
     points (a device value: no host read). 0 where fewer than k neighbours exist. Returns a Float."""
-    from ..backend import dr, mi
-
     g = grid or KNNGrid(points, valid)
     if queries is None:
         # the points in the grid's cell order (neighbouring lanes search neighbouring cells: a SIMD

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import dr, mi
+
 
 def m_min(current_intensity: np.ndarray, candidate_intensity: np.ndarray, m_max: int,
           quantile: float = 0.95) -> int:
@@ -67,8 +69,6 @@ def resample_with_replacement_device(weights, u):
     search for the first entry above ``u * sum`` (inverse-CDF sampling; no host round trip). MIR's
     importance resampling (Segovia et al. 2007, as Hedman et al. run it, Sec. 5.1). Zero weights are
     never drawn; all-zero weights give index 0 (the caller masks them by the total)."""
-    from ..backend import dr, mi
-
     w = dr.maximum(mi.Float(weights), 0.0)
     n = dr.width(w)
     cdf = dr.prefix_sum(w) + w                    # inclusive
