@@ -16,7 +16,6 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
-from ..sampling.cdq import CDQDirections
 from ..sampling.octree import AdaptiveOctree, scaled_thresholds
 from .base import Vertex, make, names
 
@@ -52,6 +51,7 @@ class WalkDirections:
     # -- per frame ------------------------------------------------------------------------------
     def begin_frame(self, scene, frame, vertices_per_frame: int = 0) -> None:
         if self.kind == "cdq" and self.cdq is None:
+            from ..sampling.cdq import CDQDirections     # optional module (FUNCTION_IMPORTS_WHY)
             split, collapse = scaled_thresholds(max(int(vertices_per_frame), 1))
             self.octree = AdaptiveOctree(self.bounds[0], self.bounds[1], split, collapse)
             self.cdq = CDQDirections(self.octree, **self.cdq_opts)

@@ -103,6 +103,8 @@ from ..sampling.diffuse import diffuse_albedo
 from ..sampling.emitter_triangles import INVALID, EmitterTriangles
 from ..sampling.light_select import FrameCtx
 from ..sampling.lights import EmitterSubsetSampling
+from ..sampling.motion import MotionVectors
+from ..sampling.octree import AdaptiveOctree, scaled_thresholds
 from ..sampling.rng import make_sampler, mix_seed
 from ..transport.accumulate import ProgressiveMean
 from ..color import luminance
@@ -407,13 +409,11 @@ class NeePT(Technique):
         p = self.params
         need_octree = p["lights"] == "vlc" or p["directions"] == "cdq"
         if need_octree:
-            from ..sampling.octree import AdaptiveOctree, scaled_thresholds
             split, collapse = scaled_thresholds(MAX_DEPTH * res[0] * res[1] * spp)
             if p["leaf_samples"] > 0:
                 split, collapse = max(split, int(p["leaf_samples"])), max(collapse, int(p["leaf_samples"]) // 2)
             self.octree = AdaptiveOctree(self.bounds[0], self.bounds[1], split, collapse)
             if self.scene.meta.dynamic_shapes:     # motion vectors for Sec. 6.3's previous/current lookup
-                from ..sampling.motion import MotionVectors
                 self.motion = MotionVectors(self.scene.mi_scene, self.scene.meta.dynamic_shapes)
         if p["directions"] == "cdq":
             from ..sampling.cdq import CDQDirections

@@ -43,6 +43,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...backend import dr, mi
+from ...errors import unknown_choice
 from ...probes.arrays import upload
 from ...probes.rays import RayPlan, compact
 from ...sampling.metropolis import ChainState, MetropolisChains
@@ -183,7 +184,6 @@ class ADGIChainPlanner:
                 self.last_samples = 0
                 return None
             return self._dynamic_plan(frame, seed, vin, fd, rays, shadow_rate, rays_max, limit)
-        from ...errors import unknown_choice
         raise unknown_choice("ADGI planner stage", stage, STAGES)
 
     @staticmethod

@@ -51,6 +51,8 @@ import numpy as np
 from ...backend import dr, mi
 from ...probes.arrays import upload
 from ...probes.rays import RayPlan, compact
+from ...probes.states import _cell_extents
+from ...sampling.octahedral import oct_decode
 from ...sampling.rng import mix_seed
 from .device import _LOCAL, allocation_pdf_dr, sample_pairs_dr
 from .planner import ISDDGIPlanner, ISDDGIState
@@ -439,7 +441,6 @@ class DeviceISDDGIPlanner:
         ``near_surface``, DDGI's near-surface test over the rotation window (:func:`~.estimator.near_surface_hits`,
         :func:`~.estimator.near_window`) on the device: (S,) Bool ON per traced slot, also written (as 0/1)
         into ``out[:S]`` if given. Runs before :meth:`observe` (the window uses this frame's ``x_i``)."""
-        from ...probes.states import _cell_extents
         info = plan.info
         S, slot = info.S, info.slot
         one = mi.UInt32(1)
@@ -478,7 +479,6 @@ class DeviceISDDGIPlanner:
 def _rays_from_hash(h, dset, npair, omega):
     """Algorithm 1's jittered direction in set ``dset``'s octahedral texel, ``Omega_j / n_ij`` and the shading
     key from the ray hash (:func:`~.sets._device_rays`'s formulas)."""
-    from ...sampling.octahedral import oct_decode
     if not dr.width(h):
         return mi.Vector3f(), mi.Float(), mi.UInt32()
     h2 = _hash_u32_dr(h + 0x9E3779B9)

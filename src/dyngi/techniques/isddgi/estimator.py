@@ -53,6 +53,8 @@ from ...probes.arrays import upload
 from ...probes.accumulator import BRIGHTNESS_DAMPING, CHANGE_HYSTERESIS_DROP, HysteresisAccumulator, _count_sum
 from ...probes.blend import HysteresisBlend
 from ...probes.estimator import MIN_BLEND_WEIGHT, TexelEstimate, _int_power_dr
+from ...probes.states import _cell_extents
+from ...sampling.octahedral import oct_decode_np, oct_encode_np
 from .sets import N_SETS
 
 MIN_BUCKET = 8
@@ -148,7 +150,6 @@ def _planar(channels, n: int):
 def texel_directions(side: int = 16) -> np.ndarray:
     """(side^2, 3) centre directions of a ``side x side`` octahedral tile (row-major; ``side`` 16: the sets,
     :func:`~.sets.set_directions`)."""
-    from ...sampling.octahedral import oct_decode_np
     c = (np.arange(side) + 0.5) / side * 2.0 - 1.0
     py, px = np.meshgrid(c, c, indexing="ij")
     return oct_decode_np(np.stack([px, py], -1)).reshape(-1, 3)
@@ -158,7 +159,6 @@ def antipodal_sets(side: int = 16) -> np.ndarray:
     """(side^2,) int64: the texel whose centre direction is the opposite of texel ``j``'s (an involution
     without fixed points on an even octahedral grid: the octahedral fold maps texel centres to texel
     centres); ``side`` 16: the sets."""
-    from ...sampling.octahedral import oct_encode_np
     p = (oct_encode_np(-texel_directions(side)) * 0.5 + 0.5) * side - 0.5
     return np.round(p[:, 1]).astype(np.int64) * side + np.round(p[:, 0]).astype(np.int64)
 
@@ -400,7 +400,6 @@ def near_surface_hits(volume, probe_ids, ray_slot, dirs: np.ndarray, dist: np.nd
     on the grid boundary): DDGI's near-surface classification test
     (:func:`dyngi.probes.states._summaries_numpy`) on a ragged plan, one NumPy pass over the rays
     (``ray_slot`` (R,), ``dirs`` (R, 3), ``dist`` (R,) signed distances)."""
-    from ...probes.states import _cell_extents
     pid = np.asarray(probe_ids, np.int64)
     S = len(pid)
     lo, hi = _cell_extents(volume, pid)                       # (S, 3) each

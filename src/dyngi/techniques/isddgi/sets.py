@@ -15,7 +15,7 @@ import numpy as np
 from ...backend import dr, mi
 from ...errors import DyngiError
 from ...probes.arrays import upload
-from ...sampling.octahedral import oct_decode_np, texel_solid_angles
+from ...sampling.octahedral import oct_decode, oct_decode_np, texel_solid_angles
 from ...sampling.rng import mix_seed
 
 SETS_PER_SIDE = 16
@@ -141,7 +141,6 @@ def _device_rays(info, omega_dr):
     """(direction Vector3f, weight Float, shading key UInt32) of the plan's rays, computed on the device from
     one upload per frame of (ray hash, set | (rays of its pair - 1) << 8): Algorithm 1's jitter in the set's
     octahedral texel, ``Omega_j / n_ij`` and the shading key, all as :class:`ISDDGIPlanInfo`'s host copies."""
-    from ...sampling.octahedral import oct_decode
     R = len(info.ray_set)
     if not R:
         return mi.Vector3f(), mi.Float(), mi.UInt32()

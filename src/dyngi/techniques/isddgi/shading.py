@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from ...backend import dr, mi
 from ...probes.trace import DiffuseHitShader
+from .sets import _hash_u32_dr
 
 DIM_STREAM = 0x68E31DA4                    # mixes the dimension index into the key
 
@@ -34,7 +35,6 @@ class KeyedSampler:
         self.dim = 0
 
     def _next(self):
-        from .sets import _hash_u32_dr
         self.dim += 1
         h = _hash_u32_dr(self.keys ^ ((self.dim * DIM_STREAM) & 0xFFFFFFFF))
         h = _hash_u32_dr(h + self.dim)

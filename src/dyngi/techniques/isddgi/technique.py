@@ -78,6 +78,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...backend import dr, mi
 from ...color import luminance
 from ...probes import ProbeStates
 from ...probes.grid import PROBE_ACTIVE, PROBE_INACTIVE
@@ -231,7 +232,6 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         near-surface test, then the change measure and the allocation state; one read of the new ON flags and
         the statistics (``S + 5`` integers; the last, the probes with change, lets the next plan skip its
         importance draws when there is none)."""
-        from ...backend import dr, mi
         p, vol = self.params, self.volume
         st = vol.state
         S = plan.info.S

@@ -4,6 +4,8 @@ signature that tells when a VPL's radiosity must be re-estimated (line 18), and 
 and of INITIALIZEVPLS that do not depend on where the VPL set lives."""
 from __future__ import annotations
 
+from ..base import StageTimer
+
 _S_CAND, _S_RESAMPLE, _S_SEEDS, _S_VALID = 0x5C1, 0x5C2, 0x5C3, 0x5C4
 REESTIMATE_MODES = ("independent", "same-seed")
 IMPLS = ("device", "host")
@@ -34,8 +36,6 @@ def warm_up(frame, t, warmup: int, iterate) -> None:
     """INITIALIZEVPLS (Sec. 3.2): ``warmup + 1`` iterations on ``frame``'s camera, the first filling the
     empty set with candidates, keyed ``WARMUP_FRAME_BASE + i``; timed as the stage ``warmup`` of ``t``
     (their own stages go to a scratch timer)."""
-    from ..base import StageTimer
-
     with t.stage("warmup"):
         wt = StageTimer()
         for i in range(int(warmup) + 1):
