@@ -66,7 +66,8 @@ def _one(cfg: dict) -> dict:
     out["threads"] = dr.thread_count()
     scene = load_scene(SCENE)
     if cfg["job"] == "reference":
-        from dyngi.experiments.reference import fill_reference_cache, reference_job
+        from dyngi.experiments.references.path import fill_reference_cache
+        from dyngi.experiments.reference_job import reference_job
 
         t0 = time.perf_counter()
         if ex is None:
@@ -77,7 +78,7 @@ def _one(cfg: dict) -> dict:
         out["job_s"] = time.perf_counter() - t0
     else:
         from dyngi.experiments.cluster import LocalExecutor
-        from dyngi.experiments.reference import fill_reference_cache
+        from dyngi.experiments.references.path import fill_reference_cache
         from dyngi.experiments.sweep import run_sweep
 
         fill_reference_cache(scene, cfg["frames"], res, cfg["spp"], 12, halves=True)   # cached before timing

@@ -35,7 +35,7 @@ import numpy as np
 
 from common import md_table
 from dyngi.backend import device_info, dr, mi
-from dyngi.experiments.reference import RR_DEPTH, cached_reference
+from dyngi.experiments.references.path import RR_DEPTH, cached_reference
 from dyngi.metrics import relmse, time_to_error
 from dyngi.scene import load_scene
 from dyngi.techniques.base import Frame, create_technique

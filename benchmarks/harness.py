@@ -39,7 +39,7 @@ import numpy as np
 from common import best_of, md_table
 from dyngi.backend import device_info
 from dyngi.experiments.io import tonemap_srgb, write_exr, write_mp4, write_png
-from dyngi.experiments.reference import cached_reference
+from dyngi.experiments.references.path import cached_reference
 from dyngi.metrics import METRICS, compute_all, flip, temporal_errors
 from dyngi.scene import load_scene
 from dyngi.techniques.base import Frame, create_technique

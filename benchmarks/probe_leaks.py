@@ -49,7 +49,7 @@ def main() -> None:
 
     from dyngi import backend
     backend.set_device("cpu")
-    from dyngi.experiments.reference import reference_image, scene_max_depth
+    from dyngi.experiments.references.path import reference_image, scene_max_depth
     from dyngi.scene import load_scene
 
     res = tuple(int(v) for v in a.res.split("x"))

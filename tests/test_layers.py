@@ -160,32 +160,12 @@ ALLOWED_MODULE_CYCLES = {
 # module whose count fell must lower its entry). Permanent reasons (optional dependencies, plug-in
 # discovery, the cluster worker's environment set before Dr.Jit loads) are in FUNCTION_IMPORTS_WHY.
 FUNCTION_IMPORTS: dict[str, int] = {   # one module a line
-    "dyngi.cli": 47,
     "dyngi.color": 1,
     "dyngi.directions.base": 1,
     "dyngi.directions.walk": 1,
-    "dyngi.experiments.clamped_reference": 10,
     "dyngi.experiments.cluster": 7,
-    "dyngi.experiments.compare": 15,
-    "dyngi.experiments.demo": 8,
-    "dyngi.experiments.denoise": 4,
-    "dyngi.experiments.evaluate": 7,
-    "dyngi.experiments.indirect_reference": 2,
-    "dyngi.experiments.io": 3,
-    "dyngi.experiments.reference": 6,
-    "dyngi.experiments.render": 3,
-    "dyngi.experiments.report": 1,
-    "dyngi.experiments.reproduce": 9,
-    "dyngi.experiments.reproductions.adgi": 18,
-    "dyngi.experiments.reproductions.cdq": 10,
-    "dyngi.experiments.reproductions.ddgi_resampling": 16,
-    "dyngi.experiments.reproductions.isddgi": 3,
-    "dyngi.experiments.reproductions.smcir": 6,
-    "dyngi.experiments.reproductions.vlc": 2,
-    "dyngi.experiments.sweep": 17,
-    "dyngi.experiments.tracked": 5,
+    "dyngi.experiments.reproduce": 1,
     "dyngi.lights.base": 1,
-    "dyngi.scene.library": 1,
     "dyngi.techniques.neept": 2,
     "dyngi.viewer.errorview": 5,
     "dyngi.viewer.overlays": 7,
@@ -198,6 +178,9 @@ FUNCTION_IMPORTS_WHY: dict[str, str] = {
     "dyngi.directions.base": "plug-in discovery: names() imports the package, which imports every direction sampler",
     "dyngi.directions.walk": "optional module: dyngi.sampling.cdq imported only for kind='cdq', so that the techniques "
                              "that use the walk load without it (tests/techniques/test_neept.py)",
+    "dyngi.experiments.cluster": "worker set-up: a Ray worker loads this module and sets the driver's environment and "
+                                 "variant before Dr.Jit loads, so no module that loads Dr.Jit is imported at its top",
+    "dyngi.experiments.reproduce": "plug-in discovery: the reproductions register themselves with this module",
     "dyngi.lights.base": "plug-in discovery: the registry imports the package, which imports every light sampler",
     "dyngi.techniques.neept": "optional module: directions=cdq fails with a clear error when dyngi.sampling.cdq "
                               "cannot be imported (tests/techniques/test_neept.py)",

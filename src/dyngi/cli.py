@@ -16,13 +16,37 @@ Errors caused by input print one line (``dyngi: error: ...``) and exit 2.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import inspect
+import json
 import os
 import sys
 
+from . import backend
+from .errors import DyngiError
+from .experiments import cluster
+from .experiments.cluster import resolve_cluster
+from .experiments.compare import parse_specs, run_compare
+from .experiments.demo import run_tour, select_sections
+from .experiments.evaluate import indirect_reference_fn
+from .experiments.io import atomic_output_dir, check_writable, write_exr, write_png
+from .experiments.reference_job import reference_job
+from .experiments.references.clamped import check_reference
+from .experiments.references.path import DEFAULT_REF_SPP, fill_reference_cache, scene_max_depth
+from .experiments.render import render_to_dir
+from .experiments.reproduce import EXPERIMENTS, experiment_names, get_experiment, run_experiment, smoke_size
+from .experiments.reproductions._summary import merged_techniques
+from .experiments.reproductions.smcir import parse_pairs, run_pairs
+from .experiments.reproductions.smcir_table import table_markdown
+from .experiments.runner import parse_res, run_sequence
+from .experiments.sweep import run_sweep
+from .scene import load_scene
+from .scene.library import BUILTINS, builtin_names, make_builtin
+from .techniques.base import REGISTRY, create_technique, get_technique, parse_spec, split_spec_list, technique_names
+from .viewer.server import run_viewer
+
 
 def _parse_sets(items) -> dict:
-    from .errors import DyngiError
-
     out = {}
     for it in items or []:
         if "=" not in it:
@@ -45,8 +69,6 @@ def _positive(name):
 
 
 def _frame_list(text, frames):
-    from .errors import DyngiError
-
     if text is None:
         return None
     try:
@@ -60,8 +82,6 @@ def _frame_list(text, frames):
 
 
 def cmd_scenes(args) -> int:
-    from .scene.library import BUILTINS, builtin_names, make_builtin
-
     names = builtin_names()
     width = max(len(n) for n in names)
     for n in names:
@@ -80,8 +100,6 @@ def cmd_scenes(args) -> int:
 
 
 def cmd_techniques(args) -> int:
-    from .techniques.base import REGISTRY, technique_names
-
     print("Name a technique with settings as a spec NAME[:KEY=VALUE...], e.g. ddgi:hysteresis=0.9\n")
     for n in technique_names():
         cls = REGISTRY[n]
@@ -97,18 +115,10 @@ def cmd_techniques(args) -> int:
 
 
 def _setup(args):
-    from . import backend
-
     backend.set_device(args.device)
 
 
 def cmd_render(args) -> int:
-    from .errors import DyngiError
-    from .experiments.render import render_to_dir
-    from .experiments.runner import parse_res
-
-    from .techniques.base import get_technique, parse_spec
-
     _setup(args)
     params = _parse_sets(args.set)
     spec = parse_spec(args.technique)             # the one parse; passed down as a TechniqueSpec
@@ -128,15 +138,10 @@ def cmd_render(args) -> int:
 
 
 def cmd_reference(args) -> int:
-    from .experiments.reference import fill_reference_cache
-    from .experiments.runner import parse_res
-    from .scene import load_scene
-
     _setup(args)
     scene = load_scene(args.scene)
     res = parse_res(args.res)
     kw = {} if args.spp is None else {"spp": args.spp}
-    from .experiments.reference import scene_max_depth
 
     depth = scene_max_depth(scene) if args.ref_depth is None else args.ref_depth
     if _cluster_spec(args) != "local":
@@ -147,8 +152,6 @@ def cmd_reference(args) -> int:
         bar = tqdm(total=args.frames, desc=f"reference {scene.name}", unit="frame", file=sys.stderr)
     ind = None
     if args.indirect:   # the indirect-only reference that 'dyngi compare --indirect' reads
-        from .experiments.evaluate import indirect_reference_fn
-        from .experiments.reference import DEFAULT_REF_SPP
 
         fn = indirect_reference_fn()
         ind = lambda r: fn(scene, r["time"], res, kw.get("spp", DEFAULT_REF_SPP), depth)  # noqa: E731
@@ -169,16 +172,12 @@ def cmd_reference(args) -> int:
 
 def _cluster_spec(args) -> str:
     """``--cluster``, else ``$DYNGI_CLUSTER``, else ``local`` (validated)."""
-    from .experiments.cluster import resolve_cluster
-
     return resolve_cluster(getattr(args, "cluster", None))
 
 
 def _cluster_run(args, fn):
     """``fn()`` with the executor of ``--cluster`` as the current one (:mod:`dyngi.experiments.cluster`);
     returns ``(fn's result, 1 if tasks failed after retries (printed) else 0)``."""
-    from .experiments import cluster
-
     ex = cluster.make_executor(getattr(args, "cluster", None), quiet=getattr(args, "quiet", False))
     try:
         with cluster.use(ex):
@@ -190,9 +189,6 @@ def _cluster_run(args, fn):
 
 def _reference_on_cluster(args, scene, res, depth, kw) -> int:
     """``dyngi reference --cluster ...``: frames and spp chunks as tasks (reference_job)."""
-    from .experiments import cluster
-    from .experiments.reference import DEFAULT_REF_SPP, reference_job
-
     def job():
         ex = cluster.current()
         prog = cluster.Progress(0, f"reference {scene.name} ({ex.kind}, {ex.workers} workers)", args.quiet)
@@ -213,10 +209,6 @@ def _reference_on_cluster(args, scene, res, depth, kw) -> int:
 def _report_failures(out) -> int:
     """Print the techniques that returned NaN/Inf pixels (from summary.json, or merged from the
     sub-folders' when the top level has none); 1 if any, else 0."""
-    import json
-
-    from .experiments.reproductions._summary import merged_techniques
-
     try:
         with open(os.path.join(out, "summary.json")) as f:
             techs = json.load(f).get("techniques")
@@ -233,10 +225,6 @@ def _report_failures(out) -> int:
 
 
 def cmd_compare(args) -> int:
-    from .experiments.compare import parse_specs, run_compare
-    from .experiments.runner import parse_res
-    from .techniques.base import split_spec_list
-
     _setup(args)
     techs = parse_specs(split_spec_list(args.techniques))      # parsed once, here; passed down
     out, bad = _cluster_run(args, lambda: run_compare(
@@ -252,9 +240,6 @@ def cmd_compare(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from .experiments.runner import parse_res
-    from .experiments.sweep import run_sweep
-
     _setup(args)
     out = args.out or os.path.join("out", "sweep", f"{args.technique}-"
                                    f"{os.path.splitext(os.path.basename(args.scene))[0]}")
@@ -268,15 +253,10 @@ def cmd_sweep(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
-    from .experiments.reproduce import experiment_names, get_experiment, run_experiment
-
     if args.list:
-        from .experiments.reproduce import EXPERIMENTS
-
         for n in experiment_names():
             print(f"{n}: {EXPERIMENTS[n].description}")
         return 0
-    from .errors import DyngiError
 
     if not args.name:
         raise DyngiError("name an experiment, e.g. 'dyngi reproduce ddgi --quick'; registered experiments: "
@@ -289,9 +269,6 @@ def cmd_reproduce(args) -> int:
     _setup(args)
     opts = _reference_options(args)
     if opts:       # --reference / --untextured / --no-tracked: only experiments whose function takes them
-        import inspect
-
-        from .experiments.io import check_writable
 
         exp = get_experiment(args.name)
         takes = inspect.signature(exp.fn).parameters
@@ -299,9 +276,6 @@ def cmd_reproduce(args) -> int:
             raise DyngiError(f"experiment '{args.name}' takes no --reference/--untextured/--no-tracked; "
                              "experiments that do: smcir")
         check_writable(out)
-        import contextlib
-
-        from .experiments.reproduce import smoke_size
 
         with smoke_size(args.name) if args.smoke else contextlib.nullcontext():
             out, bad = _cluster_run(args, lambda: exp.fn(os.path.abspath(out), args.quick or args.smoke, args.quiet,
@@ -316,25 +290,16 @@ def cmd_reproduce(args) -> int:
 def _smcir_parts(args, out) -> int:
     """``dyngi reproduce smcir --only SEQ:SEEDS ...`` (some runs of the full reproduction, resumable) and
     ``--table`` (Table 1 / Table 2 from the runs finished in ``out``)."""
-    import json
-
-    from .errors import DyngiError
-    from .experiments.io import check_writable
-
     if args.name != "smcir":
         raise DyngiError(f"--only and --table belong to the smcir reproduction, not '{args.name}'")
     if args.only is not None and args.table:
         raise DyngiError("--only runs, --table reads: give one of them")
     if args.table:
-        from .experiments.reproductions.smcir_table import table_markdown
-
         md = table_markdown(out)
         if not md:
             raise DyngiError(f"no finished smcir runs (SEQ/seedN/figures.json) under '{out}'")
         print(md)
         return 0
-    from .experiments.clamped_reference import check_reference
-    from .experiments.reproductions.smcir import parse_pairs, run_pairs
 
     pairs = parse_pairs(args.only)
     opts = _reference_options(args)
@@ -379,12 +344,6 @@ def _reference_flags(s, default):
 
 
 def cmd_probe_view(args) -> int:
-    from .errors import DyngiError
-    from .experiments.io import atomic_output_dir, check_writable, write_exr, write_png
-    from .experiments.runner import parse_res, run_sequence
-    from .scene import load_scene
-    from .techniques.base import create_technique
-
     _setup(args)
     res = parse_res(args.res)
     check_writable(args.out)
@@ -417,21 +376,14 @@ def _port(text):
 
 
 def cmd_view(args) -> int:
-    from .experiments.runner import parse_res
-    from .viewer.server import run_viewer
-
     return run_viewer(args.scene, args.techniques, host=args.host, port=args.port, res=parse_res(args.res),
                       device=args.device, ref_spp=args.ref_spp, token=not args.no_token)
 
 
 def cmd_demo(args) -> int:
-    from .experiments.runner import parse_res
-
     _setup(args)
     res = parse_res(args.res) if args.res else None
     if args.classic:     # the former demo: ddgi and path on the animated Cornell box
-        from .experiments.compare import run_compare
-        from .techniques.base import technique_names
 
         names = technique_names()
         techs = [t for t in ("ddgi", "path") if t in names]
@@ -441,9 +393,6 @@ def cmd_demo(args) -> int:
         with open(os.path.join(out, "summary.md")) as f:
             print(f.read())
         return _report_failures(out)
-    import json
-
-    from .experiments.demo import run_tour, select_sections
 
     secs = select_sections(args.sections.split(",") if args.sections else None)
     out = run_tour(args.out, "quick" if args.quick else "tour", [s.key for s in secs], quiet=args.quiet, res=res,
@@ -659,8 +608,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from .errors import DyngiError
-
     args = build_parser().parse_args(argv)
     try:
         return args.fn(args)

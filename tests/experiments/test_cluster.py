@@ -22,9 +22,15 @@ RES = (16, 12)
 
 @pytest.fixture
 def ref(backend):
-    from dyngi.experiments import reference
+    from dyngi.experiments.references import path
 
-    return reference
+    return path
+
+
+def _reference_job(*args, **kwargs):
+    from dyngi.experiments.reference_job import reference_job
+
+    return reference_job(*args, **kwargs)
 
 
 @pytest.fixture
@@ -131,7 +137,7 @@ def test_chunks_merged_on_the_local_executor_equal_the_serial_render(ref, tmp_pa
     sc = _scene()
     spp = 512            # 8 passes of 64: halves of 256 = 4 passes each, so 4 chunks per half
     prog = Progress(0, quiet=True)
-    recs = ref.reference_job(sc, [0, 3], RES, spp, 12, executor=LocalExecutor(), chunks=4, cache_dir=tmp_path,
+    recs = _reference_job(sc, [0, 3], RES, spp, 12, executor=LocalExecutor(), chunks=4, cache_dir=tmp_path,
                              progress=prog)
     assert [r["frame"] for r in recs] == [0, 3] and not any(r["cached"] or r["failed"] for r in recs)
     assert prog.done == prog.total == 2 * 2 * 4            # 2 frames x 2 halves x 4 chunks
@@ -144,14 +150,14 @@ def test_chunks_merged_on_the_local_executor_equal_the_serial_render(ref, tmp_pa
     assert meta["chunks"] == 4 and meta["spp"] == 256
     # no lock files left; a second run renders nothing
     assert not [p for p in tmp_path.iterdir() if ".lock" in p.name]
-    again = ref.reference_job(sc, [0, 3], RES, spp, 12, executor=LocalExecutor(), chunks=4, cache_dir=tmp_path)
+    again = _reference_job(sc, [0, 3], RES, spp, 12, executor=LocalExecutor(), chunks=4, cache_dir=tmp_path)
     assert all(r["cached"] for r in again)
 
 
 def test_reference_job_on_the_cluster_path_renders_missing_entries_once(ref, tmp_path):
     """Static scene: every frame has the same key, so one entry per half is rendered, as chunks."""
     ex = Pretend.make(workers=4)
-    recs = ref.reference_job(_scene("cornell-static"), 3, RES, 256, 12, executor=ex, cache_dir=tmp_path)
+    recs = _reference_job(_scene("cornell-static"), 3, RES, 256, 12, executor=ex, cache_dir=tmp_path)
     assert len({r["key"] for r in recs}) == 1 and not any(r["failed"] for r in recs)
     assert len([p for p in tmp_path.iterdir() if p.suffix == ".exr"]) == 2
     meta = [json.loads(p.read_text()) for p in tmp_path.iterdir() if p.suffix == ".json"]
@@ -187,7 +193,7 @@ def test_threads_asking_for_one_missing_entry_render_it_once(ref, tmp_path, monk
 def _hold_lock(path, ready, release):
     from pathlib import Path
 
-    from dyngi.experiments.reference import EntryLock
+    from dyngi.experiments.references.cache import EntryLock
 
     lock = EntryLock(Path(path))
     ready.put(lock.acquire())
@@ -196,7 +202,7 @@ def _hold_lock(path, ready, release):
 
 
 def test_lock_between_processes_and_a_dead_holder(ref, tmp_path):
-    from dyngi.experiments.reference import EntryLock, lock_is_stale
+    from dyngi.experiments.references.cache import EntryLock, lock_is_stale
 
     exr = tmp_path / "scene-key.exr"
     ctx = multiprocessing.get_context("fork")
@@ -225,7 +231,7 @@ def test_lock_between_processes_and_a_dead_holder(ref, tmp_path):
 
 
 def test_lock_from_another_machine_is_stale_only_after_its_heartbeat_stops(ref, tmp_path, monkeypatch):
-    from dyngi.experiments.reference import EntryLock, get_or_render, lock_is_stale
+    from dyngi.experiments.references.cache import EntryLock, get_or_render, lock_is_stale
 
     exr, js = tmp_path / "s-k.exr", tmp_path / "s-k.json"
     lock = tmp_path / "s-k.lock"
@@ -245,15 +251,17 @@ def test_lock_from_another_machine_is_stale_only_after_its_heartbeat_stops(ref, 
 def test_readers_never_see_a_half_written_entry(ref, tmp_path):
     """The EXR and JSON are moved into place whole (JSON last); an EXR alone, or a temporary file, is a miss."""
     exr, js = tmp_path / "s-k.exr", tmp_path / "s-k.json"
+    from dyngi.experiments.references.cache import _load_entry, _store
+
     img = np.full((RES[1], RES[0], 3), 0.5, np.float32)
-    ref._store(exr, js, img, {"key": "k"})
+    _store(exr, js, img, {"key": "k"})
     assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]
-    assert np.array_equal(ref._load_entry(exr, js, "k", RES)[0], img)
+    assert np.array_equal(_load_entry(exr, js, "k", RES)[0], img)
     js.unlink()
     (tmp_path / ".s-k.123.abcd.tmp.json").write_text('{"key": "k"}')     # a writer still busy
-    assert ref._load_entry(exr, js, "k", RES) is None
+    assert _load_entry(exr, js, "k", RES) is None
     js.write_text('{"key": "other"}')                                      # another entry's sidecar
-    assert ref._load_entry(exr, js, "k", RES) is None
+    assert _load_entry(exr, js, "k", RES) is None
 
 
 # -- sweeps ------------------------------------------------------------------------------------------------

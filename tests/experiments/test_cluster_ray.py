@@ -56,12 +56,13 @@ def _scene(name="cornell-moving-light"):
 
 
 def test_reference_in_four_chunks_on_the_cluster_equals_the_serial_one(executor, cache):
-    from dyngi.experiments import reference as ref
+    from dyngi.experiments.reference_job import reference_job
+    from dyngi.experiments.references import path as ref
     from dyngi.experiments.cluster import Progress
 
     sc, res, spp = _scene(), (32, 24), 512
     prog = Progress(0, quiet=True)
-    recs = ref.reference_job(sc, [2], res, spp, 12, executor=executor, halves=False, seed=7, chunks=4,
+    recs = reference_job(sc, [2], res, spp, 12, executor=executor, halves=False, seed=7, chunks=4,
                              progress=prog)
     assert prog.done == 4 and not executor.failures and not recs[0]["failed"]
     img, hit = ref.cached_reference(sc, recs[0]["time"], res, spp, 12, seed=7)
@@ -72,8 +73,9 @@ def test_reference_in_four_chunks_on_the_cluster_equals_the_serial_one(executor,
 
 def test_sweep_on_the_cluster_gives_the_serial_numbers_and_a_second_run_renders_nothing(executor, cache, tmp_path,
                                                                                         monkeypatch):
-    from dyngi.experiments import reference as ref
+    from dyngi.experiments import reference_job as job
     from dyngi.experiments.cluster import SceneRef
+    from dyngi.experiments.references import path as ref
     from dyngi.experiments.sweep import run_sweep, sweep_point
 
     grid = ["hysteresis=0.9,0.97", "rays_per_probe=16,32"]
@@ -92,7 +94,9 @@ def test_sweep_on_the_cluster_gives_the_serial_numbers_and_a_second_run_renders_
     calls = []
     monkeypatch.setattr(ref, "_render", lambda *a: calls.append(a))
     monkeypatch.setattr(ref, "render_passes", lambda *a, **k: calls.append(a))
-    recs = ref.reference_job(_scene(), kw["frames"], kw["res"], kw["ref_spp"], depth, executor=executor)
+    monkeypatch.setattr(job, "_render", lambda *a: calls.append(a))
+    monkeypatch.setattr(job, "render_passes", lambda *a, **k: calls.append(a))
+    recs = job.reference_job(_scene(), kw["frames"], kw["res"], kw["ref_spp"], depth, executor=executor)
     assert all(r["cached"] for r in recs) and not calls
     before = sorted(p.stat().st_mtime_ns for p in cache.iterdir())
     out2 = run_sweep("ddgi", "cornell-moving-light", grid, 2, str(tmp_path / "b"), executor=executor, **kw)
@@ -120,13 +124,14 @@ def _busy_workers(prefix: str) -> list[int]:
 
 
 def test_a_killed_worker_loses_no_finished_frame_and_the_job_completes(executor, cache):
-    from dyngi.experiments import reference as ref
+    from dyngi.experiments.reference_job import reference_job
+    from dyngi.experiments.references import path as ref
 
     sc, res, spp, frames = _scene(), (64, 48), 256, 6
     box = {}
 
     def run():
-        box["recs"] = ref.reference_job(sc, frames, res, spp, 12, executor=executor, chunks=1)
+        box["recs"] = reference_job(sc, frames, res, spp, 12, executor=executor, chunks=1)
     job = threading.Thread(target=run)
     job.start()
     killed, finished_at_kill = None, {}

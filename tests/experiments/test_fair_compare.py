@@ -197,7 +197,7 @@ _XML = """<scene version="3.0.0">
 
 def test_scene_file_depth_and_film_resolution(env, tmp_path, capsys):
     from dyngi.cli import main
-    from dyngi.experiments.reference import DEFAULT_MAX_DEPTH, scene_max_depth
+    from dyngi.experiments.references.path import DEFAULT_MAX_DEPTH, scene_max_depth
     from dyngi.scene import load_scene
 
     p = tmp_path / "s.xml"
@@ -229,7 +229,7 @@ def test_ref_depth_is_used_and_defaults_to_the_scene(env, tmp_path):
 
 def test_cache_key_has_variant_sensor_filter(env, monkeypatch):
     from dyngi.backend import mi
-    from dyngi.experiments import reference as R
+    from dyngi.experiments.references import path as R
     from dyngi.scene import load_scene
 
     sc = load_scene("cornell-static")
@@ -246,7 +246,7 @@ def test_cache_key_has_variant_sensor_filter(env, monkeypatch):
 def test_reference_noise_estimate_matches_the_truth(env):
     """The halves' estimate of a 32-spp reference's relMSE against a 512-spp render (truth + 1/16 of the
     noise): ratio within [0.6, 1.6] (the estimate averages 768 pixel x channel terms)."""
-    from dyngi.experiments.reference import reference_halves, reference_image
+    from dyngi.experiments.references.path import reference_halves, reference_image
     from dyngi.metrics import relmse
     from dyngi.scene import load_scene
 
@@ -311,7 +311,7 @@ def _relmse_map(img, ref):
 def test_converged_path_edges_do_not_dominate(env):
     """``path`` at 256 spp against the 512-spp box-filtered reference: relMSE at edge pixels within 3x
     of the interior (both are noise). A pixel-centre render would make edges dominate (checked)."""
-    from dyngi.experiments.reference import reference_halves
+    from dyngi.experiments.references.path import reference_halves
     from dyngi.experiments.runner import run_sequence
     from dyngi.scene import load_scene
     from dyngi.techniques.base import create_technique
@@ -419,7 +419,7 @@ def test_ddgi_jitter_removes_the_aliasing_part_of_its_edge_error(env):
     """ddgi averaged over 14 static frames against the box-filtered reference: jittered primary rays (the
     default) halve the edge error of pixel-centre rays (measured 0.031 vs 0.070 relMSE at 32x24; what is
     left at edges is ddgi's own bias near corners, which is GI error)."""
-    from dyngi.experiments.reference import reference_halves
+    from dyngi.experiments.references.path import reference_halves
     from dyngi.experiments.runner import run_sequence
     from dyngi.scene import load_scene
     from dyngi.techniques.base import create_technique

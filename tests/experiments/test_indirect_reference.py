@@ -35,7 +35,7 @@ def _plane_scene(light: str):
 
 @pytest.mark.parametrize("light", ["area", "sun-sky"])
 def test_single_plane_has_no_indirect_light(backend, light):
-    from dyngi.experiments.indirect_reference import indirect_reference_image
+    from dyngi.experiments.references.indirect import indirect_reference_image
 
     sc = _plane_scene(light)
     img, noise = indirect_reference_image(sc, 0.0, (24, 18), 16, 8, seed=3)
@@ -48,7 +48,7 @@ def test_single_plane_has_no_indirect_light(backend, light):
 @pytest.mark.parametrize("name", ["cornell-static", pytest.param("sky-pit", marks=pytest.mark.slow)])  # CI budget
 def test_indirect_plus_direct_is_full(backend, name):
     """ours(indirect) + Mitsuba(max_depth=2), independent, estimates Mitsuba(max_depth=8): per-pixel z-test."""
-    from dyngi.experiments.indirect_reference import indirect_reference_image
+    from dyngi.experiments.references.indirect import indirect_reference_image
     from dyngi.scene import load_scene
 
     sc = load_scene(name)
@@ -64,7 +64,7 @@ def test_indirect_plus_direct_is_full(backend, name):
 def test_agrees_with_mitsuba_difference_within_noise(backend):
     """Against Mitsuba full minus Mitsuba max_depth=2 (same seed, a high-spp stand-in for the truth): the MSE
     is what the two images' estimated noise predicts, and the halves' noise estimate is calibrated."""
-    from dyngi.experiments.indirect_reference import indirect_reference_image
+    from dyngi.experiments.references.indirect import indirect_reference_image
     from dyngi.scene import load_scene
 
     sc = load_scene("cornell-moving-box")
@@ -86,7 +86,7 @@ def test_agrees_with_mitsuba_difference_within_noise(backend):
 
 
 def test_cache_roundtrip_and_key(backend, tmp_path):
-    from dyngi.experiments.indirect_reference import cached_indirect_reference, indirect_reference_image
+    from dyngi.experiments.references.indirect import cached_indirect_reference, indirect_reference_image
     from dyngi.scene import load_scene
 
     sc = load_scene("cornell-moving-light")
@@ -113,7 +113,7 @@ def test_cache_roundtrip_and_key(backend, tmp_path):
     ({"seed": -1}, "seed"),
 ])
 def test_bad_settings(backend, kw, what):
-    from dyngi.experiments.indirect_reference import cached_indirect_reference, indirect_reference_image
+    from dyngi.experiments.references.indirect import cached_indirect_reference, indirect_reference_image
     from dyngi.scene import load_scene
 
     sc = load_scene("cornell-static")
@@ -125,7 +125,7 @@ def test_bad_settings(backend, kw, what):
 
 def test_unbounded_depth_furnace(backend):
     """Furnace (albedo 0.5, emission 0.5, L = 1): the indirect part is L - e - a e = 0.25 everywhere."""
-    from dyngi.experiments.indirect_reference import indirect_reference_image
+    from dyngi.experiments.references.indirect import indirect_reference_image
     from dyngi.scene import load_scene
 
     img, noise = indirect_reference_image(load_scene("furnace"), 0.0, (16, 12), 256, -1, seed=0)
@@ -142,7 +142,7 @@ def _builtin_names():
 @pytest.mark.parametrize("name", _builtin_names())
 def test_agrees_with_mitsuba_difference_on_every_builtin_scene(backend, name):
     """ours vs Mitsuba(12) - Mitsuba(2) (same seed per pair), per-pixel z-test, at a mid-animation frame."""
-    from dyngi.experiments.indirect_reference import indirect_reference_image
+    from dyngi.experiments.references.indirect import indirect_reference_image
     from dyngi.scene import load_scene
 
     sc = load_scene(name)

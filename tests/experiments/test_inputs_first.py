@@ -73,11 +73,13 @@ def test_unknown_cluster_is_refused_before_work(backend, no_rendering, tmp_path,
 def test_a_spec_is_parsed_once_at_the_edge(backend, tmp_path, monkeypatch, capsys):
     """``dyngi render`` / ``dyngi compare`` parse each technique spec once (the CLI) and pass the
     :class:`TechniqueSpec` down; ``--set`` keys are checked there, by the technique's own parameter table."""
+    import dyngi.cli as cli
     import dyngi.techniques.base as base
 
     calls = []
     real = base.parse_spec
     monkeypatch.setattr(base, "parse_spec", lambda text: calls.append(text) or real(text))
+    monkeypatch.setattr(cli, "parse_spec", base.parse_spec)
     out = tmp_path / "r"
     assert main(["render", "cornell-static", "--technique", "path:max_depth=3", "--set", "spp=2", "--frames", "1",
                  "--res", "8x6", "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err

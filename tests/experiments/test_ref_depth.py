@@ -15,7 +15,7 @@ def _prepare(tmp_path, techniques, ref_depth=None):
 
 
 def test_fixed_depth_techniques_set_the_reference_depth(backend, tmp_path):
-    from dyngi.experiments.reference import scene_max_depth
+    from dyngi.experiments.references.path import scene_max_depth
     run = _prepare(tmp_path, ["nee-pt:lights=uniform", "nee-pt"])
     assert run["ref_depth"] == 3
     assert any("depth 3" in w and "nee-pt" in w for w in run["warnings"]), run["warnings"]
@@ -23,7 +23,7 @@ def test_fixed_depth_techniques_set_the_reference_depth(backend, tmp_path):
 
 
 def test_mixed_comparison_keeps_the_scene_depth_and_names_the_truncated(backend, tmp_path):
-    from dyngi.experiments.reference import scene_max_depth
+    from dyngi.experiments.references.path import scene_max_depth
     run = _prepare(tmp_path, ["path", "nee-pt"])
     assert run["ref_depth"] == scene_max_depth(run["scene"])
     notes = [w for w in run["warnings"] if w.startswith("nee-pt:")]

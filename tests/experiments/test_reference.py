@@ -13,9 +13,9 @@ SPP = 8
 
 @pytest.fixture
 def ref(backend):
-    from dyngi.experiments import reference
+    from dyngi.experiments.references import path
 
-    return reference
+    return path
 
 
 @pytest.fixture
@@ -90,8 +90,10 @@ def test_render_moves_the_scene_to_t_first(ref, tmp_path):
 
 
 def test_env_var_and_fill_cache(ref, renders, tmp_path, monkeypatch):
+    from dyngi.experiments.references.cache import default_cache_dir
+
     monkeypatch.setenv("DYNGI_CACHE", str(tmp_path / "root"))
-    assert ref.default_cache_dir() == tmp_path / "root" / "reference"
+    assert default_cache_dir() == tmp_path / "root" / "reference"
     sc = _scene("cornell-moving-light")
     recs = ref.fill_reference_cache(sc, 3, RES, spp=4)
     assert [r["frame"] for r in recs] == [0, 1, 2] and not any(r["cached"] for r in recs)

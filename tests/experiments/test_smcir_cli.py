@@ -49,13 +49,14 @@ def test_clamped_reference_and_no_tracked_reach_the_reference(backend, tmp_path,
     """``--reference clamped`` renders the clamped reference with the technique's clamp (G_max of its
     clamp_distance) and its tracked pixels with 16x the samples; ``--no-tracked`` leaves the tracked pixels
     to the image reference (tracked_spp = ref spp); the clamped image is darker than the unclamped one."""
-    import dyngi.experiments.clamped_reference as cr
+    import dyngi.experiments.compare as compare
+    from dyngi.experiments.references.clamped import clamped_indirect
     from dyngi.scene import load_scene
     from dyngi.vpl.shading import clamp_value
 
     monkeypatch.setenv("DYNGI_CACHE", str(tmp_path / "cache"))
     calls = []
-    real = cr.collect_clamped_references
+    real = compare.collect_clamped_references
 
     def spy(scene, frames, res, spp, max_depth, gmax, bar=None, tracked_spp=None):
         calls.append((gmax, tracked_spp, max_depth))
@@ -63,7 +64,7 @@ def test_clamped_reference_and_no_tracked_reach_the_reference(backend, tmp_path,
         calls.append(r[0][0])
         return r
 
-    monkeypatch.setattr(cr, "collect_clamped_references", spy)
+    monkeypatch.setattr(compare, "collect_clamped_references", spy)
     base = ["compare", "cornell-static", "--techniques", TECH + ":clamp_distance=0.2", "--indirect"] + TINY
     assert main(base + ["--reference", "clamped", "--out", str(tmp_path / "c")]) == 0
     gmax = clamp_value(load_scene("cornell-static"), 0.2)
@@ -76,17 +77,17 @@ def test_clamped_reference_and_no_tracked_reach_the_reference(backend, tmp_path,
     assert main(base + ["--no-tracked", "--out", str(tmp_path / "p")]) == 0       # the path reference
     assert len(calls) == 4 and _summary(tmp_path / "p")[TECH + ":clamp_distance=0.2"]["tracked_spp"] == 8
     sc = load_scene("cornell-static")
-    free = cr.clamped_indirect(sc, 0.0, (16, 12), 64, 5)
+    free = clamped_indirect(sc, 0.0, (16, 12), 64, 5)
     assert calls[1].mean() < 0.97 * free.mean()        # the clamp removed energy: it is the clamped one
 
 
 def test_untextured_reaches_the_scene(backend, tmp_path, monkeypatch):
-    import dyngi.scene.untextured as ut
+    import dyngi.experiments.compare as compare
 
     monkeypatch.setenv("DYNGI_CACHE", str(tmp_path / "cache"))
     seen = []
-    real = ut.make_untextured
-    monkeypatch.setattr(ut, "make_untextured", lambda s: seen.append(s.name) or real(s))
+    real = compare.make_untextured
+    monkeypatch.setattr(compare, "make_untextured", lambda s: seen.append(s.name) or real(s))
     argv = ["compare", "cornell-static", "--techniques", TECH, "--indirect", "--untextured"] + TINY
     assert main(argv + ["--out", str(tmp_path / "u")]) == 0
     assert seen == ["cornell-static"]

@@ -148,7 +148,7 @@ def test_sealed_room_stays_dark(backend, name):
 def test_stair_hall_within_10_percent_of_mitsuba(backend, name):
     """The tall hall lit from its ceiling is not over-lit (measured after the fix: 0.93-1.06; before: ddgi
     1.53, qddgi 1.62, isddgi 1.59)."""
-    from dyngi.experiments.reference import reference_image
+    from dyngi.experiments.references.path import reference_image
 
     sc = load_scene("stair-hall")
     img = _mean_image(name, sc, HALL_SETTINGS.get(name))
@@ -161,7 +161,7 @@ def test_stair_hall_within_10_percent_of_mitsuba(backend, name):
 @pytest.mark.parametrize("name", PROBE_TECHNIQUES)
 def test_veach_bidir_keeps_the_two_sided_gain(backend, name):
     from conftest import shared_scene
-    from dyngi.experiments.reference import reference_image, scene_max_depth
+    from dyngi.experiments.references.path import reference_image, scene_max_depth
 
     sc = load_scene(shared_scene("veach-bidir/scene_mi3.xml"))
     img = _mean_image(name, sc, VEACH_SETTINGS.get(name))

@@ -63,7 +63,7 @@ def test_coated_hall_is_registered_and_coated():
 @pytest.mark.parametrize("name", PROBE_TECHNIQUES)
 def test_coated_hall_within_10_percent_of_mitsuba(backend, name):
     """Measured after the fix: ddgi 1.00, qddgi 1.00 (before: 2.02, 1.91; docs/probes.md)."""
-    from dyngi.experiments.reference import reference_image
+    from dyngi.experiments.references.path import reference_image
 
     sc = load_scene("coated-hall")
     img = _mean_image(name, sc, RES, FRAMES, SETTLED)
@@ -78,7 +78,7 @@ def test_coated_hall_within_10_percent_of_mitsuba(backend, name):
 def test_wooden_staircase_within_10_percent_of_mitsuba(backend, name):
     """The real scene (its file's depth is -1; measured at 12, which holds all but 0.1% of it)."""
     from conftest import shared_scene
-    from dyngi.experiments.reference import reference_image
+    from dyngi.experiments.references.path import reference_image
 
     sc = load_scene(shared_scene("wooden-staircase/scene.xml"))
     ref = reference_image(sc, 0.0, STAIRCASE_RES, 1024, DEPTH)
@@ -95,7 +95,7 @@ def test_wooden_staircase_depth_is_its_files():
     """Its file's ``max_depth`` -1 is -1 (Mitsuba prints it as 4294967295, which the reference integrator
     refused: ``dyngi compare`` on the scene failed before any frame)."""
     from conftest import shared_scene
-    from dyngi.experiments.reference import scene_max_depth
+    from dyngi.experiments.references.path import scene_max_depth
 
     assert scene_max_depth(load_scene(shared_scene("wooden-staircase/scene.xml"))) == -1
 

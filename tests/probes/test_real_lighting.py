@@ -9,7 +9,7 @@ import pytest
 
 from dyngi.backend import dr, mi
 from dyngi.errors import DyngiError
-from dyngi.experiments.reference import reference_image
+from dyngi.experiments.references.path import reference_image
 from dyngi.probes import DiffuseHitShader, ProbeGrid, ProbeQuery, ProbeVolume
 from dyngi.probes.primary import shade_primary
 from dyngi.probes.trace import DEFAULT_DIRECT, light_routing
@@ -17,7 +17,7 @@ from dyngi.sampling.diffuse import diffuse_albedo
 from dyngi.sampling.passthrough import MAX_GLASS_LAYERS, intersect_through_glass, shadow_transmittance
 from dyngi.sampling.sunsky import split_sunsky
 from dyngi.scene import load_scene
-from dyngi.scene.builtin import room_sun_blinds
+from dyngi.scene.builtin_default import room_sun_blinds
 from dyngi.techniques.base import Frame, create_technique, to_image
 from helpers import assert_steady_state_compiles_nothing
 

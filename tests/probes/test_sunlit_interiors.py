@@ -71,7 +71,7 @@ def test_slab_probes_leave_towards_the_grid(backend):
 
 @pytest.mark.parametrize("name", PROBE_TECHNIQUES)
 def test_sunlit_classroom_within_10_percent_of_mitsuba(backend, name):
-    from dyngi.experiments.reference import reference_image
+    from dyngi.experiments.references.path import reference_image
 
     sc = load_scene("sunlit-classroom")
     img = _mean_image(name, sc)

@@ -85,7 +85,7 @@ def test_vlc_keeps_a_light_visible_from_5_percent_of_a_leafs_samples(backend):
 def _frame_mse(scene, spec: str, res, warmup: int, frames: int, seed: int) -> float:
     """Mean over ``frames`` frames (after ``warmup``) of the MSE against Mitsuba's path (depth 3, 256 spp),
     the scene held at t = 0: the expected squared error of one frame (rare missed hits included)."""
-    from dyngi.experiments.reference import reference_image
+    from dyngi.experiments.references.path import reference_image
     from dyngi.techniques import Frame, create_technique
     ref = reference_image(scene, 0.0, res, 256, 3).astype(np.float64)
     tech = create_technique(spec + f":seed={seed}", scene)

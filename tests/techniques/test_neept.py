@@ -51,7 +51,7 @@ def test_selectors_converge_to_uniform(backend, uniform_covered, lights):
 @pytest.mark.slow   # CI budget: seconds on a cold cache; runs in CI's slow subset
 def test_vlc_is_mitsuba_at_depth_3_on_a_diffuse_scene(backend):
     """cornell-static (diffuse, triangle area light): nee-pt == Mitsuba's path with max_depth 3."""
-    from dyngi.experiments.reference import _render
+    from dyngi.experiments.references.path import _render
     sc = load_scene("cornell-static")
     ref = np.stack([_render(sc, 0.0, RES, 16, 3, seed=100 + s) for s in range(10)])
     imgs, _, _, _ = frames_of("nee-pt", "cornell-static", 10, 16, seed=3)

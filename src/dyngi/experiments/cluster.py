@@ -1,7 +1,7 @@
 """Executors: run a job's independent tasks in-process or on a Ray cluster, behind one interface.
 
 A *job* is a list of :class:`Task` s (a name, a module-level function and its arguments) whose results
-do not depend on one another: the frames or spp chunks of a reference (:mod:`~dyngi.experiments.reference`),
+do not depend on one another: the frames or spp chunks of a reference (:mod:`~dyngi.experiments.reference_job`),
 the technique sequences of a comparison (:mod:`~dyngi.experiments.compare`), the grid points x seeds of a
 sweep (:mod:`~dyngi.experiments.sweep`), the independent runs of a reproduction
 (:mod:`~dyngi.experiments.reproduce`). :meth:`Executor.map` runs them and returns one outcome per task,
@@ -45,6 +45,11 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from ..errors import DyngiError
+
+# This module loads no Dr.Jit at import: a Ray worker unpickles :func:`dyngi_task` from it and must set the
+# driver's environment ($DYNGI_BLAS_THREADS, read when dyngi.backend loads) and variant first
+# (:func:`_prepare_worker`). So the dyngi modules that load Dr.Jit (backend, scene, io, references) are
+# imported inside the functions that need them, and only there (tests/test_layers.py, FUNCTION_IMPORTS_WHY).
 
 CLUSTER_ENV = "DYNGI_CLUSTER"
 """Environment variable naming the default back-end (``local``, ``auto`` or ``ray://HOST:PORT``)."""
@@ -305,7 +310,7 @@ def dyngi_task(fn, args, kwargs, env, variant, threads):
 
 def _worker_env() -> dict:
     """What workers need of this process's environment: where the reference cache is."""
-    from .reference import default_cache_dir
+    from .references.cache import default_cache_dir
 
     env = {"DYNGI_CACHE": str(default_cache_dir().parent)}
     for k in ("DYNGI_BLAS_THREADS",):

@@ -19,7 +19,7 @@ every compared technique that has KEY; a spec's own settings win.
 
 Each technique's sequence is one task of the job's executor (:mod:`~dyngi.experiments.cluster`,
 ``--cluster``): in this process one after another by default, exactly as before; on a Ray cluster the
-missing references are rendered first as chunk tasks (:func:`~dyngi.experiments.reference.reference_job`),
+missing references are rendered first as chunk tasks (:func:`~dyngi.experiments.reference_job.reference_job`),
 then every sequence runs on a worker that loads the scene and makes the technique itself (under a budget,
 the first technique first), and the images come back here to be measured and written. A technique that
 fails there (after retries) is left out with a warning; the rest is written.
@@ -31,16 +31,26 @@ from __future__ import annotations
 
 import os
 import sys
+import time
 
+from ..backend import mi
 from ..errors import DyngiError
 from ..scene import load_scene
-from ..techniques.base import TechniqueSpec, as_spec, create_technique, get_technique
+from ..scene.untextured import make_untextured
+from ..techniques.base import REGISTRY, TechniqueSpec, as_spec, create_technique, get_technique, technique_names
+from ..vpl.shading import clamp_value
+from . import cluster
 from .budgets import budget_accounting, run_with_budget
-from .evaluate import (LABELS, METRIC_NAMES, check_metric_names, collect_references, evaluate_sequence,  # noqa: F401
-                       failures, indirect_reference_fn, summarize_noise)
+from .cluster import Task, failed, scene_ref
+from .denoise import aux_buffers, denoise, require
+from .evaluate import (LABELS, METRIC_NAMES, check_metric_names, collect_clamped_references, collect_references,  # noqa: F401
+                       evaluate_sequence, failures, indirect_reference_fn, summarize_noise)
 from .io import atomic_output_dir, check_writable
+from .reference_job import reference_job
+from .references.clamped import check_reference, reference_clamp_distance
+from .references.path import DEFAULT_REF_SPP, half_spp, scene_max_depth
 from .report import write_outputs
-from .runner import BUDGETS
+from .runner import BUDGETS, SequenceResult
 
 
 def parse_specs(techniques) -> list[TechniqueSpec]:
@@ -98,12 +108,12 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
     ``techniques``: specs ``NAME[:KEY=VALUE...]``. ``metrics``: names from :data:`dyngi.metrics.METRICS`
     (default all five). HDR-FLIP costs ~10 us per pixel on 2 CPU cores (docs/harness.md); leave it
     out for long sequences (the FLIP maps of the image grid are computed regardless). ``ref_depth``:
-    the reference's max depth (default: the scene's own, :func:`~dyngi.experiments.reference.scene_max_depth`).
+    the reference's max depth (default: the scene's own, :func:`~dyngi.experiments.references.path.scene_max_depth`).
     ``indirect``: compare the techniques' indirect-only images (``FrameResult.indirect``) against an
     indirect-only reference. ``scene``: an already loaded Scene instead of ``scene_name``.
     ``denoise``: also report every technique denoised by Intel OIDN (label ``<spec>+denoise``; see
     :func:`add_denoised`). ``reference``: ``'path'`` (default) or ``'clamped'`` (clamped path tracing,
-    SMC-IR Sec. 5.4, indirect only: :mod:`~dyngi.experiments.clamped_reference`). ``untextured``: every
+    SMC-IR Sec. 5.4, indirect only: :mod:`~dyngi.experiments.references.clamped`). ``untextured``: every
     texture replaced by its mean colour for the techniques and the reference (SMC-IR Sec. 5,
     :mod:`dyngi.scene.untextured`). ``tracked=False``: no per-pixel reference for the 8 tracked pixels
     (the image reference's values stand in).
@@ -113,7 +123,6 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
                   indirect, scene, reference=reference, untextured=untextured, tracked=tracked)
     run["denoise"] = [lb for lb in run["labels"] if denoise or run["specs"][lb].denoise]
     if run["denoise"]:
-        from .denoise import require
         require()
     rs = execute(run, res, seed, quiet)
     with atomic_output_dir(run["out_dir"]) as tmp:
@@ -125,9 +134,6 @@ def run_compare(scene_name: str, techniques: list[str], out_dir: str, frames: in
 def prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, metrics, ref_depth, indirect,
             scene=None, reference: str = "path", untextured: bool = False, tracked: bool = True) -> dict:
     """Validate everything before any work; load the scene and create the techniques."""
-    from .clamped_reference import check_reference, reference_clamp_distance
-    from .reference import DEFAULT_REF_SPP, half_spp, scene_max_depth
-
     names = check_metric_names(metrics)
     specs = parse_specs(techniques)
     if budget not in BUDGETS:
@@ -147,7 +153,6 @@ def prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, me
     per_tech = split_params(specs, params or {})
     scene = scene if scene is not None else load_scene(scene_name)
     if untextured:
-        from ..scene.untextured import make_untextured
         make_untextured(scene)
     techs = {s.label: create_technique(s.name, scene, per_tech[s.label]) for s in specs}
     warnings = _check_indirect(scene, techs, specs) if indirect else []
@@ -193,7 +198,6 @@ def _check_indirect(scene, techs, specs) -> list[str]:
     lack = [s.label for s in specs if getattr(type(techs[s.label]), "HAS_INDIRECT", None) is False]
     if lack:
         raise _no_indirect(lack)
-    from ..backend import mi
 
     has_env = any(mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) and
                   not mi.has_flag(e.flags(), mi.EmitterFlags.DeltaDirection) for e in scene.mi_scene.emitters())
@@ -210,8 +214,6 @@ def _check_indirect(scene, techs, specs) -> list[str]:
 
 
 def _no_indirect(labels) -> DyngiError:
-    from ..techniques.base import REGISTRY, technique_names
-
     technique_names()
     have = sorted(n for n, c in REGISTRY.items() if getattr(c, "HAS_INDIRECT", None))
     return DyngiError(f"--indirect: technique(s) {', '.join(labels)} return no indirect-only image "
@@ -220,8 +222,6 @@ def _no_indirect(labels) -> DyngiError:
 
 def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
     """References, every technique under the budget, evaluation: ``{'results', 'refs', 'rows', 'summary', 'ctx'}``."""
-    from . import cluster
-
     scene, labels, frames, budget = run["scene"], run["labels"], run["frames"], run["budget"]
     ex = cluster.current()
     bar = prog = None
@@ -236,8 +236,6 @@ def execute(run: dict, res, seed: int, quiet: bool = True) -> dict:
     # -- ground truth (cached), with its own noise --
     tracked_spp = None if run.get("tracked", True) else 0
     if run.get("reference", "path") == "clamped":
-        from ..vpl.shading import clamp_value
-        from .clamped_reference import collect_clamped_references
         refs, noise = collect_clamped_references(scene, frames, res, run["ref_spp"], run["ref_depth"],
                                                  clamp_value(scene, run["ref_clamp_distance"]), bar, tracked_spp)
     else:
@@ -310,8 +308,6 @@ def _sequence_task(source, label, name, params, frames, res, seed, budget, first
 
 def _budget_view(seq):
     """What a budget needs of the first technique's run (its stats and times; no images to ship)."""
-    from .runner import SequenceResult
-
     return SequenceResult(seq.technique, times=list(seq.times), stats=list(seq.stats), wall_ms=list(seq.wall_ms))
 
 
@@ -322,8 +318,6 @@ def run_sequences(run: dict, res, seed: int, ex, bar=None, progress=None) -> dic
     tasks use the techniques :func:`prepare` made, in order, exactly as before executors; on a cluster
     each worker makes its own. A technique that failed (after retries) is dropped from ``run['labels']``
     with a warning; when the budget-setting first one or every one failed, a DyngiError names them."""
-    from .cluster import Task, failed, scene_ref
-
     scene, labels, frames, budget = run["scene"], list(run["labels"]), run["frames"], run["budget"]
     if ex.in_process:
         src = _Live(scene, run["techs"])
@@ -367,9 +361,6 @@ def _prefill_references(run, res, ex, progress) -> None:
     """On a cluster: render the missing references of the run as chunk tasks first (the image references;
     the clamped kind and the 8 tracked pixels are rendered here as before), so that
     :func:`collect_references` finds them cached."""
-    from .cluster import scene_ref
-    from .reference import reference_job
-
     if run.get("reference", "path") != "path":
         return
     source = run.get("source") or scene_ref(run.get("scene_name") or run["scene"], run.get("untextured", False))
@@ -398,11 +389,6 @@ def add_denoised(run: dict, results: dict, refs, rows: list, summary: dict, acco
     primary hits (:func:`~dyngi.experiments.denoise.aux_buffers`, computed once per frame and shared by
     all techniques). The denoiser's time is reported as the stats stage ``denoise`` of the denoised row
     and is not charged to the technique's budget (the technique ran once, under its budget)."""
-    import time
-
-    from .denoise import aux_buffers, denoise
-    from .runner import SequenceResult
-
     scene, labels = run["scene"], list(run["labels"])
     first = results[labels[0]]
     aux = []

@@ -43,7 +43,13 @@ from typing import Callable
 
 import numpy as np
 
+from .. import backend
 from ..errors import DyngiError
+from ..scene import load_scene
+from .compare import execute, prepare
+from .io import atomic_output_dir, check_writable, write_json
+from .report import data_uri, write_outputs
+from .reproductions.isddgi import UPDATE_STAGES
 
 METRICS = ["mse", "relmse", "mape", "flip", "ssim"]
 
@@ -132,8 +138,6 @@ def measure_adgi(rs, sec) -> dict:
 
 def measure_isddgi(rs, sec) -> dict:
     """Probe-trace and probe-update ms ratios (ddgi / isddgi), probe rays, MSE ratio (steady frames)."""
-    from .reproductions.isddgi import UPDATE_STAGES
-
     s = rs["summary"]
     trace = {lb: s[lb]["stage_ms"].get("trace probes", 0.0) for lb in ("isddgi", "ddgi")}
     update = {lb: sum(s[lb]["stage_ms"].get(k, 0.0) for k in UPDATE_STAGES) for lb in ("isddgi", "ddgi")}
@@ -315,10 +319,6 @@ def retime(scene, start: float, span: float, frames: int):
 def run_section(sec: Section, out_dir: str, size: Size, quiet: bool = True) -> dict:
     """Run one section's comparison, write its report into ``out_dir`` (a folder that the caller makes
     atomic); return ``{'measured', 'summary', 'wall_s', ...}``."""
-    from ..scene import load_scene
-    from .compare import execute, prepare
-    from .report import write_outputs
-
     w0 = time.perf_counter()
     scene = retime(load_scene(sec.scene), sec.start, sec.span, size.frames)
     run = prepare(sec.scene, list(sec.specs), out_dir, size.frames, "equal-frames", size.ref_spp, {}, METRICS,
@@ -343,8 +343,6 @@ def run_tour(out_dir: str, size: str | Size = "tour", sections=None, quiet: bool
 
     ``size``: a key of :data:`SIZES` or a :class:`Size`; ``res``/``frames``/``ref_spp`` override it.
     ``sections``: keys of :data:`SECTIONS` (default all)."""
-    from .io import atomic_output_dir, check_writable
-
     base = SIZES[size] if isinstance(size, str) else size
     sz = Size(tuple(res) if res is not None else base.res, int(frames or base.frames), int(ref_spp or base.ref_spp))
     if sz.frames < 2:
@@ -395,8 +393,6 @@ def _section_table(res: dict) -> str:
 
 
 def _figure(path: str, caption: str) -> str:
-    from .report import data_uri
-
     return (f"<figure><img src='{data_uri(path, 'image/png')}' alt='{html.escape(caption)}'>"
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
@@ -404,9 +400,6 @@ def _figure(path: str, caption: str) -> str:
 def write_tour_report(out_dir: str, secs, results, size: Size, wall_s: float) -> None:
     """``report.html`` (claim, our figure, table, last frame's grid, error plot, link per section),
     ``summary.md``, ``summary.json`` (figures and every technique's failure status) in ``out_dir``."""
-    from .. import backend
-    from .io import write_json
-
     info = backend.device_info()
     settings = (f"{size.res[0]}x{size.res[1]}, {size.frames} frames per section, references {size.ref_spp} spp "
                 f"(Mitsuba's path integrator, cached), {info['variant']} (Mitsuba {info['mitsuba']}); "

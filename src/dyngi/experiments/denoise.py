@@ -18,7 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import dr, mi
 from ..errors import DyngiError
+from ..sampling.gbuffer import render_gbuffer
+from ..sampling.rng import make_sampler
+from ..techniques.base import to_image
 
 QUALITIES = ("high", "balanced", "fast")
 
@@ -68,11 +72,6 @@ def denoise(image, albedo=None, normal=None, quality: str = "high") -> np.ndarra
 
 def aux_buffers(scene, camera, res, spp: int = 4, seed: int = 0):
     """(albedo, normal) H x W x 3 images of the primary hits, averaged over ``spp`` jittered rays per pixel."""
-    from ..backend import dr, mi
-    from ..sampling.gbuffer import render_gbuffer
-    from ..sampling.rng import make_sampler
-    from ..techniques.base import to_image
-
     w, h = res
     alb = np.zeros((h, w, 3), np.float64)
     nrm = np.zeros((h, w, 3), np.float64)

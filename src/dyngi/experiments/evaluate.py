@@ -10,16 +10,23 @@ MAPE take negative values as they are. FLIP, SSIM and the temporal |E|, |E'| are
 (tone-mapped, non-negative) images: for those three only, negative values are shown as 0, as a display
 would, and the number of negative pixels is reported (``negative`` column).
 
-References (:func:`collect_references`): Mitsuba's ``path`` (:mod:`dyngi.experiments.reference`) at
+References (:func:`collect_references`): Mitsuba's ``path`` (:mod:`dyngi.experiments.references.path`) at
 ``ref_depth`` (default: the scene's own max depth), as two independent cached halves whose difference
-estimates the reference's own noise per frame (:func:`~dyngi.experiments.reference.reference_halves`).
-With ``indirect`` the indirect-only reference of :mod:`dyngi.experiments.indirect_reference`.
+estimates the reference's own noise per frame (:func:`~dyngi.experiments.references.path.reference_halves`).
+With ``indirect`` the indirect-only reference of :mod:`dyngi.experiments.references.indirect`; clamped path
+tracing (:func:`collect_clamped_references`, :mod:`dyngi.experiments.references.clamped`).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..errors import DyngiError
+from ..metrics import METRICS, temporal_errors
+from ..metrics.temporal import pick_tracked_pixels
+from .references.clamped import cached_clamped, clamped_indirect, clamped_reference_halves
+from .references.indirect import cached_indirect_reference
+from .references.path import reference_halves
+from .references.tracked import TRACKED_SPP_FACTOR, TRACKED_SPP_MAX, cached_tracked_reference
 
 METRIC_NAMES = ("mse", "relmse", "mape", "flip", "ssim")
 LABELS = {"mse": "MSE", "relmse": "relMSE", "mape": "MAPE", "flip": "FLIP", "ssim": "SSIM"}
@@ -30,8 +37,6 @@ NOISE_MARGIN = 10.0
 
 
 def check_metric_names(names) -> list[str]:
-    from ..metrics import METRICS
-
     names = list(names) if names else list(METRIC_NAMES)
     for m in names:
         if m not in METRICS:
@@ -43,13 +48,8 @@ def check_metric_names(names) -> list[str]:
 
 def indirect_reference_fn():
     """``f(scene, t, res, spp, max_depth) -> (image, noise)``: the cached indirect-only reference of
-    :mod:`dyngi.experiments.indirect_reference` (dyngi's validated path tracer in its indirect-only mode:
-    unclamped, unbiased, noise from two independent halves), or a DyngiError when it is unavailable."""
-    try:
-        from .indirect_reference import cached_indirect_reference
-    except ImportError:
-        raise DyngiError("--indirect needs the indirect-only reference (dyngi.experiments.indirect_reference."
-                         "cached_indirect_reference), which this build does not have") from None
+    :mod:`dyngi.experiments.references.indirect` (dyngi's validated path tracer in its indirect-only mode:
+    unclamped, unbiased, noise from two independent halves)."""
 
     def fn(scene, t, res, spp, max_depth):
         img, noise, _ = cached_indirect_reference(scene, t, res, spp, max_depth)
@@ -78,14 +78,11 @@ def collect_references(scene, frames: int, res, spp: int, ref_depth: int, indire
 
     The images come as a :class:`ReferenceList` whose ``tracked`` holds the 8 tracked pixels (chosen
     from frame 0's reference, :func:`dyngi.metrics.temporal.pick_tracked_pixels`) and their per-pixel
-    references of ``tracked_spp`` samples (default 16x ``spp``, :mod:`dyngi.experiments.tracked`;
+    references of ``tracked_spp`` samples (default 16x ``spp``, :mod:`dyngi.experiments.references.tracked`;
     0: none, the image reference's values stand in)."""
     refs, noise = _collect_images(scene, frames, res, spp, ref_depth, indirect, bar)
     refs = ReferenceList(refs)
     if refs:
-        from ..metrics.temporal import pick_tracked_pixels
-        from .tracked import TRACKED_SPP_FACTOR, TRACKED_SPP_MAX, cached_tracked_reference
-
         pix = pick_tracked_pixels(refs[0])
         tspp = min(TRACKED_SPP_MAX, TRACKED_SPP_FACTOR * int(spp)) if tracked_spp is None else int(tracked_spp)
         if tspp > 0:
@@ -101,8 +98,6 @@ def collect_references(scene, frames: int, res, spp: int, ref_depth: int, indire
 def _collect_images(scene, frames: int, res, spp: int, ref_depth: int, indirect: bool = False,
                     bar=None) -> tuple[list, list]:
     """(images, noise dicts) of the references of frames 0..frames-1 (cached on disk)."""
-    from .reference import reference_halves
-
     fn = indirect_reference_fn() if indirect else None
     refs, noise = [], []
     for i in range(frames):
@@ -115,6 +110,35 @@ def _collect_images(scene, frames: int, res, spp: int, ref_depth: int, indirect:
         noise.append(nz)
         if bar is not None:
             bar.update(1)
+    return refs, noise
+
+
+def collect_clamped_references(scene, frames: int, res, spp: int, max_depth: int, gmax: float, bar=None,
+                               tracked_spp: int | None = None):
+    """As :func:`collect_references`, with clamped path tracing: (references,
+    noise dicts); the tracked pixels' values from :func:`~dyngi.experiments.references.clamped.clamped_indirect` at those pixels, ``tracked_spp``
+    samples (default 16x ``spp`` as the path-traced tracked reference; 0: the image's values stand in)."""
+    refs, noise = ReferenceList(), []
+    for i in range(frames):
+        img, nz = clamped_reference_halves(scene, scene.frame_time(i), res, spp, max_depth, gmax)
+        refs.append(img)
+        noise.append(nz)
+        if bar is not None:
+            bar.update(1)
+    if refs:
+        pix = pick_tracked_pixels(refs[0])
+        tspp = min(TRACKED_SPP_MAX, TRACKED_SPP_FACTOR * int(spp)) if tracked_spp is None else int(tracked_spp)
+        if tspp > 0:
+            vals = np.stack([cached_clamped("tracked", {"state": scene.state_hash(float(scene.frame_time(i))),
+                                                 "res": list(map(int, res)), "pixels": pix.tolist(),
+                                                 "spp": tspp, "max_depth": int(max_depth),
+                                                 "gmax": float(min(gmax, 3.0e38))},
+                                     lambda i=i: clamped_indirect(scene, scene.frame_time(i), res, tspp, max_depth,
+                                                                  gmax, seed=0x7AC4, pixels=pix), (len(pix), 3))
+                             for i in range(frames)])
+        else:
+            vals = np.stack([r[pix[:, 0], pix[:, 1]] for r in refs])
+        refs.tracked = {"pixels": pix, "values": vals, "spp": tspp if tspp > 0 else int(spp)}
     return refs, noise
 
 
@@ -142,8 +166,6 @@ def image_health(img: np.ndarray) -> tuple[int, int]:
 
 def frame_metrics(img, ref, names) -> dict:
     """Metrics of one frame as returned; all NaN when the image has NaN/Inf values."""
-    from ..metrics import METRICS
-
     a = np.asarray(img, np.float64)
     if not np.all(np.isfinite(a)):
         return {k: float("nan") for k in names}
@@ -164,8 +186,6 @@ def evaluate_sequence(label: str, seq, refs: list, names, images: list | None = 
     ``ms_per_frame`` and ``rays_per_frame`` over the steady frames, ``stage_ms``,
     ``nonfinite_pixels``/``nonfinite_frames``/``failed``, ``negative_pixels``.
     """
-    from ..metrics import temporal_errors
-
     images = seq.images if images is None else images
     rows, per_frame, nonfinite, negative = [], [], [], []
     for i, img in enumerate(images):

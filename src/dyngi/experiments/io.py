@@ -14,6 +14,7 @@ import tempfile
 
 import numpy as np
 
+from ..backend import dr, mi
 from ..errors import DyngiError
 
 
@@ -29,8 +30,6 @@ def exr_threads():
     """Mitsuba's OpenEXR reader and writer wait on Dr.Jit's thread pool and deadlock when it has a single
     thread (a cluster worker pinned to one, :mod:`~dyngi.experiments.cluster`): inside this block the pool
     has at least two threads; the count is restored afterwards."""
-    from ..backend import dr
-
     n = dr.thread_count()
     if n >= 2:
         yield
@@ -43,15 +42,11 @@ def exr_threads():
 
 
 def write_exr(path: str, img: np.ndarray) -> None:
-    from ..backend import mi
-
     with exr_threads():
         mi.Bitmap(np.ascontiguousarray(img, dtype=np.float32)).write(path)
 
 
 def read_exr(path: str) -> np.ndarray:
-    from ..backend import mi
-
     with exr_threads():
         return np.asarray(mi.Bitmap(path), dtype=np.float32)
 

@@ -17,6 +17,7 @@ import numpy as np
 from .. import backend
 from ..scene import load_scene
 from ..techniques.base import TechniqueSpec, as_spec, create_technique
+from .denoise import aux_buffers, denoise as oidn, require
 from .io import atomic_output_dir, check_writable, tonemap_srgb, write_exr, write_json, write_mp4, write_png
 from .runner import run_sequence
 
@@ -45,7 +46,6 @@ def render_to_dir(scene_name: str, technique: "str | TechniqueSpec", out_dir: st
     technique = spec.label
     denoise = denoise or spec.denoise
     if denoise:
-        from .denoise import require
         require()
     check_writable(out_dir)
     scene = load_scene(scene_name)
@@ -65,7 +65,6 @@ def render_to_dir(scene_name: str, technique: "str | TechniqueSpec", out_dir: st
                 write_exr(os.path.join(tmp, f"indirect_{i:04d}.exr"), r.indirect)
             pngs.append(tonemap_srgb(r.image))
             if denoise:
-                from .denoise import aux_buffers, denoise as oidn
                 d = oidn(r.image, *aux_buffers(scene, frame.camera, res))
                 write_exr(os.path.join(tmp, f"frame_{i:04d}_denoised.exr"), d)
                 write_png(os.path.join(tmp, f"frame_{i:04d}_denoised.png"), d)

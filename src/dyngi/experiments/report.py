@@ -16,6 +16,7 @@ import re
 import numpy as np
 
 from .. import backend
+from ..metrics import flip
 from ..techniques.base import get_technique
 from .budgets import MAX_OVERSPEND
 from .evaluate import LABELS, failures, noise_warning
@@ -42,8 +43,6 @@ def write_outputs(tmp, scene, labels, specs, results, refs, rows, summary, ctx, 
     ``extra_md``: appended to summary.md and the report (e.g. a paper's published figures);
     ``extra_plots``: more PNG paths (already in ``tmp``) embedded in the report.
     """
-    from ..metrics import flip
-
     frames = ctx["frames"]
     _write_csv(os.path.join(tmp, "metrics.csv"), rows)
     md = summary_md(scene, labels, specs, summary, ctx, names, title=title) + (("\n" + extra_md) if extra_md else "")

@@ -37,8 +37,14 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import unknown_choice
+from ..errors import DyngiError, unknown_choice
+from ..metrics import relmse
+from ..techniques.base import Frame, create_technique
+from .compare import execute, prepare
 from .io import atomic_output_dir, check_writable
+from .references.path import half_spp, reference_halves, reference_paths, reference_settings
+from .report import write_outputs
+from .runner import run_sequence
 
 
 @dataclass(frozen=True)
@@ -125,8 +131,6 @@ def smoke_size(name: str):
     smoke size, or whose quick configuration lost a key the smoke size sets, is an error."""
     import importlib
 
-    from ..errors import DyngiError
-
     get_experiment(name)
     if name not in SMOKE:
         raise DyngiError(f"experiment '{name}' has no smoke size (reproduce.SMOKE); experiments with one: "
@@ -154,8 +158,6 @@ def paper_table(rows) -> str:
 
 def _reference_seconds(scene, t, res, spp, depth) -> float | None:
     """Render time of a cached reference (both halves), from the cache metadata; None if unknown."""
-    from .reference import half_spp, reference_paths, reference_settings
-
     total = 0.0
     for n, seed in zip(half_spp(spp), (0, 1)):
         _, js = reference_paths(scene, reference_settings(scene, t, res, n, depth, seed))
@@ -196,14 +198,9 @@ def ddgi_reconvergence(scene, res, before: int, after: int, ref_spp: int, ref_de
     'converged_after', 'frames_to_reconverge', 'ms_to_reconverge'}``. The converged level after the move
     is the median of the last quarter of the frames after it.
     """
-    from ..metrics import relmse
-    from ..techniques.base import Frame, create_technique
-    from .reference import reference_halves
-
     t_a, t_b = scene.frame_time(0), 0.25 * scene.duration
     ref_a, _ = reference_halves(scene, t_a, res, ref_spp, ref_depth)
     ref_b, _ = reference_halves(scene, t_b, res, ref_spp, ref_depth)
-    from .runner import run_sequence
 
     tech = create_technique("ddgi", scene, params or {})
     errs = []
@@ -251,9 +248,6 @@ def _reconvergence_plot(path, rc):
     "Irradiance Fields, JCGT 8(2), 2019")
 def reproduce_ddgi(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
     """The ``ddgi`` experiment (module docstring); ``quick``: :data:`DDGI_QUICK`, else :data:`DDGI_FULL`."""
-    from .compare import execute, prepare
-    from .report import write_outputs
-
     cfg = DDGI_QUICK if quick else DDGI_FULL
     res = cfg["res"]
     names = ["mse", "relmse", "mape", "flip", "ssim"]

@@ -7,7 +7,7 @@ metrics against the references, :mod:`~dyngi.experiments.evaluate`, as ``dyngi c
 ``Frame.seed`` is the seed, the reference is the same for all). The tasks run on the executor of
 ``--cluster`` (:mod:`~dyngi.experiments.cluster`): in this process one after another by default, or as
 Ray tasks, after the missing references were rendered as chunk tasks
-(:func:`~dyngi.experiments.reference.reference_job`). A task computes the same numbers wherever it runs
+(:func:`~dyngi.experiments.reference_job.reference_job`). A task computes the same numbers wherever it runs
 (it loads the scene and makes the technique afresh); only the times differ with the machine's load.
 
 Writes into ``out_dir`` (atomically):
@@ -25,6 +25,7 @@ Writes into ``out_dir`` (atomically):
 from __future__ import annotations
 
 import csv
+import html
 import itertools
 import json
 import os
@@ -33,6 +34,16 @@ import time
 import numpy as np
 
 from ..errors import DyngiError
+from ..scene import load_scene
+from ..techniques.base import create_technique, get_technique, resolve_params
+from . import cluster
+from .cluster import SceneRef, failed
+from .evaluate import LABELS, check_metric_names, collect_references, evaluate_sequence
+from .io import atomic_output_dir, check_writable, write_json
+from .reference_job import reference_job
+from .references.path import DEFAULT_REF_SPP, half_spp, scene_max_depth
+from .report import data_uri, md_to_html
+from .runner import run_sequence
 
 DEFAULT_METRICS = ("mse", "relmse", "mape", "flip", "ssim")
 HIGHER_IS_BETTER = frozenset({"ssim"})
@@ -48,8 +59,6 @@ def parse_grid(items, technique: str, fixed: dict | None = None) -> dict[str, li
     Errors (one :class:`DyngiError` each): no ``--grid``; an item without ``=``; an empty key or value; a key
     that is not a parameter of ``technique`` (the valid ones listed); a key given twice or also fixed by
     ``--set`` (``fixed``); a value of the wrong type or out of range; a value listed twice."""
-    from ..techniques.base import get_technique
-
     cls = get_technique(technique)
     valid = ", ".join(sorted(cls.PARAMS)) or "(none)"
     if not items:
@@ -105,11 +114,6 @@ def sweep_point(source, technique: str, params: dict, frames: int, res, seed: in
     ``source``: a :class:`~dyngi.experiments.cluster.SceneRef` (the scene is loaded afresh) or a Scene.
     Returns ``{'params', 'seed', 'mean', 'E', 'E_prime', 'ms_per_frame', 'rays_per_frame', 'stage_ms',
     'nonfinite_pixels', 'failed', 'per_frame': {metric: [...]}, 'wall_ms': [...], 'task_seconds'}``."""
-    from ..techniques.base import create_technique
-    from .cluster import SceneRef
-    from .evaluate import collect_references, evaluate_sequence
-    from .runner import run_sequence
-
     t0 = time.perf_counter()
     scene = source.load() if isinstance(source, SceneRef) else source
     tech = create_technique(technique, scene, dict(params))
@@ -133,13 +137,6 @@ def run_sweep(technique: str, scene_name: str, grid_items, seeds: int, out_dir: 
     ``grid_items``: ``KEY=A,B,C`` texts (:func:`parse_grid`); ``params``: fixed settings (``--set``);
     ``executor``: default :func:`~dyngi.experiments.cluster.current`. Failed tasks (after retries) are in
     ``summary.json['failures']`` and ``executor.failures``."""
-    from ..scene import load_scene
-    from ..techniques.base import get_technique, resolve_params
-    from . import cluster
-    from .evaluate import check_metric_names
-    from .io import check_writable
-    from .reference import DEFAULT_REF_SPP, half_spp, reference_job, scene_max_depth
-
     # -- everything checked before any work --
     cls = get_technique(technique)
     fixed = dict(params or {})
@@ -202,8 +199,6 @@ def _agg(vals):
 
 def summarize(technique, scene_name, grid, fixed, seeds, points, tasks, outs, names, ctx) -> dict:
     """The ``summary.json`` content (module docstring) from the tasks' outcomes."""
-    from .cluster import failed
-
     per_point = []
     k = 0
     for p in points:
@@ -247,9 +242,6 @@ def summarize(technique, scene_name, grid, fixed, seeds, points, tasks, outs, na
 
 def write_sweep(out_dir: str, summary: dict, outs, names) -> None:
     """summary.json, metrics.csv, summary.md, plots and report.html into ``out_dir`` (atomically)."""
-    from .cluster import failed
-    from .io import atomic_output_dir, write_json
-
     with atomic_output_dir(out_dir) as tmp:
         write_json(os.path.join(tmp, "summary.json"), summary)
         keys = list(summary["grid"])
@@ -277,8 +269,6 @@ def _fmt(a: dict) -> str:
 
 def sweep_md(summary: dict, names) -> str:
     """The summary.md text: settings, the table (mean ± std over seeds), best settings, failures."""
-    from .evaluate import LABELS
-
     keys = list(summary["grid"])
     res = summary["res"]
     cl = summary.get("cluster", {})
@@ -330,8 +320,6 @@ def sweep_plots(tmp: str, summary: dict, names) -> list[str]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .evaluate import LABELS
-
     os.makedirs(os.path.join(tmp, "plots"), exist_ok=True)
     keys = list(summary["grid"])
     cols = list(names) + ["ms_per_frame"]
@@ -372,10 +360,6 @@ def sweep_plots(tmp: str, summary: dict, names) -> list[str]:
 
 
 def _report(tmp: str, summary: dict, md: str, plots) -> None:
-    import html
-
-    from .report import data_uri, md_to_html
-
     parts = ["<!doctype html><html><head><meta charset='utf-8'><title>dyngi sweep: "
              f"{html.escape(summary['technique'])} on {html.escape(summary['scene'])}</title><style>"
              "body{font-family:sans-serif;max-width:1400px;margin:auto}table{border-collapse:collapse}"

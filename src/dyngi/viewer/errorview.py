@@ -1,7 +1,7 @@
 """The error view: HDR-FLIP of the viewer's frames against a reference, both computed at low priority.
 
 A reference at the viewer's camera and time is Mitsuba's ``path`` integrator through
-:func:`dyngi.experiments.reference.cached_reference` (the same disk cache as ``dyngi compare``), and
+:func:`dyngi.experiments.references.path.cached_reference` (the same disk cache as ``dyngi compare``), and
 the error is :func:`dyngi.metrics.hdrflip.flip`. Both run in a child process (``python -m
 dyngi.viewer.errorview``) started at ``nice 19``, because
 
@@ -203,7 +203,7 @@ def child_main(argv) -> int:
     from .. import backend
 
     backend.set_device(device)
-    from ..experiments.reference import cached_reference
+    from ..experiments.references.path import cached_reference
     from ..metrics.hdrflip import flip
     from ..scene import load_scene
     from ..scene.camera import Camera, CameraPath

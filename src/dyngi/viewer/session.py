@@ -431,7 +431,7 @@ class RenderSession:
 
     # -- error view ----------------------------------------------------------------------------
     def _error_view(self, t, cam, still: bool) -> None:
-        from ..experiments.reference import scene_max_depth
+        from ..experiments.references.path import scene_max_depth
 
         if not still:
             self._errview_status("moving", "hold the view still (pause, stop moving) for the error view")

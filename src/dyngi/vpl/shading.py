@@ -17,7 +17,7 @@ caller, :func:`dyngi.probes.primary.shade_primary`)::
   pixel more than one at that distance. On the 2x2x2 Cornell box with 2048 VPLs
   spread over ~5 walls (mean spacing ~0.05 D) that is ~2 VPL spacings, where
   the VPLs' singular peaks start to blotch; our choice, measured by eye and
-  by the error against the clamped reference (:mod:`dyngi.experiments.clamped_reference`).
+  by the error against the clamped reference (:mod:`dyngi.experiments.references.clamped`).
   The rule (ours, from the paper's "suitable for 2048 VPLs"): the paper sets the
   clamp by hand per scene and keeps it for other budgets (Fig. 10: "most of the
   remaining error with 40K VPLs is attributed to energy loss due to clamping");

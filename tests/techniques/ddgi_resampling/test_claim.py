@@ -30,7 +30,7 @@ def steady_errors(scene_name: str, spec: str, seeds, frames: int = 16, res=(64, 
     """Per seed, the mean over frames ``steady_from..frames-1`` of the per-frame MAPE and relMSE of
     ``spec`` (accumulation off) on a static view of ``scene_name`` at time ``t``, against one cached
     Mitsuba ``path`` reference of ``ref_spp`` samples. Returns (mape[seeds], relmse[seeds], ms/frame)."""
-    from dyngi.experiments.reference import cached_reference, scene_max_depth
+    from dyngi.experiments.references.path import cached_reference, scene_max_depth
     from dyngi.metrics.image import mape, relmse
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique

@@ -209,7 +209,7 @@ def test_leak_on_the_thin_walled_room_stays_small(backend, name):
     256-spp reference stays within LEAK_MAX of it (measured 2026-12-02: +1.8% / +4.0% for ddgi-secondary /
     ddgi-resampling; with the volume over the whole house, outer layers in the sun: +74% / +78%, which
     this test used to require)."""
-    from dyngi.experiments.reference import reference_image, scene_max_depth
+    from dyngi.experiments.references.path import reference_image, scene_max_depth
 
     scene = load_scene(LEAK_SCENE)
     res = (48, 36)

@@ -26,7 +26,7 @@ def test_pick_tracked_pixels_one_lit_median_pixel_per_cell():
 def test_tracked_reference_agrees_with_the_image_reference(backend):
     """The per-pixel reference (only the tracked pixels' rays) and the path tracer's indirect image agree
     within noise at those pixels (mean over the 8: within 6%, measured ~1-2%)."""
-    from dyngi.experiments.tracked import tracked_reference
+    from dyngi.experiments.references.tracked import tracked_reference
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique
 
@@ -97,7 +97,7 @@ def test_reproduce_smcir_quick(backend, tmp_path):
 def test_clamped_path_tracing_reference(backend):
     """Sec. 5.4: unclamped, the clamped estimator equals the indirect-only path tracer (same three
     bounces; means within 4%); clamped, it loses energy; exhaustive VPLs approach it (Fig. 8/10)."""
-    from dyngi.experiments.clamped_reference import clamped_indirect
+    from dyngi.experiments.references.clamped import clamped_indirect
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique
     from dyngi.vpl.shading import clamp_value

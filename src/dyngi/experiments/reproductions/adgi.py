@@ -59,8 +59,15 @@ import time
 import numpy as np
 
 from ...errors import DyngiError
+from ...metrics import mse, relmse, ssim
+from ...scene import load_scene
+from ...techniques.base import create_technique, get_technique
 from .. import cluster
+from ..budgets import frame_budget
+from ..references.indirect import cached_indirect_reference
+from ..references.path import reference_halves, scene_max_depth
 from ..reproduce import paper_table, register_experiment
+from ..runner import run_sequence
 from ._summary import write_summary
 
 PAPER = ("Datta, Goli, Zhang, \"Adaptive Dynamic Global Illumination\", High Performance Graphics 2022 "
@@ -102,8 +109,6 @@ first) and "glossy indirect without texture" (pairs labelled Ours, Q-DDGI)."""
 
 
 def _metrics(img, ref) -> dict:
-    from ...metrics import mse, relmse, ssim
-
     a = np.asarray(img, np.float64)
     if not np.all(np.isfinite(a)):
         return {"mse": float("nan"), "ssim": float("nan"), "relmse": float("nan")}
@@ -115,9 +120,6 @@ def run_frames(scene, tech, times, res, seed: int = 0, budgets=None, keep=True) 
     """Step ``tech`` over scene ``times`` (frame ``i`` at ``times[i]``); ``budgets``: per-frame ray budgets
     set by another run (``{'rays': [...]}``), with the over-spend of earlier steady frames repaid as in
     :func:`dyngi.experiments.budgets.run_with_budget`. Returns images, indirect images, stats, wall ms."""
-    from ..budgets import frame_budget
-    from ..runner import run_sequence
-
     out = {"times": list(times), "images": [], "indirect": [], "stats": [], "ms": [], "nonfinite_pixels": 0,
            "nonfinite_frames": 0}
 
@@ -164,8 +166,6 @@ def _techniques(scene, extra: dict | None = None, common: dict | None = None):
 
 def _make(name, scene, extra=None, common=None):
     """``name`` with ``extra`` settings (strict) and the ``common`` ones it has (a test's smaller grid)."""
-    from ...techniques.base import create_technique, get_technique
-
     have = get_technique(name).PARAMS
     return create_technique(name, scene, {**{k: v for k, v in (common or {}).items() if k in have},
                                           **(extra or {})})
@@ -185,9 +185,6 @@ def _stage_costs(run: dict) -> dict:
 
 # -- tunnel-gate ----------------------------------------------------------------------------------
 def tunnel(cfg: dict, quiet: bool = True) -> dict:
-    from ...scene import load_scene
-    from ..reference import reference_halves, scene_max_depth
-
     scene = load_scene("tunnel-gate")
     dt, res = cfg["dt"], cfg["res"]
     n_open = int(round(GATE_END / dt)) + 1
@@ -232,10 +229,6 @@ def tunnel(cfg: dict, quiet: bool = True) -> dict:
 
 # -- atrium-sun -----------------------------------------------------------------------------------
 def atrium(cfg: dict, quiet: bool = True) -> dict:
-    from ...scene import load_scene
-    from ..indirect_reference import cached_indirect_reference
-    from ..reference import scene_max_depth
-
     scene = load_scene("atrium-sun")
     dt, res = cfg["dt"], cfg["res"]
     n = int(round(ATRIUM_TIMES[-1] / dt)) + 1
@@ -268,10 +261,6 @@ def atrium(cfg: dict, quiet: bool = True) -> dict:
 def glossy(cfg: dict, quiet: bool = True) -> dict:
     """Fig. 10's analog (module docstring): ``adgi`` and ``qddgi``, both with ``glossy=true`` and
     ``direct=nee``, indirect images vs the indirect-only path-traced reference at :data:`GLOSSY_TIMES`."""
-    from ...scene import load_scene
-    from ..indirect_reference import cached_indirect_reference
-    from ..reference import scene_max_depth
-
     scene = load_scene("glossy-floor")
     dt, res = cfg["dt"], cfg["res"]
     n = int(round(GLOSSY_TIMES[-1] / dt)) + 1
@@ -293,9 +282,6 @@ def glossy(cfg: dict, quiet: bool = True) -> dict:
 
 # -- static convergence at equal render time (Fig. 7) ---------------------------------------------
 def static(cfg: dict, quiet: bool = True) -> dict:
-    from ...scene import load_scene
-    from ..reference import reference_halves, scene_max_depth
-
     scene = load_scene("tunnel-gate")
     res = cfg["res"]
     times = [GATE_END] * cfg["static_frames"]
@@ -543,11 +529,6 @@ def equal_rays_recovery(specs=("adgi",), baseline: str = "qddgi", **cfg) -> dict
     the baseline's final value; None: never) and the steady rays per frame. ``cfg`` overrides
     :data:`RECOVERY`. Used by tests/techniques/adgi/test_recovery.py; :func:`recovery_table` prints it
     (docs/techniques/adgi.md has the command)."""
-    from ...scene import load_scene
-    from ...techniques.base import create_technique
-    from ..reference import reference_halves, scene_max_depth
-    from ...metrics import relmse
-
     c = {**RECOVERY, **cfg}
     sc = load_scene("tunnel-gate")
     dt, res = c["dt"], tuple(c["res"])

@@ -78,19 +78,20 @@ EXTRAS = (f"{PATH}:directions=bsdf", f"{PATH}:directions=cdq")
 sun included), first seed only, on the scenes of ``extras_a``."""
 BASE = "nee-pt"
 from ...color import LUMINANCE as _LUM  # noqa: E402
+from ...scene.library import make_builtin
+from ...techniques.base import create_technique, get_technique
+from ..io import write_png
+from ..references.path import reference_image
+from ..runner import run_sequence
 _NONFINITE: dict = {}   # NaN/Inf pixels per technique spec over the run (summary.json "failed")
 
 
 def _has_param(name: str) -> bool:
-    from ...techniques.base import get_technique
     return name in get_technique(BASE).PARAMS
 
 
 def _run(scene, spec: str, frames: int, res, t_of, on_image, seed: int = 0):
     """Run ``spec`` for ``frames`` frames (scene time ``t_of(i)``); ``on_image(i, img)``; return (wall ms, stats)."""
-    from ...techniques.base import create_technique
-    from ..runner import run_sequence
-
     tech = create_technique(spec, scene)
 
     def on_frame(i, frame, r):
@@ -124,10 +125,6 @@ def _part(name: str, cfg: dict, out_dir: str, quiet: bool = True) -> tuple[dict,
 def part_a(cfg, out_dir, scene_name="sky-pit-sun-disc", quiet=True) -> dict:
     """Part (a) on one scene: BSDF, CDQ at nee-pt's default thresholds and CDQ at the paper's samples per
     leaf, each for every seed of ``cfg["seeds_a"]``; per technique the per-seed figures and their means."""
-    from ...scene.library import make_builtin
-    from ..io import write_png
-    from ..reference import reference_image
-
     sc = make_builtin(scene_name)
     res, F, W = cfg["res_a"], cfg["frames_a"], cfg["warmup_a"]
     seeds = tuple(cfg.get("seeds_a", (0,)))
@@ -185,9 +182,6 @@ def part_x(cfg, out_dir, scene_name, quiet=True) -> dict:
     """Part (a''): :data:`EXTRAS` on one scene, first seed, part (a)'s frames and mask. A part of its own, run
     after the others (our choice: in one process, a ``path`` kernel compiled between two scenes' ``nee-pt``
     runs made Dr.Jit's LLVM backend abort on a duplicated callable, 'invalid redefinition of function')."""
-    from ...scene.library import make_builtin
-    from ..reference import reference_image
-
     sc = make_builtin(scene_name)
     res, F, W = cfg["res_a"], cfg["frames_a"], cfg["warmup_a"]
     ref = reference_image(sc, 0.0, res, cfg["ref_spp"], 3).astype(np.float64)
@@ -230,9 +224,6 @@ def recovery_frames(mse_after: np.ndarray, tol: float = 0.1, width: int = 5) -> 
 
 
 def part_b(cfg, out_dir, quiet=True) -> dict:
-    from ...scene.library import make_builtin
-    from ..reference import reference_image
-
     res, pre, post = cfg["res_b"], cfg["pre_b"], cfg["post_b"]
     out = {"res": res, "pre": pre, "post": post, "scenes": {}}
     rows = []

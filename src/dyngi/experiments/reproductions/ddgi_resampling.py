@@ -6,7 +6,7 @@ Table 1 (Sec. 4, "Quantitative evaluation") lists, per scene, the frames and the
 nor how the target was chosen; the protocol below is ours and is written to be fair to all three:
 
 1. **Reference**: Mitsuba's ``path`` at the scene's depth, as two independent halves (as
-   :func:`~dyngi.experiments.reference.reference_halves`; :class:`_Reference`). Its own MAPE noise is
+   :func:`~dyngi.experiments.references.path.reference_halves`; :class:`_Reference`). Its own MAPE noise is
    estimated from the halves (:func:`reference_noise_mape`) and the sample count is doubled (up to
    ``ref_spp_max``; each doubling adds a new cached pair of halves) until it is at least 10x below the
    DDGI methods' 1-frame MAPE; the spp and the estimated noise are reported beside the target.
@@ -67,8 +67,15 @@ import os
 
 import numpy as np
 
+from ...errors import DyngiError
+from ...metrics.image import mape
+from ...scene import builtin_names, load_scene
+from ...techniques import create_technique
 from .. import cluster
+from ..denoise import aux_buffers, available, denoise
+from ..references.path import cached_reference, half_spp, scene_max_depth
 from ..reproduce import paper_table, register_experiment
+from ..runner import run_sequence
 from ._summary import write_summary
 
 PAPER = ("Majercik, Mueller, Keller, Nowrouzezahrai, McGuire, \"Dynamic Diffuse Global Illumination "
@@ -120,7 +127,6 @@ FULL = {"scenes": ("room-door", "villa-sun", "pink-room", "cornell-static", "liv
 
 # -- the protocol's pure pieces ---------------------------------------------------------------------
 def _mape(img, ref):
-    from ...metrics.image import mape
     return mape(img, ref)
 
 
@@ -225,9 +231,6 @@ def frames_needed(acc_mapes, target: float, fit_from: int = 1, floor: float | No
 def _steady(scene, name: str, res, seed: int, params: dict, warm: int, keep: int) -> dict:
     """``warm + keep`` static frames of a DDGI method (``progressive=False``); the last ``keep`` images, their
     frame times, probe rays per frame and Table 2 stage times."""
-    from ...techniques import create_technique
-    from ..runner import run_sequence
-
     tech = create_technique(name, scene, {**params, "progressive": False})
     out = {"images": [], "rays": [], "table2": []}
 
@@ -256,8 +259,6 @@ def _continue(run: dict, scene, res, frames: int, ref, goal: float) -> list[floa
     """Accumulates up to ``frames`` more static frames of the warmed DDGI method of ``run`` (:func:`_steady`)
     onto its kept images until the running mean's MAPE <= ``goal``; returns the MAPE after each added
     frame (their times join ``run['ms']``). The images are not kept."""
-    from ..runner import run_sequence
-
     total = np.sum([np.asarray(im, np.float64) for im in run["images"]], axis=0)
     count = len(run["images"])
     mapes = []
@@ -281,9 +282,6 @@ def _accumulate_pt(scene, res, seed: int, frames: int, ref, stop_at=None, keep_f
     """``restir-pt`` from a fresh start, accumulating (its own progressive mean) over up to ``frames`` static
     frames; per-frame MAPE of the accumulated image, frame times, the first frame's image. Stops once the
     accumulated MAPE <= ``stop_at`` (a callable of the first frame's MAPE) and at least 6 frames ran."""
-    from ...techniques import create_technique
-    from ..runner import run_sequence
-
     tech = create_technique("restir-pt", scene, {"progressive": True})
     out = {"mape": [], "first": None, "table2": []}
 
@@ -308,8 +306,6 @@ def interleaved_ms(scene, res, techs: dict, rounds: int) -> dict:
     """Median steady frame time of each warmed technique of ``techs`` (name -> instance), measured in
     ``rounds`` round-robin turns of two static frames each (the second timed): a load change on a shared
     machine then falls on every method alike (our choice; the runs' own frame times are kept beside)."""
-    from ..runner import run_sequence
-
     ms = {n: [] for n in techs}
     for k in range(rounds):
         for n, tech in techs.items():
@@ -326,8 +322,6 @@ class _Reference:
     far, so the total doubles and every render is kept (``image``, ``noise`` = its noise MAPE, ``spp``)."""
 
     def __init__(self, scene, res, spp: int, depth: int):
-        from ..reference import half_spp
-
         self.scene, self.res, self.depth = scene, res, depth
         self.n = half_spp(spp)[0]
         self.pairs = 0
@@ -335,8 +329,6 @@ class _Reference:
         self._add(self.n)
 
     def _add(self, n: int):
-        from ..reference import cached_reference
-
         k = self.pairs
         a, _ = cached_reference(self.scene, 0.0, self.res, n, self.depth, None, seed=2 * k)
         b, _ = cached_reference(self.scene, 0.0, self.res, n, self.depth, None, seed=2 * k + 1)
@@ -357,8 +349,6 @@ class _Reference:
 
 def _calibrate(scene, res, ref, cfg) -> dict:
     """The emission scale (the paper's slider) whose ``ddgi-secondary`` image mean matches the reference's."""
-    from ...techniques import create_technique
-
     s0 = float(create_technique("ddgi-secondary", scene, {}).params["emission_scale"])
     ref_mean = float(np.mean(ref))
     n = max(2, cfg["calib_frames"] // 4)
@@ -379,9 +369,6 @@ def _calibrate(scene, res, ref, cfg) -> dict:
 
 def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
     """The protocol of the module docstring on one scene; a JSON-able dict of everything measured."""
-    from ...scene import load_scene
-    from ..reference import scene_max_depth
-
     def say(msg):
         if not quiet:
             print(f"  {scene_name}: {msg}", flush=True)
@@ -538,8 +525,6 @@ def _x(v) -> str:
 
 def _denoised(scene, res, ref, runs, pt) -> dict | None:
     """Extra (not Table 1): each method's denoised 1-frame MAPE (OIDN for OptiX), None without OIDN."""
-    from ..denoise import aux_buffers, available, denoise
-
     if not available():
         return None
     aux = aux_buffers(scene, scene.camera(scene.frame_time(0)), res)
@@ -691,9 +676,6 @@ fit), ``DYNGI_RESAMPLING_SCENES=room-door,villa-sun`` a subset of scenes, ``DYNG
 
 def _with_options(cfg: dict) -> dict:
     """``cfg`` with the :data:`OPTIONS` set in the environment applied (a copy)."""
-    from ...errors import DyngiError
-    from ...scene import builtin_names
-
     out = dict(cfg)
     for var, key in OPTIONS.items():
         v = os.environ.get(var)
@@ -721,8 +703,6 @@ def _with_options(cfg: dict) -> dict:
                      "and ddgi-resampling (warmed DDGI methods, best 1-frame MAPE as the target, fitted restir-pt "
                      "curve, emission calibration, 3 seeds) on the Table 1 analogs", PAPER)
 def reproduce_ddgi_resampling(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
-    from ...scene import builtin_names
-
     cfg = _with_options(QUICK if quick else FULL)
     have = set(builtin_names())
     notes = [f"`{sc}` skipped: the scene is not in this build." for sc in cfg["scenes"] if sc not in have]

@@ -19,8 +19,11 @@ import os
 
 import numpy as np
 
-from ..io import atomic_output_dir
 from .. import cluster
+from ..compare import execute, prepare
+from ..evaluate import frame_metrics
+from ..io import atomic_output_dir
+from ..report import write_outputs
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
@@ -51,10 +54,6 @@ def _cost(seq) -> dict:
 
 def run_scene(scene_name: str, cfg: dict, out_dir: str, quiet: bool = True) -> dict:
     """Run ``isddgi`` and ``ddgi`` on one scene, write its report into ``out_dir``; return the figures."""
-    from ..compare import execute, prepare
-    from ..evaluate import frame_metrics
-    from ..report import write_outputs
-
     names = ["mse", "flip"]
     frames = cfg.get("scene_frames", {}).get(scene_name, cfg["frames"])
     per = []

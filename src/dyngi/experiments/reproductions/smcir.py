@@ -28,7 +28,7 @@ Each (sequence, seed) saves its figures in ``OUT/SEQ/seedN/figures.json`` as it 
 with the same settings reads them back (:func:`run_pair`): a full run can be resumed, or split over
 processes (``dyngi reproduce smcir --only SEQ:SEEDS``) and gathered by one more ``dyngi reproduce smcir --out OUT``. The
 references (image and tracked pixels) do not depend on the technique seed: they are rendered once per
-sequence and frame and cached on disk (:mod:`dyngi.experiments.reference`), so seeds 2 and 3 cost only the
+sequence and frame and cached on disk (:mod:`dyngi.experiments.references.path`), so seeds 2 and 3 cost only the
 techniques' frames.
 
 The full configuration (:data:`SMCIR_FULL`, the command's default: five sequences, 160x90, 60 frames,
@@ -40,12 +40,18 @@ beside ours for the ranking, not for the values.
 """
 from __future__ import annotations
 
+import json
 import os
+import time
 
 import numpy as np
 
-from ..io import atomic_output_dir
+from ...errors import DyngiError
 from .. import cluster
+from ..compare import execute, prepare
+from ..io import atomic_output_dir
+from ..references.clamped import check_reference
+from ..report import write_outputs
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
@@ -79,9 +85,6 @@ def run_scene(scene_name: str, cfg: dict, out_dir: str, quiet: bool = True, refe
               untextured: bool = False, tracked: bool = True, seed: int = 0) -> dict:
     """All methods on one sequence with one technique seed, the usual report in ``out_dir``; returns
     their summaries (``brightness``: mean indirect / the reference's, over all frames)."""
-    from ..compare import execute, prepare
-    from ..report import write_outputs
-
     run = prepare(scene_name, list(cfg["specs"]), out_dir, cfg["frames"], "equal-frames", cfg["ref_spp"], {},
                   ["mse", "relmse"], 5, True, reference=reference, untextured=untextured, tracked=tracked)
     rs = execute(run, cfg["res"], seed=seed, quiet=quiet)
@@ -123,9 +126,6 @@ def run_pair(scene_name: str, cfg: dict, out_root: str, seed: int, quiet: bool =
     ``figures.json`` as soon as it ends, and read back instead of rerun when that file exists with the same
     settings (our choice: a full run is hours on a small CPU, so it can be resumed or split over processes;
     the references themselves are cached on disk by scene state, shared by every seed)."""
-    import json
-    import time
-
     out_dir = os.path.join(out_root, scene_name, f"seed{int(seed)}")
     path = os.path.join(out_dir, FIGURES_FILE)
     key = _pair_key(scene_name, cfg, seed, reference, untextured, tracked)
@@ -149,8 +149,6 @@ def run_pair(scene_name: str, cfg: dict, out_root: str, seed: int, quiet: bool =
 def parse_pairs(items) -> list[tuple[str, int]]:
     """``['maze:0,1', 'street-canyon']`` as (sequence, seed) pairs (no seeds: seed 0); unknown sequences and
     bad seeds are one :class:`DyngiError` naming the valid ones, before any work."""
-    from ...errors import DyngiError
-
     names = [sc for sc, _ in SEQUENCES]
     out = []
     for item in items:
@@ -173,10 +171,6 @@ def run_pairs(out_root: str, pairs, quick: bool = False, quiet: bool = True, ref
     other, each saved as it ends and skipped when already saved (:func:`run_pair`): a full run split over
     processes or sessions (ours: hours on a small CPU). ``on_pair(record)`` after each; returns the records
     (sequence, seed, whether it was saved before, wall seconds, load, |E'| per technique)."""
-    import time
-
-    from ..clamped_reference import check_reference
-
     check_reference(reference, True)
     cfg = SMCIR_QUICK if quick else SMCIR_FULL
     out = []
@@ -193,8 +187,6 @@ def run_pairs(out_root: str, pairs, quick: bool = False, quiet: bool = True, ref
 
 def _pair_walls(out_root: str, pairs) -> dict:
     """``{'SEQ/seedN': seconds}``: each (sequence, seed) run's own wall time, as its figures.json saved it."""
-    import json
-
     out = {}
     for sc, sd in pairs:
         try:
@@ -353,11 +345,6 @@ def reproduce_smcir(out_dir: str, quick: bool = False, quiet: bool = True, refer
     path tracing, Sec. 5.4); ``untextured``: average albedos (Sec. 5); ``tracked=False``: no per-pixel
     tracked reference (the image reference's values stand in); the CLI's ``--reference``,
     ``--untextured``, ``--no-tracked``."""
-    import time
-
-    from ...errors import DyngiError
-    from ..clamped_reference import check_reference
-
     check_reference(reference, True)
     cfg = dict(SMCIR_QUICK if quick else SMCIR_FULL)
     bad = sorted(set(config or {}) - set(CONFIG_KEYS))

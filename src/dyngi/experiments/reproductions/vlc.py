@@ -44,8 +44,10 @@ import os
 
 import numpy as np
 
-from ..io import atomic_output_dir
 from .. import cluster
+from ..compare import execute, prepare
+from ..io import atomic_output_dir
+from ..report import write_outputs
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
@@ -83,9 +85,6 @@ REF_DEPTH = 3
 
 
 def run_scene(scene_name: str, cfg: dict, out_dir: str, quiet: bool = True) -> dict:
-    from ..compare import execute, prepare
-    from ..report import write_outputs
-
     specs = list(SPECS) + (list(EXTRAS) if scene_name in cfg.get("extras_on", ()) else [ORACLE])
     run = prepare(scene_name, specs, out_dir, cfg["frames"], "equal-frames", cfg["ref_spp"], {},
                   ["mse"], REF_DEPTH, False, tracked=False)

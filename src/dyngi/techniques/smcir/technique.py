@@ -77,7 +77,7 @@ lights : str = 'scene'          light sampler of the radiosity paths' and the di
 Bias (Sec. 3.3): kNN densities make the estimate biased but consistent; clamping removes
 near-field interreflections; ray-traced visibility replaces the paper's shadow maps. Measured
 (exhaustive shading, 2048 VPLs, mean indirect / the clamped path-tracing reference of
-:mod:`dyngi.experiments.clamped_reference` with the same clamp, 1024 spp; mean of 3 seeds; with
+:mod:`dyngi.experiments.references.clamped` with the same clamp, 1024 spp; mean of 3 seeds; with
 ``impl='host'``, the same estimator as the device one with other random numbers -- the default's
 bound, tests/techniques/smcir/test_bias.py, runs the device one):
 

@@ -18,7 +18,7 @@ is an unclamped indirect-only estimator (tested against the indirect reference).
 ``G_max`` comes from :func:`dyngi.vpl.shading.clamp_value` (``clamp_distance``).
 
 As a comparison reference (``dyngi compare --indirect --reference clamped``,
-``dyngi reproduce smcir --reference clamped``): :func:`collect_clamped_references`
+``dyngi reproduce smcir --reference clamped``): :func:`dyngi.experiments.evaluate.collect_clamped_references`
 renders each frame as two independent halves (their difference estimates the
 reference's noise, as the path-traced references do), cached on disk
 (``$DYNGI_CACHE/clamped/``), and the 8 tracked pixels' per-pixel references with
@@ -28,12 +28,21 @@ they must agree).
 """
 from __future__ import annotations
 
+import hashlib
+import json
 import math
+import os
 
 import numpy as np
 
-from ..backend import dr, mi
-from ..errors import DyngiError
+from ...backend import dr, mi
+from ...errors import DyngiError
+from ...sampling.rng import make_sampler, mix_seed
+from ...techniques.vpl_base import COMMON_PARAMS, VPLTechnique
+from ...transport.path_walk import trace_paths_split
+from ...vpl.points import _surface, aligned
+from .cache import default_cache_dir
+from .path import combine_halves, half_spp
 
 REFERENCES = ("path", "clamped")
 """Comparison references: the path-traced one (the default) or clamped path tracing (Sec. 5.4)."""
@@ -44,13 +53,8 @@ def clamped_indirect(scene, t: float, res, spp: int, max_depth: int = 5, gmax: f
                      seed: int = 0, chunk: int = 1 << 20, pixels=None) -> np.ndarray:
     """H x W x 3 clamped indirect image (module docstring) at time ``t``, ``spp`` samples per pixel;
     with ``pixels`` ((n, 2) rows, columns) only those pixels: (n, 3)."""
-    from ..sampling.rng import make_sampler, mix_seed
-    from ..transport.path_walk import trace_paths_split
-    from ..vpl.points import _surface
-
     scene.at(t)
     mscene = scene.mi_scene
-    from ..vpl.points import aligned
 
     w, h = res
     flat = None if pixels is None else (np.asarray(pixels, np.int64)[:, 0] * w +
@@ -103,8 +107,6 @@ def check_reference(kind: str, indirect: bool) -> None:
 def reference_clamp_distance(techs) -> float:
     """The ``clamp_distance`` of the compared VPL techniques (``techs``: label -> technique); they must
     agree; with none, the VPL techniques' default."""
-    from ..techniques.vpl_base import COMMON_PARAMS, VPLTechnique
-
     vals = {lb: float(t.params["clamp_distance"]) for lb, t in techs.items() if isinstance(t, VPLTechnique)}
     if len(set(vals.values())) > 1:
         raise DyngiError("--reference clamped needs one clamp_distance for every VPL technique; got "
@@ -112,14 +114,8 @@ def reference_clamp_distance(techs) -> float:
     return next(iter(vals.values())) if vals else float(COMMON_PARAMS["clamp_distance"].default)
 
 
-def _cached(kind: str, key: dict, compute, shape):
+def cached_clamped(kind: str, key: dict, compute, shape):
     """``compute()``, cached as ``$DYNGI_CACHE/clamped/<hash>.npy`` (a sibling of ``reference/``)."""
-    import hashlib
-    import json
-    import os
-
-    from .reference import default_cache_dir
-
     key = dict(key, kind=kind, format=CLAMPED_FORMAT, mitsuba=mi.__version__, variant=mi.variant())
     h = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
     d = default_cache_dir().parent / "clamped"
@@ -144,48 +140,13 @@ def _cached(kind: str, key: dict, compute, shape):
 
 def clamped_reference_halves(scene, t: float, res, spp: int, max_depth: int, gmax: float):
     """(image, noise): the clamped reference of ``spp`` samples as two independent cached halves."""
-    from .reference import combine_halves, half_spp
-
     n1, n2 = half_spp(spp)
     w, h = res
     base = {"state": scene.state_hash(float(t)), "res": [int(w), int(h)], "max_depth": int(max_depth),
             "gmax": float(min(gmax, 3.0e38))}
-    a, b = (_cached("image", dict(base, spp=n, seed=sd),
+    a, b = (cached_clamped("image", dict(base, spp=n, seed=sd),
                     lambda n=n, sd=sd: clamped_indirect(scene, t, res, n, max_depth, gmax, seed=sd), (h, w, 3))
             for n, sd in ((n1, 0), (n2, 1)))
     img, noise = combine_halves(a, b, n1, n2)
     noise.update(spp=int(spp), halves=[n1, n2], clamped=True)
     return img.astype(np.float32), noise
-
-
-def collect_clamped_references(scene, frames: int, res, spp: int, max_depth: int, gmax: float, bar=None,
-                               tracked_spp: int | None = None):
-    """As :func:`dyngi.experiments.evaluate.collect_references`, with clamped path tracing: (references,
-    noise dicts); the tracked pixels' values from :func:`clamped_indirect` at those pixels, ``tracked_spp``
-    samples (default 16x ``spp`` as the path-traced tracked reference; 0: the image's values stand in)."""
-    from ..metrics.temporal import pick_tracked_pixels
-    from .evaluate import ReferenceList
-    from .tracked import TRACKED_SPP_FACTOR, TRACKED_SPP_MAX
-
-    refs, noise = ReferenceList(), []
-    for i in range(frames):
-        img, nz = clamped_reference_halves(scene, scene.frame_time(i), res, spp, max_depth, gmax)
-        refs.append(img)
-        noise.append(nz)
-        if bar is not None:
-            bar.update(1)
-    if refs:
-        pix = pick_tracked_pixels(refs[0])
-        tspp = min(TRACKED_SPP_MAX, TRACKED_SPP_FACTOR * int(spp)) if tracked_spp is None else int(tracked_spp)
-        if tspp > 0:
-            vals = np.stack([_cached("tracked", {"state": scene.state_hash(float(scene.frame_time(i))),
-                                                 "res": list(map(int, res)), "pixels": pix.tolist(),
-                                                 "spp": tspp, "max_depth": int(max_depth),
-                                                 "gmax": float(min(gmax, 3.0e38))},
-                                     lambda i=i: clamped_indirect(scene, scene.frame_time(i), res, tspp, max_depth,
-                                                                  gmax, seed=0x7AC4, pixels=pix), (len(pix), 3))
-                             for i in range(frames)])
-        else:
-            vals = np.stack([r[pix[:, 0], pix[:, 1]] for r in refs])
-        refs.tracked = {"pixels": pix, "values": vals, "spp": tspp if tspp > 0 else int(spp)}
-    return refs, noise

@@ -12,9 +12,18 @@ resolution, pixels, samples, depth and mode (:func:`cached_tracked_reference`).
 """
 from __future__ import annotations
 
+import hashlib
+import json
+import os
+from pathlib import Path
+
 import numpy as np
 
-from ..backend import dr, mi
+from ...backend import dr, mi
+from ...sampling.rng import make_sampler, mix_seed
+from ...transport.path_walk import trace_paths_split
+from ...vpl.points import aligned
+from .cache import default_cache_dir
 
 TRACKED_SPP_FACTOR = 16
 """Tracked-pixel samples per image-reference sample (1024 -> 16384; the paper: 692,100)."""
@@ -26,17 +35,9 @@ TRACKED_FORMAT = 1
 def cached_tracked_reference(scene, t: float, res, pixels, spp: int, max_depth: int, indirect: bool,
                              cache_dir=None) -> np.ndarray:
     """:func:`tracked_reference`, cached as a small ``.npy`` per setting."""
-    import hashlib
-    import json
-    import os
-    from pathlib import Path
-
-    from ..backend import mi as _mi
-    from .reference import default_cache_dir
-
     key = {"format": TRACKED_FORMAT, "state": scene.state_hash(float(t)), "res": list(map(int, res)),
            "pixels": np.asarray(pixels).tolist(), "spp": int(spp), "max_depth": int(max_depth),
-           "indirect": bool(indirect), "mitsuba": _mi.__version__, "variant": _mi.variant()}
+           "indirect": bool(indirect), "mitsuba": mi.__version__, "variant": mi.variant()}
     h = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
     d = (Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir().parent / "tracked")
     p = d / f"{h}.npy"
@@ -61,10 +62,6 @@ def cached_tracked_reference(scene, t: float, res, pixels, spp: int, max_depth: 
 def tracked_reference(scene, t: float, res, pixels: np.ndarray, spp: int, max_depth: int,
                       indirect: bool, chunk: int = 1 << 20) -> np.ndarray:
     """Mean radiance (full or indirect-only) of each tracked pixel at time ``t``: (n, 3) float32."""
-    from ..sampling.rng import make_sampler, mix_seed
-    from ..transport.path_walk import trace_paths_split
-    from ..vpl.points import aligned
-
     scene.at(t)
     w, _ = res
     pix = np.asarray(pixels, np.int64)

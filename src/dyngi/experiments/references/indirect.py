@@ -1,6 +1,6 @@
 """Indirect-only reference: light that reflected at least once before the surface seen through a pixel.
 
-Definition (the one the papers compare, and :mod:`dyngi.experiments.reference`'s):
+Definition (the one the papers compare, and :mod:`dyngi.experiments.references.path`'s):
 the radiance of all paths with >= 3 vertices (camera - x1 - x2 - ... - light),
 i.e. the full image without the emission seen at the primary vertex x1 and
 without the direct light at x1. For Mitsuba's ``path`` this is
@@ -16,7 +16,7 @@ sample) left out and everything from the second vertex on kept. Why:
 
 * unbiased and unclamped: each term left out is a whole non-negative sample
   contribution, so every pixel is a plain mean of non-negative samples; no
-  difference of two images, nothing to clamp (``reference.py``'s difference
+  difference of two images, nothing to clamp (:mod:`~dyngi.experiments.references.path`'s difference
   relies on both Mitsuba renders drawing identical random numbers for the
   shared prefix and clamps float round-off at 0);
 * one render instead of two, and the noise is that of a true indirect-only
@@ -54,12 +54,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..backend import dr, mi
-from ..errors import DyngiError
-from ..sampling.rng import mix_seed
-from .reference import (DEFAULT_MAX_DEPTH, DEFAULT_REF_SPP, DIRECT_DEPTH, RR_DEPTH, _check_seed, _check_time_res,
-                        _entry_paths, _passes, _render_settings, combine_halves, get_or_render, half_spp,
-                        reference_key)
+from ...backend import dr
+from ...errors import DyngiError
+from ...sampling.rng import mix_seed
+from ...techniques.base import to_image
+from ...transport.path_walk import render_paths
+from .cache import _check_seed, _check_time_res, _entry_paths, get_or_render, reference_key
+from .path import (DEFAULT_MAX_DEPTH, DEFAULT_REF_SPP, DIRECT_DEPTH, RR_DEPTH, _passes, _render_settings,
+                   combine_halves, half_spp)
 
 INDIRECT_FORMAT = 1
 """Bump when the way indirect references are computed changes (invalidates their cache entries)."""
@@ -82,9 +84,6 @@ def _check(t, res, spp, max_depth, seed) -> tuple[int, int]:
 
 def _render_half(scene, camera, res, spp: int, max_depth: int, seed: int) -> np.ndarray:
     """Mean of ``spp`` indirect-only samples per pixel (float64 H x W x 3), in passes of bounded size."""
-    from ..techniques.base import to_image
-    from ..transport.path_walk import render_paths
-
     w, h = res
     acc = np.zeros((h, w, 3), np.float64)
     for i, n in enumerate(_passes(res, spp, MAX_SAMPLES_PER_PASS)):
@@ -156,7 +155,7 @@ def cached_indirect_reference(scene, t: float, res, spp: int = DEFAULT_REF_SPP,
                               cache_dir=None) -> tuple[np.ndarray, dict, bool]:
     """(image, noise, was_cached): :func:`indirect_reference_image`, cached on disk.
 
-    Cache directory and atomic-write rules as :func:`dyngi.experiments.reference.cached_reference`
+    Cache directory and atomic-write rules as :func:`dyngi.experiments.references.path.cached_reference`
     (``cache_dir``, else ``$DYNGI_CACHE/reference``, ...); an entry is
     ``<scene>-indirect-<key>.exr`` plus a JSON with the settings and the noise
     estimate. The key hashes :func:`indirect_reference_settings` (scene state
