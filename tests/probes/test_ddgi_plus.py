@@ -33,7 +33,7 @@ from dyngi.probes.query import bilinear_gather
 from dyngi.sampling.octahedral import direction_to_texel_coords
 from dyngi.scene import load_scene
 from dyngi.scene.builder import SceneBuilder
-from dyngi.scene.builtin import _ceiling_light, _floor
+from dyngi.scene.builtin_default import _ceiling_light, _floor
 from dyngi.scene.camera import Camera
 from dyngi.scene.geometry import box, diffuse
 from dyngi.techniques import Frame, create_technique

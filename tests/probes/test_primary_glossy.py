@@ -22,7 +22,7 @@ from dyngi.backend import mi
 from dyngi.errors import DyngiError
 from dyngi.scene import load_scene
 from dyngi.scene.builder import SceneBuilder
-from dyngi.scene.builtin import _floor
+from dyngi.scene.builtin_default import _floor
 from dyngi.scene.camera import Camera
 from dyngi.scene.geometry import box, diffuse
 from dyngi.techniques import Frame, create_technique, get_technique

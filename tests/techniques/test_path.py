@@ -29,7 +29,7 @@ def _mitsuba(scene, res, spp, k, max_depth=8, t=0.0):
 
 def _glossy_scene():
     from dyngi.scene.builder import SceneBuilder
-    from dyngi.scene.builtin import CORNELL_CAMERA, _cornell_shell
+    from dyngi.scene.builtin_default import CORNELL_CAMERA, _cornell_shell
     from dyngi.scene.geometry import uv_sphere
 
     b = SceneBuilder("test-glossy")

@@ -24,7 +24,7 @@ import numpy as np
 
 from .animation import ParamTrack, Track
 from .builder import SceneBuilder
-from .builtin import _sun_dir, _sunsky, rotating_hidden_light, sky_pit_geometry
+from .builtin_default import _sun_dir, _sunsky, rotating_hidden_light, sky_pit_geometry
 from .camera import Camera
 from .library import builtin
 

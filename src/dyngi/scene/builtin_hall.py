@@ -31,7 +31,7 @@ from __future__ import annotations
 from ..backend import mi
 from .animation import ParamTrack, Track
 from .builder import SceneBuilder
-from .builtin import _ceiling, _floor, _twosided, _wall
+from .builtin_default import _ceiling, _floor, _twosided, _wall
 from .camera import Camera
 from .geometry import box, merge
 from .library import builtin

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 from .animation import SunMotion, Track
 from .builder import SceneBuilder
-from .builtin import _sky, _sun, _sun_dir, _twosided
+from .builtin_default import _sky, _sun, _sun_dir, _twosided
 from .camera import Camera
 from .geometry import box, merge, quad
 from .library import builtin

@@ -56,7 +56,7 @@ import numpy as np
 
 from .animation import ParamTrack, SunMotion, Track
 from .builder import SceneBuilder
-from .builtin import _sky, _sun, _sun_dir, _twosided
+from .builtin_default import _sky, _sun, _sun_dir, _twosided
 from .camera import Camera
 from .geometry import box, merge
 from .library import builtin

@@ -19,7 +19,7 @@ import numpy as np
 from .animation import Track
 from .builder import SceneBuilder
 from .animation import SunMotion
-from .builtin import PLASTER, _floor, _sky, _sun, _sun_dir
+from .builtin_default import PLASTER, _floor, _sky, _sun, _sun_dir
 from .camera import CameraPath
 from .core import Scene
 from .geometry import box, diffuse, merge

@@ -38,7 +38,7 @@ import numpy as np
 
 from .animation import RigidMotion, SunMotion, Track
 from .builder import SceneBuilder
-from .builtin import _sky, _sun, _sun_dir, _twosided
+from .builtin_default import _sky, _sun, _sun_dir, _twosided
 from .camera import Camera
 from .geometry import box, cylinder, merge, quad, uv_sphere
 from .library import builtin

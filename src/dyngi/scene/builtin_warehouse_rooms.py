@@ -27,7 +27,7 @@ a directly seen emitter's anti-aliased edge pixels would dominate every techniqu
 from __future__ import annotations
 
 from .builder import SceneBuilder
-from .builtin import DARK, _ceiling, _ceiling_light, _floor, _wall
+from .builtin_default import DARK, _ceiling, _ceiling_light, _floor, _wall
 from .camera import CameraPath
 from .animation import Track
 from .geometry import box, diffuse, merge, quad

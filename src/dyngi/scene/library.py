@@ -2,10 +2,14 @@
 
 Each entry is a factory ``f() -> Scene`` registered with :func:`builtin`
 together with a one-line description and the paper scene it stands in for.
-The scenes themselves live in :mod:`dyngi.scene.builtin`.
+The scenes themselves live in the ``dyngi.scene.builtin_*`` modules (the default ones in
+:mod:`dyngi.scene.builtin_default`), found by :func:`_load_builtins`.
 """
 from __future__ import annotations
 
+import importlib
+import os
+import pkgutil
 from dataclasses import dataclass
 from typing import Callable
 
@@ -34,19 +38,14 @@ def builtin(name: str, description: str, stands_for: str = ""):
 
 
 def _load_builtins() -> None:
-    """Imports :mod:`dyngi.scene.builtin` and every ``dyngi.scene.builtin_*`` module (each registers
-    its scenes with :func:`builtin`), so a new scene module needs no edit here."""
-    import importlib
-    import pkgutil
-
-    from . import builtin as _  # noqa: F401
+    """Imports every ``dyngi.scene.builtin_*`` module (each registers its scenes with :func:`builtin`),
+    so a new scene module needs no edit here."""
     for m in sorted(pkgutil.iter_modules(_package_path())):
         if m.name.startswith("builtin_"):
             importlib.import_module(f"{__package__}.{m.name}")
 
 
 def _package_path():
-    import os
     return [os.path.dirname(os.path.abspath(__file__))]
 
 
