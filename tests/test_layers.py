@@ -167,10 +167,6 @@ FUNCTION_IMPORTS: dict[str, int] = {   # one module a line
     "dyngi.experiments.reproduce": 1,
     "dyngi.lights.base": 1,
     "dyngi.techniques.neept": 2,
-    "dyngi.viewer.errorview": 5,
-    "dyngi.viewer.overlays": 7,
-    "dyngi.viewer.server": 4,
-    "dyngi.viewer.session": 5,
 }
 FUNCTION_IMPORTS_WHY: dict[str, str] = {
     "dyngi.color": "optional dependency: Mitsuba only for a Dr.Jit argument, so NumPy-only users (metrics) stay "

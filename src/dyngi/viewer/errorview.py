@@ -31,6 +31,12 @@ import time
 
 import numpy as np
 
+from .. import backend
+from ..experiments.references.path import cached_reference
+from ..metrics.hdrflip import flip
+from ..scene import load_scene
+from ..scene.camera import Camera, CameraPath
+
 TAG = "DYNGI-ERRORVIEW "
 
 
@@ -200,14 +206,7 @@ def child_main(argv) -> int:
     except OSError:
         pass
     scene_name, device = argv[0], argv[1]
-    from .. import backend
-
     backend.set_device(device)
-    from ..experiments.references.path import cached_reference
-    from ..metrics.hdrflip import flip
-    from ..scene import load_scene
-    from ..scene.camera import Camera, CameraPath
-
     scene = load_scene(scene_name)
     for line in sys.stdin:
         try:

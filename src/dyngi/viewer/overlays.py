@@ -18,15 +18,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..backend import dr, mi
 from ..color import luminance
+from ..experiments.io import tonemap_srgb
+from ..probes.debug import render_probe_view
+from ..probes.volume import ProbeVolume
+from ..techniques.vpl_base import VPLTechnique
+from ..vpl.points import camera_sees
 
 OVERLAYS = ("none", "probes", "vpls", "octree", "guide")
 
 
 def probe_volume_of(tech):
     """The technique's probe volume (an attribute, or one level down), or None."""
-    from ..probes.volume import ProbeVolume
-
     v = getattr(tech, "volume", None)
     if isinstance(v, ProbeVolume):
         return v
@@ -50,8 +54,6 @@ def capture_vpls(tech) -> bool:
     """Wrap a VPL technique's ``update_vpls`` so the viewer sees each frame's VPLs (``tech._viewer_vpls``).
 
     Returns whether the technique is a VPL technique. The wrapper only records the returned arrays."""
-    from ..techniques.vpl_base import VPLTechnique
-
     if not isinstance(tech, VPLTechnique):
         return False
     orig = tech.update_vpls
@@ -102,9 +104,6 @@ def draw(name: str, tech, scene, camera, res, frame_u8: np.ndarray, exposure: fl
 
 
 def _draw_probes(tech, scene, camera, res, frame_u8, exposure):
-    from ..experiments.io import tonemap_srgb
-    from ..probes.debug import render_probe_view
-
     vol = probe_volume_of(tech)
     if vol is None:
         return frame_u8
@@ -129,8 +128,6 @@ def project(camera, res, pts: np.ndarray):
 
 
 def _draw_vpls(tech, scene, camera, res, frame_u8):
-    from ..vpl.points import camera_sees
-
     data = getattr(tech, "_viewer_vpls", None)
     if data is None:
         return frame_u8
@@ -151,8 +148,6 @@ def _draw_vpls(tech, scene, camera, res, frame_u8):
 
 
 def _draw_guide(tech, scene, camera, res, frame_u8):
-    from ..vpl.points import camera_sees
-
     p = guide_chains_of(tech)
     if p is None:
         return frame_u8
@@ -193,8 +188,6 @@ def _hash_colours(ids: np.ndarray) -> np.ndarray:
 
 
 def _draw_octree(tech, scene, camera, res, frame_u8):
-    from ..backend import dr, mi
-
     oc = octree_of(tech)
     if oc is None:
         return frame_u8

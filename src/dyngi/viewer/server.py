@@ -49,7 +49,11 @@ from http.cookies import SimpleCookie
 from importlib import resources
 from urllib.parse import parse_qs, urlsplit
 
+from .. import backend
 from ..errors import DyngiError
+from ..scene import load_scene
+from ..techniques.base import split_spec_list
+from .session import RenderSession
 
 DEFAULT_PORT = 8765
 TOKEN_COOKIE = "dyngi-view-token"
@@ -357,11 +361,6 @@ def run_viewer(scene_name: str, techniques: str = "ddgi", host: str = "127.0.0.1
 
     Input errors (unknown scene or technique, bad spec, busy port) raise :class:`DyngiError` before
     anything is served."""
-    from .. import backend
-    from ..scene import load_scene
-    from ..techniques.base import split_spec_list
-    from .session import RenderSession
-
     if not token and not is_loopback(host):
         raise DyngiError(f"--no-token is allowed only on a loopback address ({', '.join(LOOPBACK)}); "
                          f"--host {host} is reachable from other machines")

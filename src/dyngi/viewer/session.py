@@ -32,9 +32,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import DyngiError
-from ..techniques.base import Frame, parse_spec, technique_names
+from ..experiments.io import tonemap_srgb
+from ..experiments.references.path import scene_max_depth
+from ..techniques.base import Frame, create_technique, get_technique, parse_spec, technique_names
 from . import overlays
 from .camera import ViewCamera
+from .errorview import ErrorViewWorker
 
 SLOTS = ("a", "b")
 MAX_DT = 0.25
@@ -257,7 +260,6 @@ class RenderSession:
             s = parse_spec(spec)
         except DyngiError:
             return []
-        from ..techniques.base import get_technique
 
         out = []
         for k, p in get_technique(s.name).PARAMS.items():
@@ -303,8 +305,6 @@ class RenderSession:
                 self.busy = None
 
     def _build(self, slot: str, spec: str):
-        from ..techniques.base import create_technique
-
         s = parse_spec(spec)
         self.busy = {"slot": slot, "spec": spec, "what": "building", "since": time.perf_counter(),
                      "expected_ms": None, "frame": 0}
@@ -389,7 +389,6 @@ class RenderSession:
             s.frames += 1
             s.wall_ms = (s.wall_ms + [wall])[-30:]
             s.image = r.image
-            from ..experiments.io import tonemap_srgb
 
             e0 = time.perf_counter()
             u8 = tonemap_srgb(np.nan_to_num(r.image, nan=0.0, posinf=0.0, neginf=0.0), exposure)
@@ -431,8 +430,6 @@ class RenderSession:
 
     # -- error view ----------------------------------------------------------------------------
     def _error_view(self, t, cam, still: bool) -> None:
-        from ..experiments.references.path import scene_max_depth
-
         if not still:
             self._errview_status("moving", "hold the view still (pause, stop moving) for the error view")
             return
@@ -464,8 +461,6 @@ class RenderSession:
         self.publish("errorview", {"type": "errorview", "state": state, "text": text, **extra})
 
     def _default_error_worker(self):
-        from .errorview import ErrorViewWorker
-
         src = getattr(self.scene, "source", "builtin")
         name = self.scene.name if src == "builtin" else src
         return ErrorViewWorker(name, self.device, on_result=self._on_error_result, on_stage=self._on_error_stage)
