@@ -66,8 +66,8 @@ def _one(cfg: dict) -> dict:
     out["threads"] = dr.thread_count()
     scene = load_scene(SCENE)
     if cfg["job"] == "reference":
-        from dyngi.experiments.references.path import fill_reference_cache
         from dyngi.experiments.reference_job import reference_job
+        from dyngi.experiments.references.path import fill_reference_cache
 
         t0 = time.perf_counter()
         if ex is None:

@@ -4,7 +4,7 @@ For each technique: the sealed room's image mean over the open room's (``sealed-
 ``sealed-rooms-open``; Mitsuba: 0), the ``stair-hall`` mean over Mitsuba's, and the mean over Mitsuba's on
 the real scenes of ``../shared/scenes`` (those present). Each run renders ``--frames`` frames of the
 static scene at ``--res`` and averages the second half; references are Mitsuba ``path`` at ``--ref-spp``
-with the scene's own depth (cached, :mod:`dyngi.experiments.reference`).
+with the scene's own depth (cached, :mod:`dyngi.experiments.references.path`).
 
 To measure the code before the two-sided rule, run this script from a ``git worktree`` of that commit with
 ``PYTHONPATH=<worktree>/src`` after copying ``src/dyngi/scene/builtin_probe_leaks.py`` into it (the analog

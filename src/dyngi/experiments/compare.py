@@ -43,8 +43,8 @@ from . import cluster
 from .budgets import budget_accounting, run_with_budget
 from .cluster import Task, failed, scene_ref
 from .denoise import aux_buffers, denoise, require
-from .evaluate import (LABELS, METRIC_NAMES, check_metric_names, collect_clamped_references, collect_references,  # noqa: F401
-                       evaluate_sequence, failures, indirect_reference_fn, summarize_noise)
+from .evaluate import (LABELS, METRIC_NAMES, check_metric_names, collect_clamped_references,  # noqa: F401
+                       collect_references, evaluate_sequence, failures, indirect_reference_fn, summarize_noise)
 from .io import atomic_output_dir, check_writable
 from .reference_job import reference_job
 from .references.clamped import check_reference, reference_clamp_distance
@@ -160,7 +160,8 @@ def prepare(scene_name, techniques, out_dir, frames, budget, ref_spp, params, me
     warnings += depth_notes
     clamp = reference_clamp_distance(techs) if reference == "clamped" else None
     return {"reference": reference, "ref_clamp_distance": clamp, "untextured": bool(untextured),
-            "tracked": bool(tracked),"scene": scene, "specs": {s.label: s for s in specs}, "labels": [s.label for s in specs],
+            "tracked": bool(tracked), "scene": scene, "specs": {s.label: s for s in specs},
+            "labels": [s.label for s in specs],
             "scene_name": scene_name, "params": per_tech,
             "techs": techs, "names": names, "budget": budget, "frames": frames, "ref_spp": spp,
             "ref_depth": ref_depth, "indirect": indirect,

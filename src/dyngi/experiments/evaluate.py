@@ -115,9 +115,10 @@ def _collect_images(scene, frames: int, res, spp: int, ref_depth: int, indirect:
 
 def collect_clamped_references(scene, frames: int, res, spp: int, max_depth: int, gmax: float, bar=None,
                                tracked_spp: int | None = None):
-    """As :func:`collect_references`, with clamped path tracing: (references,
-    noise dicts); the tracked pixels' values from :func:`~dyngi.experiments.references.clamped.clamped_indirect` at those pixels, ``tracked_spp``
-    samples (default 16x ``spp`` as the path-traced tracked reference; 0: the image's values stand in)."""
+    """As :func:`collect_references`, with clamped path tracing (:mod:`dyngi.experiments.references.clamped`):
+    (references, noise dicts); the tracked pixels' values from its ``clamped_indirect`` at those pixels,
+    ``tracked_spp`` samples (default 16x ``spp`` as the path-traced tracked reference; 0: the image's values
+    stand in)."""
     refs, noise = ReferenceList(), []
     for i in range(frames):
         img, nz = clamped_reference_halves(scene, scene.frame_time(i), res, spp, max_depth, gmax)

@@ -14,7 +14,8 @@ from pathlib import Path
 
 from ..errors import DyngiError
 from .cluster import SceneRef, Task, current, failed, scene_ref
-from .references.cache import EntryLock, _check_time_res, _load_entry, _store, default_cache_dir, get_or_render, reference_key
+from .references.cache import (EntryLock, _check_time_res, _load_entry, _store, default_cache_dir, get_or_render,
+                               reference_key)
 from .references.indirect import cached_indirect_reference
 from .references.path import (DEFAULT_MAX_DEPTH, DEFAULT_REF_SPP, _render, chunk_ranges, entry_meta, half_spp,
                               merge_chunks, reference_paths, reference_settings, render_passes)
@@ -40,16 +41,18 @@ def reference_job(scene, frames, res, spp: int = DEFAULT_REF_SPP, max_depth: int
                   progress=None, indirect: bool = False, source=None, path: bool = True) -> list[dict]:
     """Fill the cache with the references of ``frames`` on ``executor``; one record per frame.
 
-    Like :func:`~dyngi.experiments.references.path.fill_reference_cache` (``frames``, ``halves``, records ``{'frame', 'time', 'key', 'path',
-    'cached'}``), but every missing entry becomes ``chunks`` tasks (:func:`~dyngi.experiments.references.path.chunk_ranges`; default: enough
-    to give every worker about two tasks, at most one per pass) that the executor runs where it runs them;
-    their sums are merged here (:func:`~dyngi.experiments.references.path.merge_chunks`, equal to the serial render) and the entry stored as
-    soon as its last chunk is in. This process holds the entry's lock meanwhile, so another job that needs
+    Like :func:`~dyngi.experiments.references.path.fill_reference_cache` (``frames``, ``halves``, records
+    ``{'frame', 'time', 'key', 'path', 'cached'}``), but every missing entry becomes ``chunks`` tasks
+    (:func:`~dyngi.experiments.references.path.chunk_ranges`; default: enough to give every worker about two
+    tasks, at most one per pass) that the executor runs where it runs them; their sums are merged here
+    (:func:`~dyngi.experiments.references.path.merge_chunks`, equal to the serial render) and the entry stored
+    as soon as its last chunk is in. This process holds the entry's lock meanwhile, so another job that needs
     the entry waits instead of rendering it too; entries another job holds are awaited at the end.
     ``indirect``: also dyngi's indirect-only reference of every frame (one task per frame,
-    :func:`~dyngi.experiments.references.indirect.cached_indirect_reference`); ``path=False``: that one only. ``source``: how workers load
-    the scene (default :func:`~dyngi.experiments.cluster.scene_ref` of ``scene``). Failed tasks (after the
-    executor's retries) are in ``executor.failures``; their frames' records have ``'failed': True``.
+    :func:`~dyngi.experiments.references.indirect.cached_indirect_reference`); ``path=False``: that one only.
+    ``source``: how workers load the scene (default :func:`~dyngi.experiments.cluster.scene_ref` of
+    ``scene``). Failed tasks (after the executor's retries) are in ``executor.failures``; their frames'
+    records have ``'failed': True``.
     """
     ex = executor if executor is not None else current()
     if isinstance(frames, numbers.Integral):
