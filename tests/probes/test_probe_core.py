@@ -24,7 +24,7 @@ def small_volume(counts=(2, 2, 2), Ti=8, Td=16):
 
 
 def results_for(plan, radiance: np.ndarray, distance: np.ndarray) -> ProbeRayResults:
-    """Synthetic traced results: radiance (n, 3), distance (n,) (uploaded copies, see volume.upload)."""
+    """Synthetic traced results: radiance (n, 3), distance (n,) (uploaded copies, see arrays.upload)."""
     rad = np.asarray(radiance, np.float32)
     return ProbeRayResults(mi.Color3f(*[upload(rad[:, c]) for c in range(3)]),
                            upload(np.asarray(distance, np.float32)), plan)

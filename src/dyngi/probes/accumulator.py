@@ -210,7 +210,7 @@ def merge_into_volume(volume, est_irr, est_dist, accumulator, encoding, probe_id
     if len(pid) == 0:
         return
     dev = volume.device
-    # uploaded copies, not aliases of NumPy memory (whose alignment can change the kernels; volume.upload)
+    # uploaded copies, not aliases of NumPy memory (whose alignment can change the kernels; arrays.upload)
     pid_dr = upload(pid.astype(np.uint32), mi.UInt32)
     fresh_dr = upload((st.updates[pid] == 0).astype(np.uint32), mi.UInt32) != 0
     parts = []

@@ -159,7 +159,7 @@ class RayPlan:
         if counts.shape != pids.shape or np.any(counts < 0):
             raise DyngiError(f"RayPlan.ragged: 'counts' must be {len(pids)} non-negative integers")
         offsets = np.concatenate([[0], np.cumsum(counts)])
-        # uploaded copies: an aliased NumPy buffer's alignment decides the gather kernel (see volume.upload)
+        # uploaded copies: an aliased NumPy buffer's alignment decides the gather kernel (see arrays.upload)
         slot = upload(np.repeat(np.arange(len(pids), dtype=np.uint32), counts), mi.UInt32)
         probe = dr.gather(mi.UInt32, upload(pids, mi.UInt32), slot) if len(pids) else mi.UInt32()
         if pdf is not None:
