@@ -216,7 +216,7 @@ def measure_cdq(rs, sec) -> dict:
 
 
 GATE_OPENS = 0.5
-"""tunnel-gate's gate starts to slide open at t = 0.5 s (scene/builtin.py)."""
+"""tunnel-gate's gate starts to slide open at t = 0.5 s (scene/builtin_default.py)."""
 
 SECTIONS: tuple[Section, ...] = (
     Section(

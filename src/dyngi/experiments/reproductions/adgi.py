@@ -78,7 +78,7 @@ ADGI_QUICK = {"res": (32, 24), "dt": 0.25, "hold": 8, "ref_spp": 32, "static_fra
               "reference": QUICK_REFERENCE_SPEC}
 ADGI_FULL = {"res": (64, 48), "dt": 1.0 / 15.0, "hold": 30, "ref_spp": 128, "static_frames": 24,
              "reference": REFERENCE_SPEC}
-GATE_OPEN, GATE_DONE, GATE_END = 0.5, 3.5, 4.0      # tunnel-gate's animation (scene/builtin.py)
+GATE_OPEN, GATE_DONE, GATE_END = 0.5, 3.5, 4.0      # tunnel-gate's animation (scene/builtin_default.py)
 ATRIUM_TIMES = (0.0, 2.0, 3.0)                      # Fig. 9: start, +2 s, +3 s
 ATRIUM_SEEDS = (0, 1, 2)                            # Fig. 9's rows: mean and [min-max] over these seeds
 RECOVERED = 0.10                                    # within 10 % of the steady level (the issue's target)
