@@ -55,6 +55,15 @@ def _is_module(name: str) -> bool:
     return os.path.exists(rel + ".py") or os.path.exists(os.path.join(rel, "__init__.py"))
 
 
+def _from_target(node: ast.ImportFrom, pkg: str) -> str:
+    """The absolute module a ``from ... import`` names (relative levels resolved against ``pkg``)."""
+    if not node.level:
+        return node.module or ""
+    base = pkg.split(".")
+    base = base[: len(base) - (node.level - 1)]
+    return ".".join(base + ([node.module] if node.module else []))
+
+
 def _imports(mod: str, path: str):
     """Every dyngi module that ``mod`` imports (absolute names)."""
     tree = ast.parse(open(path, encoding="utf-8").read(), path)
@@ -65,12 +74,7 @@ def _imports(mod: str, path: str):
         if isinstance(node, ast.Import):
             out.update(a.name for a in node.names if a.name.split(".")[0] == "dyngi")
         elif isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = pkg.split(".")
-                base = base[: len(base) - (node.level - 1)]
-                target = ".".join(base + ([node.module] if node.module else []))
-            else:
-                target = node.module or ""
+            target = _from_target(node, pkg)
             if target.split(".")[0] != "dyngi":
                 continue
             # ``from pkg import a``: ``a`` is a submodule when one of that name exists, else a name of pkg
@@ -196,12 +200,7 @@ def _function_imports(mod: str, path: str) -> list[str]:
             if isinstance(node, ast.Import):
                 out += [a.name for a in node.names if a.name.split(".")[0] == "dyngi"]
             elif isinstance(node, ast.ImportFrom):
-                if node.level:
-                    base = pkg.split(".")
-                    base = base[: len(base) - (node.level - 1)]
-                    target = ".".join(base + ([node.module] if node.module else []))
-                else:
-                    target = node.module or ""
+                target = _from_target(node, pkg)
                 if target.split(".")[0] == "dyngi":
                     out.append(target)
     return out

@@ -24,32 +24,16 @@ import pytest
 
 from dyngi.backend import dr, mi
 from dyngi.scene import builtin_names, load_scene
-from dyngi.techniques import Frame, create_technique
-from dyngi.techniques.base import probe_technique_names
+from tests.probes.interiors import PROBE_TECHNIQUES, settled_mean
 
 RES = (64, 36)
 FRAMES = 12
 SETTLED = 6
 DEPTH = 12
-FAST = ("ddgi", "qddgi")
-SETTINGS = {"probes-reference": {"texels": 16, "rays_per_texel": 32},
-            "ddgi-secondary": {"emission_attenuation": "none"},
-            "ddgi-resampling": {"emission_attenuation": "none"}}
-PROBE_TECHNIQUES = [pytest.param(n, marks=() if n in FAST else pytest.mark.slow) for n in probe_technique_names()]
 STAIRCASE_RES = (54, 96)           # the real film is portrait 720 x 1280
 STAIRCASE_FRAMES = 30
 STAIRCASE_SETTLED = 20
 STAIRCASE_TECHNIQUES = ("ddgi", "qddgi", "adgi", "isddgi")
-
-
-def _mean_image(name: str, scene, res, frames: int, settled: int, params: dict | None = None) -> np.ndarray:
-    scene.at(0.0)
-    tech = create_technique(name, scene, {**SETTINGS.get(name, {}), **(params or {})})
-    cam = scene.camera(0.0)
-    imgs = [tech.step(Frame(i, 0.0, cam, res, seed=3, static=i > 0)).image for i in range(frames)]
-    img = np.mean(imgs[settled:], 0)
-    assert np.all(np.isfinite(img))
-    return img
 
 
 def test_coated_hall_is_registered_and_coated():
@@ -66,7 +50,7 @@ def test_coated_hall_within_10_percent_of_mitsuba(backend, name):
     from dyngi.experiments.references.path import reference_image
 
     sc = load_scene("coated-hall")
-    img = _mean_image(name, sc, RES, FRAMES, SETTLED)
+    img = settled_mean(name, sc, RES, FRAMES, SETTLED)
     ref = reference_image(sc, 0.0, RES, 1024, DEPTH)
     ratio = img.mean() / ref.mean()
     print(f"{name}: coated-hall mean ratio {ratio:.3f}")
@@ -83,7 +67,7 @@ def test_wooden_staircase_within_10_percent_of_mitsuba(backend, name):
     sc = load_scene(shared_scene("wooden-staircase/scene.xml"))
     ref = reference_image(sc, 0.0, STAIRCASE_RES, 1024, DEPTH)
     t0 = time.perf_counter()
-    img = _mean_image(name, sc, STAIRCASE_RES, STAIRCASE_FRAMES, STAIRCASE_SETTLED)
+    img = settled_mean(name, sc, STAIRCASE_RES, STAIRCASE_FRAMES, STAIRCASE_SETTLED)
     ratio = img.mean() / ref.mean()
     print(f"{name}: wooden-staircase mean ratio {ratio:.3f} ({time.perf_counter() - t0:.1f} s for "
           f"{STAIRCASE_FRAMES} frames at {STAIRCASE_RES[0]}x{STAIRCASE_RES[1]})")
@@ -106,7 +90,7 @@ def test_hit_lobe_rule_changes_only_coated_scenes(backend):
     on ``coated-hall`` it adds the coating's light."""
     for scene, same in (("stair-hall", True), ("coated-hall", False)):
         sc = load_scene(scene)
-        a, b = (_mean_image("ddgi", sc, (32, 18), 3, 0, {"hit_lobes": r, "warmup": 2}) for r in ("layered", "diffuse"))
+        a, b = (settled_mean("ddgi", sc, (32, 18), 3, 0, {"hit_lobes": r, "warmup": 2}) for r in ("layered", "diffuse"))
         assert np.array_equal(a, b) == same, scene
         if not same:
             assert a.mean() > 1.05 * b.mean(), (a.mean(), b.mean())

@@ -18,26 +18,11 @@ import pytest
 
 from dyngi.scene import builtin_names, load_scene
 from dyngi.techniques import Frame, create_technique
-from dyngi.techniques.base import probe_technique_names
+from tests.probes.interiors import PROBE_TECHNIQUES, settled_mean
 
 RES = (64, 36)
 FRAMES = 12
 SETTLED = 6
-FAST = ("ddgi", "qddgi")
-SETTINGS = {"probes-reference": {"texels": 16, "rays_per_texel": 32},
-            "ddgi-secondary": {"emission_attenuation": "none"},
-            "ddgi-resampling": {"emission_attenuation": "none"}}
-PROBE_TECHNIQUES = [pytest.param(n, marks=() if n in FAST else pytest.mark.slow) for n in probe_technique_names()]
-
-
-def _mean_image(name: str, scene) -> np.ndarray:
-    scene.at(0.0)
-    tech = create_technique(name, scene, SETTINGS.get(name, {}))
-    cam = scene.camera(0.0)
-    imgs = [tech.step(Frame(i, 0.0, cam, RES, seed=3, static=i > 0)).image for i in range(FRAMES)]
-    img = np.mean(imgs[SETTLED:], 0)
-    assert np.all(np.isfinite(img))
-    return img
 
 
 def test_classroom_grid_starts_inside_the_slabs():
@@ -74,7 +59,7 @@ def test_sunlit_classroom_within_10_percent_of_mitsuba(backend, name):
     from dyngi.experiments.references.path import reference_image
 
     sc = load_scene("sunlit-classroom")
-    img = _mean_image(name, sc)
+    img = settled_mean(name, sc, RES, FRAMES, SETTLED)
     ref = reference_image(sc, 0.0, RES, 1024, 12)
     ratio = img.mean() / ref.mean()
     print(f"{name}: sunlit-classroom mean ratio {ratio:.3f}")

@@ -51,6 +51,27 @@ def default_cache_dir() -> Path:
     return base / "dyngi" / "reference"
 
 
+def cached_npy(path: Path, shape, compute) -> np.ndarray:
+    """``compute()`` as float32, kept at ``path`` (a small ``.npy``): read back when it is there with ``shape``,
+    else computed and written atomically; an unwritable cache only costs the recomputation."""
+    if path.exists():
+        try:
+            v = np.load(path)
+            if v.shape == tuple(shape):
+                return v.astype(np.float32)
+        except (OSError, ValueError):
+            pass
+    v = np.asarray(compute(), np.float32)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.parent / f".{path.stem}.{os.getpid()}.npy"
+        np.save(tmp, v)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    return v
+
+
 def _check_time_res(t, res, what: str = "reference") -> tuple[int, int]:
     """Validate a reference's time and (width, height); ``what`` names the kind in the error."""
     if not (isinstance(t, numbers.Real) and np.isfinite(t)):

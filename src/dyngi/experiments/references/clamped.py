@@ -31,7 +31,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 
 import numpy as np
 
@@ -41,7 +40,7 @@ from ...sampling.rng import make_sampler, mix_seed
 from ...techniques.vpl_base import COMMON_PARAMS, VPLTechnique
 from ...transport.path_walk import trace_paths_split
 from ...vpl.points import _surface, aligned
-from .cache import default_cache_dir
+from .cache import cached_npy, default_cache_dir
 from .path import combine_halves, half_spp
 
 REFERENCES = ("path", "clamped")
@@ -118,24 +117,7 @@ def cached_clamped(kind: str, key: dict, compute, shape):
     """``compute()``, cached as ``$DYNGI_CACHE/clamped/<hash>.npy`` (a sibling of ``reference/``)."""
     key = dict(key, kind=kind, format=CLAMPED_FORMAT, mitsuba=mi.__version__, variant=mi.variant())
     h = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
-    d = default_cache_dir().parent / "clamped"
-    p = d / f"{kind}-{h}.npy"
-    if p.exists():
-        try:
-            v = np.load(p)
-            if v.shape == tuple(shape):
-                return v.astype(np.float32)
-        except (OSError, ValueError):
-            pass
-    v = np.asarray(compute(), np.float32)
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-        tmp = d / f".{kind}-{h}.{os.getpid()}.npy"
-        np.save(tmp, v)
-        os.replace(tmp, p)
-    except OSError:
-        pass        # an unwritable cache only costs the re-render
-    return v
+    return cached_npy(default_cache_dir().parent / "clamped" / f"{kind}-{h}.npy", shape, compute)
 
 
 def clamped_reference_halves(scene, t: float, res, spp: int, max_depth: int, gmax: float):

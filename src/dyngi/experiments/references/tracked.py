@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +22,7 @@ from ...backend import dr, mi
 from ...sampling.rng import make_sampler, mix_seed
 from ...transport.path_walk import trace_paths_split
 from ...vpl.points import aligned
-from .cache import default_cache_dir
+from .cache import cached_npy, default_cache_dir
 
 TRACKED_SPP_FACTOR = 16
 """Tracked-pixel samples per image-reference sample (1024 -> 16384; the paper: 692,100)."""
@@ -40,23 +39,8 @@ def cached_tracked_reference(scene, t: float, res, pixels, spp: int, max_depth: 
            "indirect": bool(indirect), "mitsuba": mi.__version__, "variant": mi.variant()}
     h = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
     d = (Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir().parent / "tracked")
-    p = d / f"{h}.npy"
-    if p.exists():
-        try:
-            v = np.load(p)
-            if v.shape == (len(pixels), 3):
-                return v.astype(np.float32)
-        except (OSError, ValueError):
-            pass
-    v = tracked_reference(scene, t, res, pixels, spp, max_depth, indirect)
-    try:
-        d.mkdir(parents=True, exist_ok=True)
-        tmp = d / f".{h}.{os.getpid()}.npy"
-        np.save(tmp, v)
-        os.replace(tmp, p)
-    except OSError:
-        pass        # an unwritable cache only costs the re-render
-    return v
+    return cached_npy(d / f"{h}.npy", (len(pixels), 3),
+                      lambda: tracked_reference(scene, t, res, pixels, spp, max_depth, indirect))
 
 
 def tracked_reference(scene, t: float, res, pixels: np.ndarray, spp: int, max_depth: int,
