@@ -82,9 +82,7 @@ class ViewerServer:
     def __init__(self, session, host: str = "127.0.0.1", port: int | None = None, token: bool = True):
         """``token``: require a random token (see the module docstring); only a loopback ``host`` may turn
         it off."""
-        if not token and not is_loopback(host):
-            raise DyngiError(f"--no-token is allowed only on a loopback address ({', '.join(LOOPBACK)}); "
-                             f"--host {host} is reachable from other machines")
+        check_token_host(host, token)
         self.session = session
         self.host = host
         self.port = port
@@ -339,6 +337,13 @@ def is_loopback(host: str) -> bool:
     return h in LOOPBACK or h.startswith("127.")
 
 
+def check_token_host(host: str, token: bool) -> None:
+    """Serving without a token is allowed only on a loopback address."""
+    if not token and not is_loopback(host):
+        raise DyngiError(f"--no-token is allowed only on a loopback address ({', '.join(LOOPBACK)}); "
+                         f"--host {host} is reachable from other machines")
+
+
 def _host_name(host_header: str) -> str:
     """The host of a ``Host`` header (``name:port``, ``[v6]:port`` or a bare name)."""
     h = host_header.strip()
@@ -361,9 +366,7 @@ def run_viewer(scene_name: str, techniques: str = "ddgi", host: str = "127.0.0.1
 
     Input errors (unknown scene or technique, bad spec, busy port) raise :class:`DyngiError` before
     anything is served."""
-    if not token and not is_loopback(host):
-        raise DyngiError(f"--no-token is allowed only on a loopback address ({', '.join(LOOPBACK)}); "
-                         f"--host {host} is reachable from other machines")
+    check_token_host(host, token)
     backend.set_device(device)
     specs = split_spec_list(techniques)
     if not specs:

@@ -28,8 +28,6 @@ they must agree).
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import math
 
 import numpy as np
@@ -40,7 +38,7 @@ from ...sampling.rng import make_sampler, mix_seed
 from ...techniques.vpl_base import COMMON_PARAMS, VPLTechnique
 from ...transport.path_walk import trace_paths_split
 from ...vpl.points import _surface, aligned
-from .cache import cached_npy, default_cache_dir
+from .cache import cached_npy, default_cache_dir, reference_key
 from .path import combine_halves, half_spp
 
 REFERENCES = ("path", "clamped")
@@ -116,7 +114,7 @@ def reference_clamp_distance(techs) -> float:
 def cached_clamped(kind: str, key: dict, compute, shape):
     """``compute()``, cached as ``$DYNGI_CACHE/clamped/<hash>.npy`` (a sibling of ``reference/``)."""
     key = dict(key, kind=kind, format=CLAMPED_FORMAT, mitsuba=mi.__version__, variant=mi.variant())
-    h = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
+    h = reference_key(key)
     return cached_npy(default_cache_dir().parent / "clamped" / f"{kind}-{h}.npy", shape, compute)
 
 

@@ -12,8 +12,6 @@ resolution, pixels, samples, depth and mode (:func:`cached_tracked_reference`).
 """
 from __future__ import annotations
 
-import hashlib
-import json
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +20,7 @@ from ...backend import dr, mi
 from ...sampling.rng import make_sampler, mix_seed
 from ...transport.path_walk import trace_paths_split
 from ...vpl.points import aligned
-from .cache import cached_npy, default_cache_dir
+from .cache import cached_npy, default_cache_dir, reference_key
 
 TRACKED_SPP_FACTOR = 16
 """Tracked-pixel samples per image-reference sample (1024 -> 16384; the paper: 692,100)."""
@@ -37,7 +35,7 @@ def cached_tracked_reference(scene, t: float, res, pixels, spp: int, max_depth: 
     key = {"format": TRACKED_FORMAT, "state": scene.state_hash(float(t)), "res": list(map(int, res)),
            "pixels": np.asarray(pixels).tolist(), "spp": int(spp), "max_depth": int(max_depth),
            "indirect": bool(indirect), "mitsuba": mi.__version__, "variant": mi.variant()}
-    h = hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
+    h = reference_key(key)
     d = (Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir().parent / "tracked")
     return cached_npy(d / f"{h}.npy", (len(pixels), 3),
                       lambda: tracked_reference(scene, t, res, pixels, spp, max_depth, indirect))
