@@ -17,14 +17,13 @@ import numpy as np
 from ..backend import dr, mi
 from ..errors import DyngiError
 from ..sampling.octree import AdaptiveOctree, scaled_thresholds
+from ..scene.surface import shading_normal
 from .base import Vertex, make, names
 
 RECORD_VERTICES = 3
 """Path vertices per lane whose sampled directions the CDQ learns from."""
 
 
-def _shading_normal(si):
-    return mi.Vector3f(dr.select(mi.Frame3f.cos_theta(si.wi) >= 0.0, si.sh_frame.n, -si.sh_frame.n))
 
 
 class WalkDirections:
@@ -87,7 +86,7 @@ class WalkDirections:
         if self.octree is not None:
             leaf = self.octree.lookup(si.p, active)
             self.octree.place_leaf(leaf, active)
-        return Vertex(si, _shading_normal(si), bsdf, None, leaf, mi.Bool(active))
+        return Vertex(si, shading_normal(si), bsdf, None, leaf, mi.Bool(active))
 
     def pdf(self, v: Vertex, wo, active):
         return self.sampler.pdf(v, wo, active)

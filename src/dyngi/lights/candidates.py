@@ -18,7 +18,8 @@ from __future__ import annotations
 from ..backend import dr, mi
 from ..sampling.candidates import EmitterCandidates, LightEval
 from .base import INVALID
-from .nee import LightNEE, shading_normal
+from ..scene.surface import shading_normal
+from .nee import LightNEE
 
 
 class LightCandidates:

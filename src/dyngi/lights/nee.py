@@ -37,6 +37,7 @@ from ..errors import DyngiError
 from ..sampling.lights import EmitterSubsetSampling
 from ..sampling.octree import AdaptiveOctree, scaled_thresholds
 from ..sampling.rng import make_sampler
+from ..scene.surface import shading_normal
 from .base import INVALID, EmitterTable, FrameCtx, entry, make
 
 RECORD_VERTICES = 3
@@ -46,11 +47,6 @@ P_TRI = 0.5
 PRIMARY_NEE_STREAM = 0x7B1
 """Random stream of the light-selection numbers of the primary-vertex NEE through a light sampler
 (:meth:`TracedNEE.stream`)."""
-
-
-def shading_normal(si):
-    """The shading normal turned to the side of ``si.wi``."""
-    return mi.Vector3f(dr.select(mi.Frame3f.cos_theta(si.wi) >= 0.0, si.sh_frame.n, -si.sh_frame.n))
 
 
 def _pad_single_entries(obj) -> None:

@@ -89,7 +89,8 @@ from .params import COMMON_SPECS, DDGI_SPECS, parse_probe_counts
 from .query import ProbeQuery, bilinear_gather
 from .rays import UniformSFDirections
 from .states import ProbeStates
-from .trace import DiffuseHitShader, HIT_LOOKUPS, check_direct_mode, shading_side
+from ..scene.surface import shading_side
+from .trace import DiffuseHitShader, HIT_LOOKUPS, check_direct_mode
 from .pipeline import ProbePipeline, probes_in_frustum
 from .volume import ProbeVolume
 

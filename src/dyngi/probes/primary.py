@@ -27,7 +27,7 @@ draws (one 1D + one 2D draw per pixel), so ``glossy=False`` draws nothing more a
 bit-identical to the diffuse-only shading. ``volume_query.irradiance`` must accept ``direction=``
 (:class:`~dyngi.probes.query.ProbeQuery` does).
 
-Surfaces face the camera by :func:`~dyngi.probes.trace.shading_side` (the back of a
+Surfaces face the camera by :func:`~dyngi.scene.surface.shading_side` (the back of a
 ``twosided`` surface is shaded like its front, as Mitsuba shades it).
 
 Camera rays pass straight through clear surfaces (``dielectric``,
@@ -47,7 +47,8 @@ from ..sampling.passthrough import intersect_through_glass, scene_has_glass
 from ..sampling.rng import make_sampler
 from .glossy import glossy_lookup
 from .lookup import diffuse_radiance
-from .trace import light_routing, shading_side
+from ..scene.surface import shading_side
+from .trace import light_routing
 
 PRIMARY_GLOSSY_LOBES = mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.GlossyTransmission
 """The lobes the primary vertex's glossy term samples: the rough ones, not delta (module docstring)."""

@@ -26,7 +26,7 @@ of every probe technique):
   Lambertian with its diffuse albedo).
 Back-face hits return a negative distance ``-0.2 t`` (the DDGI/RTXGI
 convention used for classification and relocation) and radiance 0. The back of
-a two-sided surface is *shaded* like its front (:func:`shading_side`: Mitsuba
+a two-sided surface is *shaded* like its front (:func:`~dyngi.scene.surface.shading_side`: Mitsuba
 does); whether it also counts as a front face for the distance sign is the
 **two-sided rule** below. Misses return distance ``+inf`` (clamped when blending).
 
@@ -307,22 +307,6 @@ def probes_carry_emitters(mi_scene, mode: str) -> bool:
 
 
 HIT_LOOKUPS = ("stochastic", "filtered")
-
-
-def shading_side(si, ray, bsdf, hit):
-    """(facing, n): the lanes whose surface is shaded from the ray's side, and the shading normal on it.
-
-    A surface faces the ray where its geometric normal does (``dot(n, d) < 0``) or, seen from behind,
-    where its BSDF reflects on both sides (``BSDFFlags.BackSide``: ``twosided``, as real scenes model
-    single walls); there the shading normal is flipped to the ray's side. Our choice: Mitsuba shades
-    the back of a two-sided surface like its front, so must the probes and the primary shading. The
-    probe-ray distance sign is another matter: :func:`probe_hit_front` (the two-sided rule).
-    """
-    geo_front = dr.dot(si.n, ray.d) < 0.0
-    two_sided = mi.has_flag(bsdf.flags(), mi.BSDFFlags.BackSide) & (bsdf != None)   # noqa: E711
-    facing = hit & (geo_front | two_sided)
-    n = dr.select(geo_front, si.sh_frame.n, -si.sh_frame.n)
-    return facing, n
 
 
 class DiffuseHitShader:

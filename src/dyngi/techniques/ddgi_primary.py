@@ -66,7 +66,7 @@ from ..probes.ddgi_plus import DDGIPlusVolume, plus_params
 from ..directions.lobes import LobeDirections
 from ..probes.glossy import GLOSSY_LOBES
 from ..probes.lookup import diffuse_radiance
-from ..probes.trace import shading_side
+from ..scene.surface import shading_side
 from ..sampling.diffuse import diffuse_albedo
 from ..sampling.rng import make_sampler
 from ..transport.path_walk import walk

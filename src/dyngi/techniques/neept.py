@@ -96,7 +96,7 @@ from .. import directions as direction_samplers
 from .. import lights as light_samplers
 from ..directions.base import Vertex
 from ..directions.mixture import CDQ_FRACTION  # noqa: F401  (re-exported: Sec. 7's "brdf fraction of 50%")
-from ..lights.nee import shading_normal
+from ..scene.surface import shading_normal
 from ..backend import dr, mi
 from ..errors import DyngiError
 from ..sampling.diffuse import diffuse_albedo

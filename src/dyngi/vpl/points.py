@@ -7,7 +7,7 @@ the valid lanes back to the host as NumPy arrays (``smcir:impl=host``'s selectio
 * :func:`raw_candidates` -- Algorithm 1 lines 3 and 5 (Sec. 3.2.1): camera rays
   through random pixel positions find directly visible points ``x``; one
   cosine-distributed ray from each finds ``y``. A hit counts when both ``x`` and
-  ``y`` are front-facing (:func:`dyngi.probes.trace.shading_side`) diffuse
+  ``y`` are front-facing (:func:`dyngi.scene.surface.shading_side`) diffuse
   surfaces (diffuse albedo > 0): VPLs live on diffuse surfaces only (Sec. 3.1).
 * :func:`segment_clear` -- two-sided visibility between point pairs (shadow ray,
   both cosines > 0): the mailbox test of Sec. 3.2.2.
@@ -22,8 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
-from ..probes.trace import shading_side
-from ..sampling.diffuse import diffuse_albedo
+from ..scene.surface import diffuse_surface
 from ..sampling.rng import make_sampler
 from .emission import sample_photon_ray
 
@@ -89,17 +88,6 @@ def _mscene(scene):
     return scene.mi_scene if hasattr(scene, "mi_scene") else scene
 
 
-def _surface(mscene, ray, active):
-    """(si, front mask, shading normal facing the ray, diffuse albedo) of the first hit."""
-    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
-    hit = si.is_valid() & active
-    bsdf = si.bsdf(ray)
-    front, n = shading_side(si, ray, bsdf, hit)
-    alb = diffuse_albedo(bsdf, si, front)
-    ok = front & (dr.max(alb) > 0.0)
-    return si, ok, n, alb
-
-
 def raw_candidates_device(scene, camera, res, n: int, seed: int, frame: int, stream: int = 0x51C):
     """:func:`raw_candidates` on the device, every lane kept (no compaction, no host round trip): a dict
     of Dr.Jit arrays over the ``n`` camera rays -- ``pos``, ``nrm``, ``albedo`` (at y), ``mailbox``,
@@ -109,11 +97,11 @@ def raw_candidates_device(scene, camera, res, n: int, seed: int, frame: int, str
     sampler = make_sampler(n, seed, frame, stream)
     pix = mi.UInt32(dr.minimum(sampler.next_1d() * (w * h), w * h - 1))
     ray = camera.sample_rays(res, pix, sampler.next_2d())
-    si, okx, nx, alb_x = _surface(mscene, ray, mi.Bool(True))
+    si, okx, nx, alb_x = diffuse_surface(mscene, ray, mi.Bool(True))
     frame_x = mi.Frame3f(nx)
     d = frame_x.to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
     ray2 = si.spawn_ray(d)
-    si2, oky, ny, alb = _surface(mscene, ray2, okx)
+    si2, oky, ny, alb = diffuse_surface(mscene, ray2, okx)
     oky &= okx
     return {"pos": si2.p, "nrm": ny, "albedo": alb, "mailbox": si.p, "mailbox_n": nx, "mailbox_albedo": alb_x,
             "ok": oky, "okx": okx}
@@ -219,7 +207,7 @@ def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 
     cols = {k: [] for k in ("pos", "nrm", "albedo", "radiosity", "used")}
     rays = 0
     for _ in range(int(bounces)):    # a few static bounces, each one kernel over all photons
-        si, ok, n, alb = _surface(mscene, ray, alive)
+        si, ok, n, alb = diffuse_surface(mscene, ray, alive)
         ok &= alive
         L = dr.select(ok, beta * alb * dr.inv_pi, 0.0)
         dr.eval(si.p, n, alb, L, ok)
@@ -246,7 +234,7 @@ def photon_first_hits_device(scene, U, lights=None):
     mscene = _mscene(scene)
     ray, beta = sample_photon_ray(mscene, lights, U[0], mi.Point2f(U[1], U[2]), mi.Point2f(U[3], U[4]))
     alive = dr.isfinite(dr.max(beta)) & (dr.max(beta) > 0.0)
-    si, ok, n, alb = _surface(mscene, ray, alive)
+    si, ok, n, alb = diffuse_surface(mscene, ray, alive)
     ok &= alive
     L = dr.select(ok, beta * alb * dr.inv_pi, 0.0)
     L = dr.select(dr.isfinite(dr.max(L)), L, 0.0)

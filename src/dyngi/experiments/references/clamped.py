@@ -37,7 +37,8 @@ from ...errors import DyngiError
 from ...sampling.rng import make_sampler, mix_seed
 from ...techniques.vpl_base import COMMON_PARAMS, VPLTechnique
 from ...transport.path_walk import trace_paths_split
-from ...vpl.points import _surface, aligned
+from ...scene.surface import diffuse_surface
+from ...vpl.points import aligned
 from .cache import cached_npy, default_cache_dir, reference_key
 from .path import combine_halves, half_spp
 
@@ -70,7 +71,7 @@ def clamped_indirect(scene, t: float, res, spp: int, max_depth: int = 5, gmax: f
         else:
             pix = mi.UInt32(aligned(np.repeat(flat, k), np.uint32))
         ray = scene.camera(t).sample_rays(res, pix, sampler.next_2d())
-        si, okx, nx, alb = _surface(mscene, ray, mi.Bool(True))
+        si, okx, nx, alb = diffuse_surface(mscene, ray, mi.Bool(True))
         d = mi.Frame3f(nx).to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
         ray2 = si.spawn_ray(d)
         si2 = mscene.ray_intersect(ray2, ray_flags=mi.RayFlags.All, coherent=False, active=okx)

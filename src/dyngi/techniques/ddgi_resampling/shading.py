@@ -55,7 +55,7 @@ from ...directions.bsdf import BSDFDirections
 from ...directions.lobes import LobeDirections
 from ...probes.glossy import GLOSSY_LOBES, GLOSSY_NORMALISATION, sample_glossy
 from ...probes.lookup import diffuse_radiance
-from ...probes.trace import shading_side
+from ...scene.surface import shading_side
 from ...sampling.diffuse import diffuse_albedo
 from ...transport.accumulate import ProgressiveMean
 from ...transport.path_walk import trace_paths, walk
