@@ -16,7 +16,10 @@ Suites:
   recursions, ``nee-pt`` with a fixed and with its learning light and direction samplers), 12 seeds each
   (a walk may draw its random numbers in its own order);
 * ``probes``: every probe technique of the DDGI family on one dynamic scene, plus the DDGI+ volume's
-  atlases after each update (the one probe pipeline).
+  atlases after each update (the one probe pipeline);
+* ``lights``: every light sampler of ``nee-pt`` and the walk (``path:lights=``, ``path:directions=cdq``),
+  and each ``visibility_reuse`` option of ReSTIR DI (issue 37: the light and direction layout);
+* ``vpl``: the VPL techniques (``mir``, ``smcir``, ``tcas``, ``ir``) on a dynamic and a glass scene.
 
     .venv/bin/python benchmarks/before_after.py snapshot /tmp/before.npz --suite probes
     .venv/bin/python benchmarks/before_after.py compare /tmp/before.npz /tmp/after.npz
@@ -55,6 +58,17 @@ SUITES = {
                        "adgi:probe_counts=4:static_chains=256:dynamic_chains=64:warmup=2:warmup_rays=32:"
                        "reclassify_interval=2",
                        "isddgi:probe_counts=4:warmup=1:reclassify_interval=2")},
+    "lights": {
+        "scenes": SCENES, "res": "32x18", "frames": 3, "seeds": 1, "extras": (),
+        "techniques": ("nee-pt:lights=lighttree", "nee-pt:lights=sll", "nee-pt:lights=sll-oracle",
+                       "nee-pt:lights=uniform", "nee-pt:lights=vlc", "nee-pt:lights=power",
+                       "restir-pt:candidates=4:visibility_reuse=none",
+                       "restir-pt:candidates=4:visibility_reuse=candidate",
+                       "restir-pt:candidates=4:visibility_reuse=final",
+                       "path:lights=lighttree", "path:directions=cdq")},
+    "vpl": {
+        "scenes": ("cornell-moving-box", "light-behind-glass"), "res": "32x18", "frames": 3, "seeds": 1,
+        "extras": (), "techniques": ("mir", "smcir", "tcas", "ir")},
 }
 PLUS = {"probe_counts": "4", "rays_per_probe": 32, "warmup": 2}
 """The DDGI+ volume's settings in the ``probes`` suite."""
