@@ -96,6 +96,7 @@ from ..backend import dr, mi
 from ..errors import DyngiError, unknown_choice
 from ..lights.nee import TracedNEE
 from ..sampling.diffuse import diffuse_albedo, front_wi, has_diffuse_lobe
+from ..scene.surface import shading_side
 from ..sampling.lights import EmitterSubsetSampling, sample_traced
 from ..sampling.passthrough import intersect_through_glass, scene_has_glass
 from ..sampling.rng import make_sampler
