@@ -23,7 +23,7 @@ SRC = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), 
 
 # layer of each top-level module/package of dyngi, lowest first (DESIGN.md, "Layout by concept")
 LAYERS = {
-    "errors": 0, "backend": 0, "timing": 0, "registry": 0, "color": 0, "__init__": 0,
+    "errors": 0, "backend": 0, "timing": 0, "registry": 0, "color": 0, "rays": 0, "__init__": 0,
     "metrics": 1, "sampling": 1,
     "scene": 2,
     "lights": 3, "directions": 3,
@@ -176,13 +176,13 @@ FUNCTION_IMPORTS_WHY: dict[str, str] = {
     "dyngi.color": "optional dependency: Mitsuba only for a Dr.Jit argument, so NumPy-only users (metrics) stay "
                    "free of the renderer",
     "dyngi.directions.base": "plug-in discovery: names() imports the package, which imports every direction sampler",
-    "dyngi.directions.walk": "optional module: dyngi.sampling.cdq imported only for kind='cdq', so that the techniques "
+    "dyngi.directions.walk": "optional module: dyngi.directions.cdq imported only for kind='cdq', so that the techniques "
                              "that use the walk load without it (tests/techniques/test_neept.py)",
     "dyngi.experiments.cluster": "worker set-up: a Ray worker loads this module and sets the driver's environment and "
                                  "variant before Dr.Jit loads, so no module that loads Dr.Jit is imported at its top",
     "dyngi.experiments.reproduce": "plug-in discovery: the reproductions register themselves with this module",
     "dyngi.lights.base": "plug-in discovery: the registry imports the package, which imports every light sampler",
-    "dyngi.techniques.neept": "optional module: directions=cdq fails with a clear error when dyngi.sampling.cdq "
+    "dyngi.techniques.neept": "optional module: directions=cdq fails with a clear error when dyngi.directions.cdq "
                               "cannot be imported (tests/techniques/test_neept.py)",
 }
 
@@ -273,3 +273,75 @@ def test_no_package_cycle():
     pruned = {a: {b for b in bs if (a, b) not in known_edges} for a, bs in graph.items()}
     cycles = _cycles(pruned)
     assert not cycles, f"import cycles among packages: {cycles}"
+
+
+# -- private names across packages ------------------------------------------------------------------
+
+def _private_uses(mod: str, path: str) -> list[tuple[str, str]]:
+    """``(module, name)`` for each private name (``_x``, not ``__x__``) that ``mod`` takes from a dyngi module of
+    another top-level package: ``from X import _x``, or ``M._x`` on a module ``M`` imported by name
+    (``import dyngi.X as M``, ``from dyngi import X as M``)."""
+    tree = ast.parse(open(path, encoding="utf-8").read(), path)
+    pkg = mod if path.endswith("__init__.py") else mod.rsplit(".", 1)[0]
+
+    def private(name: str) -> bool:
+        return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+    aliases: dict[str, str] = {}      # local name -> the dyngi module it binds
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.split(".")[0] == "dyngi":      # ``import dyngi.x.y`` binds ``dyngi``
+                    aliases[a.asname or "dyngi"] = a.name if a.asname else "dyngi"
+        elif isinstance(node, ast.ImportFrom):
+            target = _from_target(node, pkg)
+            if target.split(".")[0] != "dyngi":
+                continue
+            for a in node.names:
+                sub = f"{target}.{a.name}"
+                if _is_module(sub):
+                    aliases[a.asname or a.name] = sub
+                elif private(a.name) and _top(target) != _top(mod):
+                    out.append((target, a.name))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and private(node.attr):
+            base = node.value
+            dotted = []
+            while isinstance(base, ast.Attribute):
+                dotted.append(base.attr)
+                base = base.value
+            if isinstance(base, ast.Name) and base.id in aliases:
+                target = ".".join([aliases[base.id]] + dotted[::-1])
+                if _top(target) != _top(mod):
+                    out.append((target, node.attr))
+    return out
+
+
+def private_cross_package_uses() -> dict[str, list[tuple[str, str]]]:
+    """``{module: [(module, private name), ...]}`` over src/dyngi (modules with none left out)."""
+    out = {}
+    for mod, path in _modules():
+        uses = _private_uses(mod, path)
+        if uses:
+            out[mod] = uses
+    return out
+
+
+def test_no_private_cross_package_import():
+    """No module takes another package's private (``_x``) name: what a package shares it names publicly."""
+    got = private_cross_package_uses()
+    assert not got, "private names used across packages (make them public): " + "; ".join(
+        f"{m} uses {t}.{n}" for m, uses in sorted(got.items()) for t, n in uses)
+
+
+def test_private_checker_can_fail(tmp_path):
+    """The checker itself can fail: a from-import of another package's private name and an attribute access on an
+    imported module of another package are caught; the same package's private names are not."""
+    f = tmp_path / "x.py"
+    f.write_text("from ...probes.states import _cell_extents\nfrom .base import _helper\n"
+                 "from ...probes import accumulator as acc\nimport dyngi.probes.estimator\n"
+                 "def f():\n    return acc._count_sum, dyngi.probes.estimator._int_power_dr, acc.__name__\n")
+    got = sorted(_private_uses("dyngi.techniques.isddgi.x", str(f)))
+    assert got == [("dyngi.probes.accumulator", "_count_sum"), ("dyngi.probes.estimator", "_int_power_dr"),
+                   ("dyngi.probes.states", "_cell_extents")]

@@ -15,16 +15,56 @@ import numpy as np
 from .errors import DyngiError
 
 
+class _NoPaperValue:
+    """The paper gives no value for a setting of ours (:attr:`Param.paper`)."""
+    _instance = None
+
+    def __new__(cls):
+        if cls._instance is None:
+            cls._instance = super().__new__(cls)
+        return cls._instance
+
+    def __repr__(self) -> str:
+        return "NO_PAPER_VALUE"
+
+    def __reduce__(self):
+        return (_NoPaperValue, ())
+
+
+NO_PAPER_VALUE = _NoPaperValue()
+""":attr:`Param.paper` of a setting that is ours where the paper gives no value (no paper-literal row)."""
+
+
 @dataclass(frozen=True)
 class Param:
     """One declared setting: its default (whose type parses string values), a one-line doc, and optional
     ``choices`` / ``min`` / ``max``; :meth:`parse` raises one :class:`~dyngi.errors.DyngiError` naming the
-    parameter and what is valid."""
+    parameter and what is valid.
+
+    ``ours``: the setting (or its default) is our choice, not the paper's (issue 40): ``doc`` says why.
+    ``paper``: the value the paper gives for it (the *paper-literal* row of a claim sets it), or
+    :data:`NO_PAPER_VALUE` where the paper gives none (the setting gets no paper-literal row). A claim's
+    rows (:mod:`dyngi.experiments.claims`) are built from these marks: the default row, the paper-literal
+    row (every marked setting with a paper value at it), and one ablation row per such setting.
+    """
     default: Any
     doc: str = ""
     choices: tuple | None = None
     min: float | None = None
     max: float | None = None
+    ours: bool = False
+    paper: Any = NO_PAPER_VALUE
+
+    def __post_init__(self):
+        if self.paper is not NO_PAPER_VALUE and not self.ours:
+            raise ValueError("Param(paper=...) is only for a setting marked ours=True")
+        if self.ours and not self.doc:
+            raise ValueError("a Param marked ours=True needs a doc that says why")
+
+    @property
+    def has_paper_value(self) -> bool:
+        """Is this a setting of ours with a value the paper gives (an ablation row sets it)?"""
+        return self.ours and self.paper is not NO_PAPER_VALUE
 
     def parse(self, name: str, value):
         typ = type(self.default)

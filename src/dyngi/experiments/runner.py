@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import DyngiError
+from ..rays import counting
 from ..techniques.base import Frame, FrameResult
 
 BUDGETS = ("equal-frames", "equal-rays", "equal-time")
@@ -66,7 +67,9 @@ def run_sequence(scene, technique, frames: int, res: tuple[int, int], seed: int 
     once a target error is reached).
 
     A frame is *static* when the scene's signature equals the previous frame's (nothing moved); frame
-    0 never is. This is the only place that decides it.
+    0 never is. This is the only place that decides it. Every frame's ``stats['counted_rays']`` is the
+    number of rays the step traced through :mod:`dyngi.rays` (counted by the harness, not reported by the
+    technique; frame 0's warm-up included).
     """
     if times is not None:
         times = list(times)
@@ -86,8 +89,10 @@ def run_sequence(scene, technique, frames: int, res: tuple[int, int], seed: int 
             frame.time_budget_ms = tb
         prev_sig = sig
         w0 = time.perf_counter()
-        r: FrameResult = technique.step(frame)
+        with counting() as ledger:
+            r: FrameResult = technique.step(frame)
         wall = 1e3 * (time.perf_counter() - w0)
+        r.stats["counted_rays"] = ledger.total()     # every ray through dyngi.rays (issue 40), after the timing
         if not np.all(np.isfinite(r.image)):
             bad = int(np.sum(~np.isfinite(r.image)))
             r.stats["nonfinite_pixels"] = bad
