@@ -7,6 +7,8 @@ one-sphere Mitsuba scene, so the counted rays are the harness's, not the techniq
 """
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -158,3 +160,12 @@ def test_param_marks_are_checked():
         Param(1, "x", paper=2)                       # a paper value is only for a setting of ours
     with pytest.raises(ValueError):
         Param(1, ours=True)                          # ours needs its reason
+
+
+def test_a_scale_below_the_claims_need_is_undecided_whatever_the_intervals(fake):
+    claim = _claim("fake-claim:noise=0.5:trick=false")
+    small = dataclasses.replace(claim, needs={"frames": 30}, scale_ours={"frames": 3})
+    r = C.run_claim(small, _measure(fake))
+    assert r.verdict.word == "undecided" and r.verdict.rows["default"].meets
+    assert "frames 3 < 30" in r.verdict.conditions[0]
+    assert C.run_claim(small.at_scale(frames=30), _measure(fake)).verdict.word == "reproduced"

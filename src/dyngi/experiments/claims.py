@@ -159,6 +159,23 @@ class Claim:
     undecidable: str = ""
     declared_ratio: float | None = None
     """Under ``cost='declared'``: the rays of the technique over the baseline's that the paper states."""
+    needs: dict = field(default_factory=dict)
+    """The least scale that can decide the claim (``{key of scale_ours: number}``, e.g. frames that hold a
+    whole rotation of the uniform rays); a smaller ``scale_ours`` value makes the verdict ``undecided``."""
+
+    def scale_gaps(self) -> list:
+        """Why the declared scale cannot decide the claim (empty: it can)."""
+        out = [self.undecidable] if self.undecidable else []
+        for k, need in self.needs.items():
+            have = self.scale_ours.get(k)
+            if not isinstance(have, (int, float)) or have < need:
+                out.append(f"{k} {have} < {need} needed")
+        return out
+
+    def at_scale(self, **scale) -> "Claim":
+        """This claim at another scale of ours (the demo's, a quick run's): ``scale_ours`` updated."""
+        import dataclasses
+        return dataclasses.replace(self, scale_ours={**self.scale_ours, **scale})
 
     def __post_init__(self):
         if len(tuple(self.seeds)) < MIN_SEEDS:
@@ -272,8 +289,9 @@ def decide(claim: Claim, ratios: dict, quick: bool = False, rows: list | None = 
         conds.append("settings of ours without a paper value (at our default in every row): " + ", ".join(no_value))
     if "paper-literal" not in judged:
         conds.append("the default row is the paper-literal row (no marked setting with a paper value differs)")
-    if claim.undecidable:
-        return Verdict("undecided", [f"scale: {claim.undecidable}"] + conds, judged)
+    gaps = claim.scale_gaps()
+    if gaps:
+        return Verdict("undecided", ["scale cannot decide: " + "; ".join(gaps)] + conds, judged)
     if literal.meets:
         return Verdict("reproduced", conds, judged)
     if default.meets:
@@ -318,7 +336,8 @@ class ClaimResult:
         return {"claim": c.key, "paper": c.paper, "quote": c.quote, "where": c.where, "technique": c.technique,
                 "baseline": c.baseline, "metric": c.metric, "cost_rule": c.cost, "cost_note": c.cost_note,
                 "criterion": c.criterion.text(), "confidence": CONFIDENCE, "seeds": list(c.seeds),
-                "scale": {"paper": c.scale_paper, "ours": c.scale_ours}, "undecidable": c.undecidable,
+                "scale": {"paper": c.scale_paper, "ours": c.scale_ours, "needs": c.needs},
+                "scale_gaps": c.scale_gaps(),
                 "verdict": self.verdict.word, "conditions": self.verdict.conditions,
                 "rows": [{"label": r.label, "role": r.role, "spec": r.spec, "param": r.param,
                           "judged": (self.verdict.rows[r.label].as_json() if r.label in self.verdict.rows else None),
@@ -346,9 +365,10 @@ class ClaimResult:
                 continue
             out.append(f"| {r.label} | `{r.spec}` | {j.ratio:.3g} | [{j.interval[0]:.3g}, {j.interval[1]:.3g}] "
                        f"| {j.word()} | {j.n} |")
-        keys = list(dict.fromkeys([*c.scale_paper, *c.scale_ours]))
-        out += ["", "| scale | paper | ours |", "|---|---|---|"]
-        out += [f"| {k} | {c.scale_paper.get(k, '-')} | {c.scale_ours.get(k, '-')} |" for k in keys]
+        keys = list(dict.fromkeys([*c.scale_paper, *c.scale_ours, *c.needs]))
+        out += ["", "| scale | paper | ours | needed to decide |", "|---|---|---|---|"]
+        out += [f"| {k} | {c.scale_paper.get(k, '-')} | {c.scale_ours.get(k, '-')} | {c.needs.get(k, '')} |"
+                for k in keys]
         return out + [""]
 
 
@@ -378,6 +398,51 @@ def run_claim(claim: Claim, measure: Callable, quick: bool = False, seeds=None) 
     return ClaimResult(claim, rows, meas, cost, decide(claim, ratios, quick, rows))
 
 
+def frame_rays(stats: list) -> list:
+    """The rays of every frame from frame 0 as the harness counted them (``counted_rays``, :mod:`dyngi.rays`)."""
+    return [int(st.get("counted_rays", 0)) for st in stats]
+
+
+def run_on_harness(claims: list, scene_name: str, frames: int, res, ref_spp: int, out_dir: str, metric: Callable,
+                   quick: bool = False, quiet: bool = True, budget: str = "equal-frames", ref_depth=None,
+                   indirect: bool = False, scene_factory: Callable | None = None, seeds=None,
+                   on_seed: Callable | None = None) -> list:
+    """Decide ``claims`` that share one scene and protocol from comparison runs of the shared harness.
+
+    Per seed, one :func:`~dyngi.experiments.compare.prepare` / ``execute`` of every claim's rows (the
+    baseline first: under ``equal-rays`` it sets the per-frame budget), the reference cached and shared by
+    the seeds; ``metric(claim, rs, label) -> float`` reads a row's value from ``execute``'s result;
+    ``on_seed(seed, run, rs)`` (e.g. the first seed's report) is called after each seed. Returns the
+    :class:`ClaimResult` list.
+    """
+    from .compare import execute, prepare
+
+    seeds = tuple(claims[0].seeds if seeds is None else seeds)
+    specs: list = []
+    for c in claims:
+        rows = claim_rows(c, quick)
+        for r in [x for x in rows if x.role == "baseline"] + [x for x in rows if x.role != "baseline"]:
+            if r.spec not in specs:
+                specs.append(r.spec)
+    by_seed = {}
+    for s in seeds:
+        scene = scene_factory() if scene_factory is not None else None
+        run = prepare(scene_name, specs, out_dir, frames, budget, ref_spp, {}, ["mse", "relmse", "ssim"],
+                      ref_depth, indirect, scene=scene, tracked=False)
+        rs = execute(run, res, seed=int(s), quiet=quiet)
+        if on_seed is not None:
+            on_seed(int(s), run, rs)
+        by_seed[int(s)] = rs
+    out = []
+    for c in claims:
+        def measure(row, seed, base, c=c):
+            rs = by_seed[seed]
+            return Measurement(float(metric(c, rs, row.spec)), frame_rays(rs["results"][row.spec].stats),
+                               resolved_params(row.spec))
+        out.append(run_claim(c, measure, quick, seeds))
+    return out
+
+
 def verdict_table(results: list) -> list[str]:
     """One markdown table: claim, where, verdict word, conditions (the top of a reproduction's summary)."""
     out = ["| claim | paper | verdict | conditions |", "|---|---|---|---|"]
@@ -401,5 +466,5 @@ def resolved_params(spec_text: str) -> dict:
 
 __all__ = ["CONFIDENCE", "COST_RULES", "Claim", "ClaimCostError", "ClaimResult", "Criterion", "Judgement",
            "MAX_OVERSPEND", "MIN_SEEDS", "Measurement", "NO_PAPER_VALUE", "QUICK", "Row", "VERDICTS", "Verdict",
-           "check_cost", "claim_rows", "claims_json", "decide", "marked_params", "resolved_params", "run_claim",
+           "check_cost", "claim_rows", "claims_json", "decide", "frame_rays", "run_on_harness", "marked_params", "resolved_params", "run_claim",
            "verdict_table"]
