@@ -83,10 +83,11 @@ class Criterion:
             raise ValueError("an equivalence margin must be > 1 (e.g. 1.15)")
 
     def text(self) -> str:
+        t = f"1/{1 / self.threshold:.3g}" if self.threshold < 1 else f"{self.threshold:.3g}"
         if self.kind == "below":
-            return f"ratio < {self.threshold:g}"
+            return f"ratio < {t}"
         if self.kind == "above":
-            return f"ratio > {self.threshold:g}"
+            return f"ratio > {t}"
         return f"ratio within [{1 / self.threshold:.3g}, {self.threshold:g}] (equivalence)"
 
     def judge(self, ratios) -> "Judgement":
@@ -406,13 +407,14 @@ def frame_rays(stats: list) -> list:
 def run_on_harness(claims: list, scene_name: str, frames: int, res, ref_spp: int, out_dir: str, metric: Callable,
                    quick: bool = False, quiet: bool = True, budget: str = "equal-frames", ref_depth=None,
                    indirect: bool = False, scene_factory: Callable | None = None, seeds=None,
-                   on_seed: Callable | None = None) -> list:
+                   on_seed: Callable | None = None, metrics=("mse", "relmse", "ssim")) -> list:
     """Decide ``claims`` that share one scene and protocol from comparison runs of the shared harness.
 
     Per seed, one :func:`~dyngi.experiments.compare.prepare` / ``execute`` of every claim's rows (the
     baseline first: under ``equal-rays`` it sets the per-frame budget), the reference cached and shared by
     the seeds; ``metric(claim, rs, label) -> float`` reads a row's value from ``execute``'s result;
-    ``on_seed(seed, run, rs)`` (e.g. the first seed's report) is called after each seed. Returns the
+    ``on_seed(seed, run, rs)`` (e.g. the first seed's report) is called after each seed; ``metrics``: the
+    harness's per-frame metrics. Returns the
     :class:`ClaimResult` list.
     """
     from .compare import execute, prepare
@@ -427,7 +429,7 @@ def run_on_harness(claims: list, scene_name: str, frames: int, res, ref_spp: int
     by_seed = {}
     for s in seeds:
         scene = scene_factory() if scene_factory is not None else None
-        run = prepare(scene_name, specs, out_dir, frames, budget, ref_spp, {}, ["mse", "relmse", "ssim"],
+        run = prepare(scene_name, specs, out_dir, frames, budget, ref_spp, {}, list(metrics),
                       ref_depth, indirect, scene=scene, tracked=False)
         rs = execute(run, res, seed=int(s), quiet=quiet)
         if on_seed is not None:
