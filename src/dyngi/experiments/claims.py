@@ -277,20 +277,28 @@ class Verdict:
 
 def decide(claim: Claim, ratios: dict, quick: bool = False, rows: list | None = None) -> Verdict:
     """The verdict word from per-seed ratios ``{row label: [ratio per seed]}`` (module docstring); ``rows``
-    (default :func:`claim_rows`) name the settings each row sets."""
+    (default :func:`claim_rows`) name the settings each row sets. A row of the full set that was not run
+    (a paper-literal or ablation row), or fewer than :data:`MIN_SEEDS` seeds, makes the verdict undecided."""
     rows = claim_rows(claim, quick) if rows is None else rows
     judged = {label: claim.criterion.judge(r) for label, r in ratios.items()}
     conds = []
+    gaps = claim.scale_gaps()
+    n = min((j.n for j in judged.values()), default=0)
+    if n < MIN_SEEDS:
+        gaps.append(f"seeds {n} < {MIN_SEEDS}")
+    missing = [r.label for r in claim_rows(claim) if r.role in ("paper-literal", "ablation") and r.label not in judged]
     if quick:
-        return Verdict(QUICK, ["--quick runs the default and baseline rows only"], judged)
+        return Verdict(QUICK, ["--quick runs the default and baseline rows only"]
+                       + (["scale cannot decide: " + "; ".join(gaps)] if gaps else []), judged)
+    if missing:
+        gaps.append("rows not run: " + ", ".join(missing))
     default = judged["default"]
     literal = judged.get("paper-literal", default)
     no_value = [k for k, p in marked_params(claim.technique).items() if not p.has_paper_value]
     if no_value:
         conds.append("settings of ours without a paper value (at our default in every row): " + ", ".join(no_value))
-    if "paper-literal" not in judged:
+    if "paper-literal" not in judged and not missing:
         conds.append("the default row is the paper-literal row (no marked setting with a paper value differs)")
-    gaps = claim.scale_gaps()
     if gaps:
         return Verdict("undecided", ["scale cannot decide: " + "; ".join(gaps)] + conds, judged)
     if literal.meets:
