@@ -407,6 +407,28 @@ def run_claim(claim: Claim, measure: Callable, quick: bool = False, seeds=None) 
     return ClaimResult(claim, rows, meas, cost, decide(claim, ratios, quick, rows))
 
 
+def result_from_values(claim: Claim, values: dict, quick: bool = False) -> ClaimResult:
+    """A claim decided from values a reproduction measured with its own protocol: ``values`` is
+    ``{row label ('default', 'paper-literal', 'ablation: ...', 'baseline'): {seed: value}}`` (a missing or
+    non-finite value: that seed decides nothing). Rows the reproduction did not run stay out, and
+    :func:`decide` says so (``rows not run``)."""
+    rows = [r for r in claim_rows(claim, quick) if r.label in values]
+    base = values["baseline"]
+    seeds = sorted(base)
+
+    def ratio(a, b):
+        try:
+            q = float(a) / float(b)
+        except (TypeError, ValueError, ZeroDivisionError):
+            return float("nan")
+        return q
+    meas = {r.label: {int(s): Measurement(float("nan") if v is None else float(v), [], resolved_params(r.spec))
+                      for s, v in values[r.label].items()} for r in rows}
+    ratios = {r.label: [q for q in (ratio(values[r.label].get(s), base[s]) for s in seeds) if np.isfinite(q)]
+              for r in rows if r.role != "baseline"}
+    return ClaimResult(claim, rows, meas, {}, decide(claim, ratios, quick, rows))
+
+
 def frame_rays(stats: list) -> list:
     """The rays of every frame from frame 0 as the harness counted them (``counted_rays``, :mod:`dyngi.rays`)."""
     return [int(st.get("counted_rays", 0)) for st in stats]
@@ -476,5 +498,5 @@ def resolved_params(spec_text: str) -> dict:
 
 __all__ = ["CONFIDENCE", "COST_RULES", "Claim", "ClaimCostError", "ClaimResult", "Criterion", "Judgement",
            "MAX_OVERSPEND", "MIN_SEEDS", "Measurement", "NO_PAPER_VALUE", "QUICK", "Row", "VERDICTS", "Verdict",
-           "check_cost", "claim_rows", "claims_json", "decide", "frame_rays", "run_on_harness", "marked_params", "resolved_params", "run_claim",
+           "check_cost", "claim_rows", "claims_json", "decide", "frame_rays", "result_from_values", "run_on_harness", "marked_params", "resolved_params", "run_claim",
            "verdict_table"]
