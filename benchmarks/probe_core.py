@@ -29,7 +29,7 @@ from dyngi.backend import mi
 def update_cost(frames: int, before: bool) -> list:
     from dyngi.scene import load_scene
     from dyngi.techniques.base import Frame, create_technique
-    from dyngi.probes.update import UPDATE_STAGES
+    from dyngi.probes.pipeline import UPDATE_STAGES
     sc = load_scene("cornell-static")
     res = (160, 90)
     rows = []

@@ -24,7 +24,7 @@ import numpy as np
 from dyngi.backend import device_info, dr, mi, set_device
 from dyngi.errors import DyngiError
 from dyngi.probes import ProbeGrid, ProbeVolume, UniformSFDirections
-from dyngi.probes.update import UPDATE_STAGES
+from dyngi.probes.pipeline import UPDATE_STAGES
 from dyngi.scene import load_scene
 from dyngi.sampling.rng import make_sampler
 from dyngi.techniques.base import Frame, create_technique
@@ -56,7 +56,7 @@ def raw_intersect_timers(scene, tech):
     inside walls) are cheaper and would flatter the raw rate.
     """
     vol = tech.volume
-    plan = tech.directions.plan(5, 0, vol.active_indices())
+    plan = tech.pipeline.planner.plan(5, 0, vol.active_indices())
     origin = dr.gather(mi.Point3f, vol.device.positions, plan.probe)
     ray = mi.Ray3f(origin, plan.direction)
     dr.eval(ray)
@@ -155,7 +155,7 @@ def probe_query_time(scene, tech, reps: int, stochastic: bool) -> float:
     """Seconds for the multi-bounce probe lookups alone at the front-face hits of one frame's probe rays:
     ``stochastic`` one texel of one probe (the ``ddgi`` default at hits) or the full 8-probe filter."""
     vol = tech.volume
-    plan = tech.directions.plan(5, 0, vol.active_indices())
+    plan = tech.pipeline.planner.plan(5, 0, vol.active_indices())
     origin = dr.gather(mi.Point3f, vol.device.positions, plan.probe)
     ray = mi.Ray3f(origin, plan.direction)
     si = scene.mi_scene.ray_intersect(ray, mi.RayFlags.All, False)

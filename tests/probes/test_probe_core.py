@@ -6,7 +6,7 @@ import pytest
 from dyngi.backend import dr, mi
 from dyngi.errors import DyngiError
 from dyngi.probes import (DiffuseHitShader, HysteresisBlend, MatrixEstimator, CappedMeanBlend, ProbeBlend,
-                          ProbeGrid, ProbeQuery, ProbeUpdater, ProbeVolume, RayPlan, ScatterEstimator,
+                          ProbeGrid, ProbeQuery, ProbePipeline, ProbeVolume, RayPlan, ScatterEstimator,
                           TrueAverage, UniformSFDirections)
 from dyngi.probes.arrays import upload
 from dyngi.probes.accumulator import MeanAccumulator
@@ -95,7 +95,7 @@ def test_planner_receives_previous_results():
             seen.append(previous)
             return super().plan(frame, seed, probe_ids)
 
-    up = ProbeUpdater(vol, Recording(16), DiffuseHitShader(), HysteresisBlend(), None, ProbeQuery(vol))
+    up = ProbePipeline(vol, Recording(16), DiffuseHitShader(), HysteresisBlend(), None, ProbeQuery(vol))
     up.update(sc, 0, 0)
     up.update(sc, 1, 0)
     assert seen[0] is None

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from dyngi.backend import dr, mi
-from dyngi.probes import (DiffuseHitShader, HysteresisBlend, ProbeGrid, ProbeQuery, ProbeStates, ProbeUpdater,
+from dyngi.probes import (DiffuseHitShader, HysteresisBlend, ProbeGrid, ProbeQuery, ProbeStates, ProbePipeline,
                           ProbeVolume, UniformSFDirections)
 from dyngi.sampling.fibonacci import coherent_order, spherical_fibonacci_np
 from dyngi.sampling.rng import make_sampler
@@ -18,7 +18,7 @@ def cornell_volume():
     sc = load_scene("cornell-static")
     vol = ProbeVolume(ProbeGrid.from_scene(sc, (5, 5, 5)))
     q = ProbeQuery(vol)
-    up = ProbeUpdater(vol, UniformSFDirections(64), DiffuseHitShader(), HysteresisBlend(0.5), ProbeStates(), q)
+    up = ProbePipeline(vol, UniformSFDirections(64), DiffuseHitShader(), HysteresisBlend(0.5), ProbeStates(), q)
     for f in range(6):
         up.update(sc, f, 0)
     plan = UniformSFDirections(64).plan(9, 1, vol.active_indices())

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from dyngi.backend import dr, mi
-from dyngi.probes import (DiffuseHitShader, HysteresisBlend, ProbeGrid, ProbeQuery, ProbeStates, ProbeUpdater,
+from dyngi.probes import (DiffuseHitShader, HysteresisBlend, ProbeGrid, ProbeQuery, ProbeStates, ProbePipeline,
                           ProbeVolume, UniformSFDirections, blend_matrix, get_encoding)
 from dyngi.probes.encoding import (IRR_BETA, IRR_GAMMA, SQ_BETA, SQ_GAMMA, ADGIEncoding, QDDGIEncoding,
                                    log_dequantize, log_quantize, log_requantize_dr, log_step)
@@ -14,12 +14,12 @@ from dyngi.scene.geometry import box, diffuse, quad
 from helpers import assert_steady_state_compiles_nothing
 
 
-def make_updater(scene, counts=None, rays=256, hysteresis=0.97, direct="sky", gamma=5.0, states=True,
+def make_pipeline(scene, counts=None, rays=256, hysteresis=0.97, direct="sky", gamma=5.0, states=True,
                  encoding="fp32", **kw):
     vol = ProbeVolume(ProbeGrid.from_scene(scene, counts), **kw)
     q = ProbeQuery(vol)
     st = ProbeStates() if states else None
-    up = ProbeUpdater(vol, UniformSFDirections(rays), DiffuseHitShader(direct),
+    up = ProbePipeline(vol, UniformSFDirections(rays), DiffuseHitShader(direct),
                       HysteresisBlend(hysteresis, irradiance_gamma=gamma, encoding=encoding), st, q)
     return vol, q, up
 
@@ -134,7 +134,7 @@ def test_blend_of_constant_radiance_is_exact():
 def test_furnace_probes_converge_to_pi_L():
     """Closed sphere, albedo 0.5, emission 0.5 -> radiance 1: texels store E/pi = 1, the query returns pi."""
     sc = load_scene("furnace")
-    vol, q, up = make_updater(sc, rays=128, hysteresis=0.5, direct="emissive", states=False)
+    vol, q, up = make_pipeline(sc, rays=128, hysteresis=0.5, direct="emissive", states=False)
     run(up, sc, 40)
     irr = vol.state.irradiance
     assert np.all(np.isfinite(irr))
@@ -151,7 +151,7 @@ def test_furnace_probes_converge_to_pi_L():
 def test_furnace_nee_split_stores_reflected_light_only():
     """With NEE owning the emitter, the probes hold the light reflected at least once: L - Le = 0.5."""
     sc = load_scene("furnace")
-    vol, q, up = make_updater(sc, rays=128, hysteresis=0.5, direct="nee", states=False, gamma=1.0)
+    vol, q, up = make_pipeline(sc, rays=128, hysteresis=0.5, direct="nee", states=False, gamma=1.0)
     run(up, sc, 40)
     assert abs(vol.state.irradiance.mean() - 0.5) < 0.02
     assert np.max(np.abs(vol.state.irradiance - 0.5)) < 0.06   # NEE noise (one shadow ray per hit)
@@ -180,7 +180,7 @@ def _brute_force_texel(scene, pos, n, spp=1 << 15, seed=5):
 def test_cornell_probes_converge_to_monte_carlo():
     sc = load_scene("cornell-static")
     # NEE owns the light: the probes hold the reflected light (DDGI's split); linear blend (no perceptual bias)
-    vol, q, up = make_updater(sc, counts=(4, 4, 4), rays=256, hysteresis=0.9, gamma=1.0, direct="nee",
+    vol, q, up = make_pipeline(sc, counts=(4, 4, 4), rays=256, hysteresis=0.9, gamma=1.0, direct="nee",
                               states=False)
     run(up, sc, 40)
     acc = np.zeros_like(vol.state.irradiance, dtype=np.float64)
@@ -229,7 +229,7 @@ def two_rooms_scene():
 
 def test_light_does_not_leak_into_the_dark_room():
     sc = two_rooms_scene()
-    vol, q, up = make_updater(sc, rays=128, hysteresis=0.8)
+    vol, q, up = make_pipeline(sc, rays=128, hysteresis=0.8)
     run(up, sc, 25)
     rng = np.random.default_rng(1)
     n = 4000
@@ -266,7 +266,7 @@ def solid_and_wall_scene():
 
 def test_classification_and_relocation():
     sc = solid_and_wall_scene()
-    vol, q, up = make_updater(sc, rays=128, direct="emissive")
+    vol, q, up = make_pipeline(sc, rays=128, direct="emissive")
     base = vol.grid.base_positions()
     buried = np.all((base > [-1.9, 0.05, -1.9]) & (base < [-0.1, 1.9, -0.1]), axis=1)
     deep = buried & np.all((base > [-1.9 + 0.3, 0.05 + 0.3, -1.9 + 0.3]) & (base < [-0.1 - 0.3, 1.9 - 0.3, -0.1 - 0.3]), axis=1)
@@ -290,7 +290,7 @@ def test_classification_and_relocation():
 @pytest.mark.parametrize("name", ["cornell-moving-light", "cornell-moving-box"])
 def test_no_nan_over_frames_fast(name):
     sc = load_scene(name)
-    vol, q, up = make_updater(sc, counts=(5, 5, 5), rays=64, encoding="qddgi" if "box" in name else "fp32")
+    vol, q, up = make_pipeline(sc, counts=(5, 5, 5), rays=64, encoding="qddgi" if "box" in name else "fp32")
     for f in range(30):
         sc.at(sc.frame_time(f))
         up.update(sc, f, 0)
@@ -300,7 +300,7 @@ def test_no_nan_over_frames_fast(name):
 
 def test_steady_state_update_compiles_no_new_kernels():
     sc = load_scene("cornell-moving-light")
-    vol, q, up = make_updater(sc, counts=(4, 4, 4), rays=64)
+    vol, q, up = make_pipeline(sc, counts=(4, 4, 4), rays=64)
 
     def step(f):
         sc.at(sc.frame_time(f))
@@ -315,7 +315,7 @@ def test_state_summaries_drjit_match_numpy():
     from dyngi.probes.states import _summaries_drjit, _summaries_numpy
 
     sc = load_scene("cornell-static")
-    vol, _, _ = make_updater(sc, counts=(4, 4, 4), rays=64)
+    vol, _, _ = make_pipeline(sc, counts=(4, 4, 4), rays=64)
     rng = np.random.default_rng(5)
     pid = np.arange(vol.n_probes)
     dirs = rng.normal(size=(64, 3)).astype(np.float32)
@@ -363,7 +363,7 @@ def test_upload_copies_and_does_not_depend_on_numpy_alignment():
 
 def test_host_copy_follows_the_device_after_blends():
     sc = load_scene("cornell-static")
-    vol, q, up = make_updater(sc, counts=(4, 4, 4), rays=64)
+    vol, q, up = make_pipeline(sc, counts=(4, 4, 4), rays=64)
     for f in range(3):
         up.update(sc, f, 0)
         host = vol.state.irradiance          # refreshed lazily from the device atlas
@@ -393,7 +393,7 @@ def test_blas_threads_limited_beside_drjit(env):
 
 def test_query_symbolic_loop_matches_unrolled():
     sc = load_scene("cornell-static")
-    vol, q, up = make_updater(sc, counts=(4, 4, 4), rays=64)
+    vol, q, up = make_pipeline(sc, counts=(4, 4, 4), rays=64)
     run(up, sc, 3)
     rng = np.random.default_rng(3)
     lo, hi = np.array(sc.mi_scene.bbox().min), np.array(sc.mi_scene.bbox().max)

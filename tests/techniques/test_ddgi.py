@@ -242,7 +242,7 @@ def test_shadow_rays_are_counted_as_cast():
     res = (32, 24)
     r = run(tech, sc, 2, res=res)
     rays = r.stats["rays"]
-    dist = np.asarray(tech.updater.last_results.distance)
+    dist = np.asarray(tech.pipeline.last_results.distance)
     front = np.isfinite(dist) & (dist > 0)
     assert rays["trace probes"] == dist.size
     # the box is open towards the camera: some probe rays miss, and cast no shadow ray

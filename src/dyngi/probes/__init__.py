@@ -27,7 +27,6 @@ and around them:
 * :mod:`.primary`   -- the consumer: primary-vertex shading, NEE direct + probe indirect (:func:`shade_primary`)
 * :mod:`.ddgi_plus` -- the DDGI+ volume of DDGI Resampling (Eq. 5 update, Eq. 6 queries)
 * :mod:`.debug`     -- a view of the probes as shaded spheres (:func:`render_probe_view`)
-* :mod:`.update`    -- the former name of the pipeline (:class:`ProbeUpdater` is :class:`ProbePipeline`)
 """
 from .accumulator import HysteresisAccumulator, MeanAccumulator, CappedMeanAccumulator
 from .blend import HysteresisBlend, CappedMeanBlend, ProbeBlend, TrueAverage, blend_matrix
@@ -41,13 +40,12 @@ from .trace import DIRECT_MODES, HIT_LOOKUPS, DiffuseHitShader, trace_probe_rays
 from .primary import shade_primary
 from .debug import render_probe_view
 from .pipeline import ProbePipeline, probes_in_frustum
-from .update import ProbeUpdater
 from .volume import ProbeVolume, ProbeVolumeState
 
 __all__ = ["ProbeGrid", "ProbeVolume", "ProbeVolumeState", "ProbeQuery", "UniformSFDirections",
            "FixedSFDirections", "LobeDirections", "RayPlan", "DiffuseHitShader", "trace_probe_rays",
            "HysteresisBlend", "TrueAverage", "blend_matrix", "ProbeBlend", "CappedMeanBlend",
            "HysteresisAccumulator", "CappedMeanAccumulator", "MeanAccumulator", "MatrixEstimator",
-           "ScatterEstimator", "TexelEstimate", "ProbeStates", "ProbePipeline", "ProbeUpdater",
+           "ScatterEstimator", "TexelEstimate", "ProbeStates", "ProbePipeline",
            "probes_in_frustum", "ENCODINGS", "get_encoding", "DIRECT_MODES", "HIT_LOOKUPS", "PROBE_ACTIVE",
            "PROBE_INACTIVE", "shade_primary", "render_probe_view"]

@@ -70,11 +70,11 @@ class HysteresisAccumulator:
         delta = dr.select(bright, delta * BRIGHTNESS_DAMPING, delta)
         res_g = dr.maximum(old_g + (1.0 - hh) * delta, 0.0)
         res = dr.select(res_g > 0.0, dr.power(res_g, g), 0.0)
-        return res, _count_sum(n_old, m, fresh, cap)
+        return res, count_sum(n_old, m, fresh, cap)
 
     def distance(self, old, new, n_old, m, fresh, cap: int):
         hd = dr.select(fresh, 0.0, dr.opaque(mi.Float, self.hysteresis))
-        return dr.fma(1.0 - hd, new - old, old), _count_sum(n_old, m, fresh, cap)
+        return dr.fma(1.0 - hd, new - old, old), count_sum(n_old, m, fresh, cap)
 
 
 class CappedMeanAccumulator:
@@ -100,7 +100,7 @@ class CappedMeanAccumulator:
             keep *= dr.select(rest > 0.0, dr.exp(rest * float(np.log1p(-1.0 / capf))), 1.0)
         else:
             keep = dr.select(rest > 0.0, 0.0, keep)
-        return old + (1.0 - keep) * (new - old), _count_sum(n_old, m, fresh, cap)
+        return old + (1.0 - keep) * (new - old), count_sum(n_old, m, fresh, cap)
 
     irradiance = _blend
     distance = _blend
@@ -125,7 +125,7 @@ class MeanAccumulator:
     distance = _blend
 
 
-def _count_sum(n_old, m, fresh, cap: int):
+def count_sum(n_old, m, fresh, cap: int):
     n0 = dr.select(fresh, 0, n_old)
     return dr.minimum(n0 + m, cap)
 

@@ -226,7 +226,7 @@ class MatrixEstimator:
 
 # -- scatter path (any plan, any backend) ------------------------------------------
 
-def _int_power_dr(c, p: float):
+def int_power_dr(c, p: float):
     """Dr.Jit ``c ** p`` (``c >= 0``); integer powers by repeated squaring."""
     if p == 1.0:
         return c
@@ -330,7 +330,7 @@ class ScatterEstimator:
             d = dr.gather(mi.Vector3f, plan.direction, r)
             nt = dr.gather(mi.Vector3f, _texel_directions_dr(texels), t)
             c = dr.dot(d, nt)
-            w = dr.select(c > _cosine_cut(power), _int_power_dr(dr.maximum(c, 0.0), power), 0.0)
+            w = dr.select(c > _cosine_cut(power), int_power_dr(dr.maximum(c, 0.0), power), 0.0)
             if plan.weight is not None:
                 w = w * dr.gather(mi.Float, plan.weight, r)
             entry = dr.gather(mi.UInt32, plan.slot, r) * T2 + t

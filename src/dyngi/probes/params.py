@@ -2,18 +2,21 @@
 
 :data:`COMMON_SPECS` (grid, query biases, light routing, primary shading: every probe technique),
 :data:`LIGHT_SPECS` (the light sampler of the probe techniques' NEE; apart, because the DDGI+ volume's
-table, :func:`dyngi.probes.ddgi_plus.plus_params`, is built from :data:`COMMON_SPECS` and the DDGI
-Resampling family has a ``lights=`` of its own) and
-:data:`DDGI_SPECS` (DDGI's probe update, Majercik et al., JCGT 2019 and 2021) are plain keyword dicts
-``{name: dict(default=, doc=, choices=, min=, max=)}``; the technique layer turns them into its
-``Param`` entries (:mod:`dyngi.techniques.probe_base`), and the DDGI+ volume validates its parameters
-against the same table (:func:`dyngi.probes.ddgi_plus.plus_params`). Keeping them here lets
-:mod:`dyngi.probes` hold the table without importing a technique.
+table is built from :data:`COMMON_SPECS` and the DDGI Resampling family has a ``lights=`` of its own),
+:data:`DDGI_SPECS` (DDGI's probe update, Majercik et al., JCGT 2019 and 2021) and :data:`PLUS_SPECS`
+(the DDGI+ update's own, Majercik et al. 2022, Sec. 3.3-3.5) are plain keyword dicts
+``{name: dict(default=, doc=, choices=, min=, max=)}``. :data:`DDGI_PLUS_SPECS` is the DDGI+ volume's
+table (:class:`dyngi.probes.ddgi_plus.DDGIPlusVolume`): ``ddgi``'s less primary shading, plus
+:data:`PLUS_SPECS`. The technique layer turns them into its ``Param`` entries
+(:func:`dyngi.techniques.probe_base.params_from`); the DDGI+ volume validates its parameters against the
+same table (:func:`parse_params`). Keeping them here lets :mod:`dyngi.probes` hold the table without
+importing a technique.
 """
 from __future__ import annotations
 
 from .. import lights as light_samplers
 from ..errors import DyngiError
+from ..registry import Param
 from .trace import (DEFAULT_DIRECT, DEFAULT_HIT_LOBES, DEFAULT_TWO_SIDED, DIRECT_MODES, HIT_LOBES,
                     HIT_LOOKUPS, TWO_SIDED_RULES)
 
@@ -107,3 +110,45 @@ DDGI_SPECS = {
     "classify": spec(True, "deactivate probes inside geometry or far from any surface"),
     "reclassify_interval": spec(8, "frames between re-tests of inactive probes (0: never)", min=0),
 }
+
+
+# -- the DDGI+ volume (DDGI Resampling, Majercik et al. 2022; dyngi.probes.ddgi_plus) --
+ATTENUATIONS = ("ratio", "inverse-square", "none")
+DEFAULT_ATTENUATION = "ratio"
+DEFAULT_EMISSION_SCALE = 1.0
+DEFAULT_UPDATE_VIEW_PATH_BIAS = 0.0
+"""Sec. 3.5's offset at probe-ray hits, in smallest probe spacings; 0 (none) by default, our choice by
+measurement: 0.2 (the secondary-vertex shading's factor) over-lights the two-storey stair hall by 13 %
+against Mitsuba (0 by 3 %) and does not lower the per-frame error (docs/techniques/ddgi-resampling.md)."""
+
+PLUS_SPECS = {
+    "emission_attenuation": spec(DEFAULT_ATTENUATION, "DDGI+ emission heuristic (Sec. 3.3): 'ratio' "
+                                 "(t/(t+d))^2 (decided by test), 'inverse-square' 1/(t+d)^2, 'none'",
+                                 choices=ATTENUATIONS),
+    "emission_scale": spec(DEFAULT_EMISSION_SCALE, "user scale of the attenuated emission (the paper's "
+                           "slider)", min=0.0, max=1e6),
+    "probe_glossy": spec(True, "glossy term of Eq. 6 at probe-ray hits"),
+    "update_view_path_bias": spec(DEFAULT_UPDATE_VIEW_PATH_BIAS, "Sec. 3.5 at probe-ray hits: the previous "
+                                  "probes are read this many smallest probe spacings back along the probe "
+                                  "ray (at most half of it) instead of at the hit with DDGI's normal/view "
+                                  "offsets; 0 (default, measured): at the hit with the query's offsets",
+                                  min=0.0, max=10.0),
+}
+
+PRIMARY_SHADING_KEYS = ("jitter", "direct_samples", "encoding", "glossy")
+"""``ddgi``'s parameters of primary shading and storage, which the DDGI+ volume has not (fp32 texels)."""
+
+DDGI_PLUS_SPECS = {**{k: v for k, v in {**COMMON_SPECS, **DDGI_SPECS}.items() if k not in PRIMARY_SHADING_KEYS},
+                   **PLUS_SPECS}
+"""The DDGI+ volume's parameters: ``ddgi``'s probe parameters less :data:`PRIMARY_SHADING_KEYS`, plus
+:data:`PLUS_SPECS`."""
+
+
+def parse_params(specs: dict, params: dict | None, what: str) -> dict:
+    """Validated values of ``params`` against ``specs`` (this module's tables), missing keys at their defaults;
+    an unknown key raises a :class:`~dyngi.errors.DyngiError` naming ``what`` and the valid keys."""
+    params = dict(params or {})
+    unknown = [k for k in params if k not in specs]
+    if unknown:
+        raise DyngiError(f"unknown {what} parameter '{unknown[0]}'; valid: {', '.join(sorted(specs))}")
+    return {k: (Param(**v).parse(k, params[k]) if k in params else v["default"]) for k, v in specs.items()}

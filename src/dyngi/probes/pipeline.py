@@ -80,6 +80,9 @@ class ProbePipeline:
     trace_inactive : bool = False trace every probe (the reference), not only the active ones
     streams : (int, int) = (11, 12)  random streams of the irradiance and distance traces
     plan_stage : str | None = None   timer stage of the planner (None: untimed; IS-DDGI: 'plan')
+    warmup : int = 0              updates of :meth:`step`'s warm-up (on its first call)
+    update_offscreen : bool = True   False: :meth:`step` updates only the probes in the extended camera
+                                  frustum (:func:`probes_in_frustum`; Q-DDGI)
 
     Optional hook of a shader: ``prepare(plan)`` before the plan is traced and ``prepare(None)`` after
     (IS-DDGI's per-ray shading keys).
@@ -88,7 +91,7 @@ class ProbePipeline:
     def __init__(self, volume: ProbeVolume, planner, shader, blender, states: ProbeStates | None = None,
                  query=None, reclassify_interval: int = 8, classify_rays: int = 32, distance_planner=None,
                  state_rays: str = "update", trace_inactive: bool = False, streams: tuple = (11, 12),
-                 plan_stage: str | None = None):
+                 plan_stage: str | None = None, warmup: int = 0, update_offscreen: bool = True):
         check_part("planner", planner)
         check_part("shader", shader)
         if state_rays not in STATE_RAYS:
@@ -106,18 +109,15 @@ class ProbePipeline:
         self.trace_inactive = bool(trace_inactive)
         self.streams = tuple(streams)
         self.plan_stage = plan_stage
+        self.warmup = int(warmup)
+        self.update_offscreen = bool(update_offscreen)
         self.last_results = None
         self.last_plan = None
+        self.last_warmup_rays = {}  # rays per stage of the warm-up :meth:`step` ran this frame ({}: none)
+        self.warmed = False         # has :meth:`step` run its warm-up?
+        self.moved = False          # did the scene's signature change since the last :meth:`begin_frame`?
+        self._signature = None
         self._history = None      # device update counts of merge_slots (None: the host's are current)
-
-    # ``directions``: the planner's older name (techniques swap it for budgets)
-    @property
-    def directions(self):
-        return self.planner
-
-    @directions.setter
-    def directions(self, planner) -> None:
-        self.planner = planner
 
     # -- which probes ---------------------------------------------------------------------------
     def probes_to_trace(self, probe_mask: np.ndarray | None = None) -> np.ndarray:
@@ -287,6 +287,43 @@ class ProbePipeline:
         info.setdefault("rays", 0)
         return info
 
+    # -- one frame: mask, signature, warm-up, update -----------------------------------------------
+    def begin_frame(self, scene, frame, timer=None, update=None) -> np.ndarray | None:
+        """Steps 1-3 of :meth:`step`; returns the frame's probe mask (None: every probe)."""
+        mask = None if self.update_offscreen else probes_in_frustum(self.volume, frame.camera, frame.res)
+        sig = scene.signature(frame.time) if hasattr(scene, "signature") else None
+        self.moved = sig != self._signature and self._signature is not None
+        self._signature = sig
+        self.last_warmup_rays = {}
+        if not self.warmed:
+            self.warmed = True
+            step = None if update is None else (lambda k, f, wt: update(f, frame.seed, wt, True, None))
+            self.last_warmup_rays = self.warm_up(scene, self.warmup, frame.seed, mask, timer, step=step)
+        return mask
+
+    def step(self, scene, frame, timer=None, update=None, before_update=None) -> dict:
+        """One frame's probe update, as every probe technique runs it (``ddgi``, ``qddgi``, the DDGI+ volume,
+        ``isddgi``); ``frame`` a :class:`~dyngi.techniques.base.Frame` (index, time, camera, res, seed):
+
+        1. the frame's probe mask: with ``update_offscreen=False`` only the probes in the extended camera
+           frustum (:func:`probes_in_frustum`);
+        2. the scene's signature (``scene.signature(frame.time)``, where the scene has one): a change since the
+           last frame (:attr:`moved`) re-tests every inactive probe (``force_reclassify``);
+        3. on the first call the shared warm-up (:meth:`warm_up`, ``warmup`` updates), its rays per stage in
+           :attr:`last_warmup_rays` (``{}`` on the other frames);
+        4. ``before_update(mask)``, when given (``ddgi``'s budget chooses the planner of the frame);
+        5. the update: :meth:`update`, or ``update(frame_index, seed, timer, warm, frame)``, a technique's own
+           update step (IS-DDGI: the pipeline's update, then its set integration and probe states), which the
+           warm-up then runs too (``warm=True``, ``frame=None``).
+
+        Returns the update's counts (probes traced, rays, state changes)."""
+        mask = self.begin_frame(scene, frame, timer, update)
+        if before_update is not None:
+            before_update(mask)
+        if update is not None:
+            return update(frame.index, frame.seed, timer, False, frame)
+        return self.update(scene, frame.index, frame.seed, mask, timer, force_reclassify=self.moved)
+
     # -- the shared warm-up ---------------------------------------------------------------------
     @contextmanager
     def without_history(self):
@@ -347,15 +384,9 @@ def probes_in_frustum(volume: ProbeVolume, camera, res, margin: float = 1.4) -> 
     Probes behind the camera but within one cell diagonal of it also count, so
     that probes around the viewer (which light what it sees) keep updating.
     """
-    left, up, d = camera.frame()
-    o = np.asarray(camera.origin, np.float64)
-    w, h = res
-    tanx = np.tan(np.radians(camera.fov) * 0.5)
-    tany = tanx * h / w
-    rel = volume.positions() - o
-    z = rel @ d
-    x = (rel @ left) / np.maximum(z, 1e-9) / tanx
-    y = (rel @ up) / np.maximum(z, 1e-9) / tany
-    inside = (z > 0) & (np.abs(x) <= margin) & (np.abs(y) <= margin)
-    near = np.linalg.norm(rel, axis=1) <= volume.grid.cell_diagonal
+    pos = volume.positions()
+    x, y, z = camera.project(res, pos)          # the camera's one projection
+    with np.errstate(invalid="ignore"):
+        inside = (z > 0) & (np.abs(x) <= margin) & (np.abs(y) <= margin)
+    near = np.linalg.norm(pos - np.asarray(camera.origin, np.float64), axis=1) <= volume.grid.cell_diagonal
     return inside | near

@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
-from ..sampling.passthrough import intersect_through_glass, scene_has_glass
+from ..scene.passthrough import intersect_through_glass, scene_has_glass
 from .arrays import upload
 from .grid import PROBE_ACTIVE, PROBE_INACTIVE
 from .trace import BACKFACE_DISTANCE_SCALE
@@ -140,7 +140,7 @@ class ProbeStates:
         return counts
 
 
-def _cell_extents(volume: ProbeVolume, pid: np.ndarray):
+def cell_extents(volume: ProbeVolume, pid: np.ndarray):
     """Per probe, the distance to its neighbourhood's faces on the - and + side of each axis.
 
     One cell (the spacing) inside the grid; unbounded outwards for probes on the
@@ -164,7 +164,7 @@ def _summaries_numpy(volume, pid, dirs, dist, shared):
     t_front = np.where(front, dist, np.float32(np.inf))
     rows = np.arange(len(pid))
     i_front = np.argmin(t_front, 1)
-    lo, hi = _cell_extents(volume, pid)
+    lo, hi = cell_extents(volume, pid)
     # per ray: distance at which it leaves the neighbourhood box, min over axes
     t_exit = np.full(dist.shape, np.inf, np.float32)
     outward = np.zeros(dist.shape, bool)
@@ -192,7 +192,7 @@ def _summaries_drjit(volume, pid, dirs, dist):
     nn = dr.opaque(mi.UInt32, N)
     inf = dr.inf
     dset = mi.Float(np.ascontiguousarray(dirs, np.float32).ravel())
-    lo, hi = _cell_extents(volume, pid)
+    lo, hi = cell_extents(volume, pid)
     lo_d = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(lo).ravel()), dr.arange(mi.UInt32, P))
     hi_d = dr.gather(mi.Vector3f, mi.Float(np.ascontiguousarray(hi).ravel()), dr.arange(mi.UInt32, P))
     base = dr.arange(mi.UInt32, P) * nn

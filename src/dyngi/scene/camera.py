@@ -50,6 +50,24 @@ class Camera:
         up = np.cross(d, left)
         return left, up, d
 
+    def project(self, res: tuple[int, int], pts: np.ndarray):
+        """Host: image-plane coordinates ``(x, y)`` and depth ``z`` (along the view direction) of world points
+        ``pts`` (N, 3), the inverse of :meth:`sample_rays`' camera model: ``x = (v . left) / (z tan(fov/2))``,
+        ``y = (v . up) / (z tan(fov/2) / aspect)`` with ``v`` the point relative to the origin, so the image
+        spans ``|x|, |y| <= 1`` for ``z > 0`` and the film position is ``((1 - x) / 2, (1 - y) / 2)`` (pixel
+        (0, 0) top-left). Points at ``z = 0`` give inf/nan (no warning). The one projection of the camera
+        (the probes' frustum test, the VPLs' visibility, the viewer's overlays)."""
+        left, up, d = self.frame()
+        w, h = res
+        tanx = float(np.tan(np.radians(self.fov) * 0.5))
+        tany = tanx / (w / h)
+        v = np.asarray(pts, np.float64) - np.asarray(self.origin, np.float64)
+        z = v @ d
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = (v @ left) / (z * tanx)
+            y = (v @ up) / (z * tany)
+        return x, y, z
+
     def signature(self) -> tuple:
         return tuple(np.round(np.concatenate([np.ravel(self.origin), np.ravel(self.target),
                                               np.ravel(self.up), [self.fov]]), 9))

@@ -86,18 +86,17 @@ class DDGITechnique(_ProbeTechniqueBase):
         super().__init__(scene, params)
         p = self.params
         self._setup_volume(p["irradiance_texels"], p["distance_texels"])
-        self.directions = UniformSFDirections(p["rays_per_probe"])
+        planner = UniformSFDirections(p["rays_per_probe"])
         self.shader = DiffuseHitShader(p["direct"], lights=self.light_nee, lookup=p["hit_lookup"])
         self.blender = HysteresisBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
                                        p["change_threshold"], p["brightness_threshold"], p["encoding"],
                                        p["estimator"])
         self.states = ProbeStates(p["relocate"], p["classify"])
-        self.pipeline = ProbePipeline(self.volume, self.directions, self.shader, self.blender, self.states,
-                                      self.query, reclassify_interval=p["reclassify_interval"])
-        self.updater = self.pipeline       # (older name)
-        self._last_signature = None
-        self._warmed = False
-        self._dirs_by_count = {self.directions.n: self.directions}   # budgets change the rays per probe
+        self.pipeline = ProbePipeline(self.volume, planner, self.shader, self.blender, self.states,
+                                      self.query, reclassify_interval=p["reclassify_interval"],
+                                      warmup=p["warmup"], update_offscreen=p["update_offscreen"])
+        self._planners = {planner.n: planner}   # budgets change the rays per probe
+        self._rpp = planner.n                   # this frame's rays per probe
         self._ms_per_probe_ray = None    # measured on the last frame, for equal-time budgets
         self._ms_fixed = 0.0
         self._shadow_per_probe_ray = 1.0      # measured (warm-up, then the last frame), for equal-ray budgets
@@ -106,16 +105,8 @@ class DDGITechnique(_ProbeTechniqueBase):
         p = self.params
         t = StageTimer()
         self._lights_begin(frame, t)
-        mask = None if p["update_offscreen"] else probes_in_frustum(self.volume, frame.camera, frame.res)
-        sig = self.scene.signature(frame.time) if hasattr(self.scene, "signature") else None
-        moved = sig != self._last_signature and self._last_signature is not None
-        self._last_signature = sig
-        if not self._warmed:
-            self._warmed = True
-            self._learn_shadow_rate(self.pipeline.warm_up(self.scene, p["warmup"], frame.seed, mask, t))
-        rpp = self._budget_rays_per_probe(frame, mask)
-        self.pipeline.planner = self._directions_for(rpp)
-        info = self.pipeline.update(self.scene, frame.index, frame.seed, mask, t, force_reclassify=moved)
+        info = self.pipeline.step(self.scene, frame, t, before_update=lambda mask: self._plan_budget(frame, mask))
+        rpp = self._rpp
         img, ind = self._primary(frame, t)
         stats = t.as_dict()
         stats.update({k: v for k, v in info.items() if k != "rays"})
@@ -129,11 +120,20 @@ class DDGITechnique(_ProbeTechniqueBase):
         self._measure(stats, info["probes_traced"], rpp)
         return FrameResult(image=img, indirect=ind, stats=stats)
 
+    def _plan_budget(self, frame: Frame, mask) -> None:
+        """After the warm-up, before the update (:meth:`ProbePipeline.step
+        <dyngi.probes.pipeline.ProbePipeline.step>`): learn the warm-up's shadow-ray rate, then set the
+        pipeline's planner to this frame's rays per probe (:meth:`_budget_rays_per_probe`)."""
+        self._learn_shadow_rate(self.pipeline.last_warmup_rays)
+        self._rpp = self._budget_rays_per_probe(frame, mask)
+        self.pipeline.planner = self._planner_for(self._rpp)
+
     # -- comparison budgets ---------------------------------------------------------
-    def _directions_for(self, n: int):
-        if n not in self._dirs_by_count:
-            self._dirs_by_count[n] = UniformSFDirections(n)
-        return self._dirs_by_count[n]
+    def _planner_for(self, n: int) -> UniformSFDirections:
+        """The rotated spherical-Fibonacci planner of ``n`` rays per probe (one per count, kept)."""
+        if n not in self._planners:
+            self._planners[n] = UniformSFDirections(n)
+        return self._planners[n]
 
     def _budget_rays_per_probe(self, frame: Frame, mask) -> int:
         """Rays per probe this frame: the parameter, or what fits ``frame.ray_budget`` / ``time_budget_ms``.

@@ -47,7 +47,7 @@ candidates, temporal, m_cap, spatial, radius, combine, lights
                             also samples the NEE of the path after the primary vertex and of the recursion
 glossy_depth : int = 4      glossy bounces of the T_fg L recursion (0: none, i.e. ``ddgi``'s diffuse-only indirect)
 probe parameters            ``ddgi``'s (probe_counts, rays_per_probe, hysteresis, warmup, ...), through
-                            :func:`dyngi.probes.ddgi_plus.plus_params`; the probes' ``direct`` routing is
+                            :data:`dyngi.probes.params.DDGI_PLUS_SPECS`; the probes' ``direct`` routing is
                             fixed to ``'nee'`` (see above)
 
 Bias: the probes' (lag, spatial and angular blur, leaks: ``living-room``);
@@ -62,16 +62,18 @@ Stats per stage: restir-pt's (``gbuffer``, ``candidates``, ``temporal``,
 from __future__ import annotations
 
 from ..backend import dr, mi
-from ..probes.ddgi_plus import DDGIPlusVolume, plus_params
+from ..probes.ddgi_plus import DDGIPlusVolume
 from ..directions.lobes import LobeDirections
 from ..probes.glossy import GLOSSY_LOBES
 from ..probes.lookup import diffuse_radiance
+from ..probes.params import DDGI_PLUS_SPECS
 from ..scene.surface import shading_side
 from ..sampling.diffuse import diffuse_albedo
 from ..sampling.rng import make_sampler
 from ..transport.path_walk import walk
 from ..transport.restir_di import PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
+from .probe_base import params_from
 
 _GLOSSY_STREAM = 0x6C05
 _PROBE_SKIP = ("direct", "emission_attenuation", "emission_scale", "probe_glossy", "update_view_path_bias")
@@ -79,7 +81,7 @@ _PROBE_SKIP = ("direct", "emission_attenuation", "emission_scale", "probe_glossy
 
 def _params() -> dict:
     out = {k: Param(**v) for k, v in PARAM_SPECS.items()}
-    out.update({k: v for k, v in plus_params().items() if k not in _PROBE_SKIP})
+    out.update(params_from({k: v for k, v in DDGI_PLUS_SPECS.items() if k not in _PROBE_SKIP}))
     out["glossy_depth"] = Param(4, "glossy bounces of the path-traced T_fg L recursion (0: none)", min=0, max=64)
     return out
 
@@ -135,7 +137,7 @@ class DDGIPrimaryTechnique(Technique):
         super().__init__(scene, params)
         p = self.params
         self.restir = ReSTIRDI.from_params(scene, p)
-        probe = {k: p[k] for k in plus_params() if k in p}
+        probe = {k: p[k] for k in DDGI_PLUS_SPECS if k in p}
         probe["direct"] = "nee"
         self.probes = DDGIPlusVolume(scene, probe, mode="ddgi")
         self.lights = self.restir.lights       # ``lights``: ReSTIR's candidates, the path's and the recursion's NEE

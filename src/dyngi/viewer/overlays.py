@@ -114,17 +114,11 @@ def _draw_probes(tech, scene, camera, res, frame_u8, exposure):
 
 
 def project(camera, res, pts: np.ndarray):
-    """Pixel coordinates (x, y) and depth of world points (the model of :meth:`Camera.sample_rays`)."""
-    left, up, d = camera.frame()
+    """Pixel coordinates (x, y) and depth of world points (:meth:`Camera.project <dyngi.scene.camera.Camera.project>`)."""
+    x, y, z = camera.project(res, pts)
     w, h = res
-    tanx = float(np.tan(np.radians(camera.fov) * 0.5))
-    tany = tanx / (w / h)
-    v = np.asarray(pts, np.float64) - np.asarray(camera.origin, np.float64)
-    z = v @ d
-    with np.errstate(divide="ignore", invalid="ignore"):
-        px = 0.5 * (1.0 - (v @ left) / (z * tanx)) * w
-        py = 0.5 * (1.0 - (v @ up) / (z * tany)) * h
-    return px, py, z
+    with np.errstate(invalid="ignore"):
+        return 0.5 * (1.0 - x) * w, 0.5 * (1.0 - y) * h, z
 
 
 def _draw_vpls(tech, scene, camera, res, frame_u8):

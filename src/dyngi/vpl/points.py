@@ -160,17 +160,12 @@ def segment_clear(scene, a: np.ndarray, na: np.ndarray | None, b: np.ndarray, nb
 
 
 def in_frustum(camera, res, pts: np.ndarray) -> np.ndarray:
-    """Host: does each point project inside the image (the camera model of :meth:`Camera.sample_rays`)?"""
-    left, up, d = camera.frame()
-    w, h = res
-    tanx = float(np.tan(np.radians(camera.fov) * 0.5))
-    tany = tanx / (w / h)
-    v = np.asarray(pts, np.float64) - np.asarray(camera.origin, np.float64)
-    z = v @ d
-    with np.errstate(divide="ignore", invalid="ignore"):
-        px = 0.5 * (1.0 - (v @ left) / (z * tanx))
-        py = 0.5 * (1.0 - (v @ up) / (z * tany))
-    return (z > 0) & (px >= 0) & (px < 1) & (py >= 0) & (py < 1)
+    """Host: does each point project inside the image (:meth:`Camera.project <dyngi.scene.camera.Camera.project>`)?"""
+    x, y, z = camera.project(res, pts)
+    with np.errstate(invalid="ignore"):
+        px = 0.5 * (1.0 - x)
+        py = 0.5 * (1.0 - y)
+        return (z > 0) & (px >= 0) & (px < 1) & (py >= 0) & (py < 1)
 
 
 def camera_sees(scene, camera, res, pts: np.ndarray, nrm: np.ndarray | None = None):

@@ -139,8 +139,9 @@ def test_steady_isddgi_frame_compiles_nothing_and_reads_back_only_per_probe_coun
         try:
             for i in range(1, 32):          # two passes over frames 11-25 (the box moves back between them)
                 sc.at(sc.frame_time(10 + (i - 1) % 16 + 1))
-                if not tech._warmed:
-                    tech._warm_up(Frame(0, sc.frame_time(10), sc.camera(0.0), (8, 6), seed=0), StageTimer())
+                if not tech.pipeline.warmed:      # the pipeline's warm-up with the technique's update step
+                    tech.pipeline.begin_frame(sc, Frame(0, sc.frame_time(10), sc.camera(0.0), (8, 6), seed=0),
+                                              StageTimer(), update=tech.update)
                 if i % tech.params["reclassify_interval"] == 0:
                     continue
                 dr.kernel_history()     # clears

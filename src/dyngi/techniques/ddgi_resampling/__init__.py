@@ -30,7 +30,7 @@ footprint_c : float = 0.2      Eq. 8 threshold c
 max_glossy : int = 3           most glossy recursion steps after the secondary vertex
 view_path_bias : float = 0.2   Sec. 3.5 offset, in units of the smallest probe spacing
 exact_radiance, exact_depth    the test hook (:mod:`.shading`)
-probe parameters               those of :func:`dyngi.probes.ddgi_plus.plus_params` (DDGI's, the
+probe parameters               those of :data:`dyngi.probes.params.DDGI_PLUS_SPECS` (DDGI's, the
                                emission heuristic, Sec. 3.5's ``update_view_path_bias`` at probe-ray
                                hits, ...); ``normal_bias``/``view_bias`` default 0
 

@@ -156,8 +156,9 @@ class NearestRayCV:
         self.lum = dr.zeros(mi.Float, self.P * self.B)
 
     def refresh(self):
-        """Bin the updater's most recent rays (per-ray radiance, direction, probe) into the table."""
-        res = self.vol.updater.last_results
+        """Bin the probe pipeline's most recent rays (its ``last_results``: per-ray radiance, direction, probe) into
+        the table."""
+        res = self.vol.pipeline.last_results
         if res is None:
             return
         plan = res.plan

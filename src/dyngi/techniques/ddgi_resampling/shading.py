@@ -49,7 +49,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from ...backend import dr, mi
-from ...probes.ddgi_plus import DDGIPlusVolume, plus_params
+from ...probes.ddgi_plus import DDGIPlusVolume
+from ...probes.params import DDGI_PLUS_SPECS
 from ...directions.base import Vertex
 from ...directions.bsdf import BSDFDirections
 from ...directions.lobes import LobeDirections
@@ -61,6 +62,7 @@ from ...transport.accumulate import ProgressiveMean
 from ...transport.path_walk import trace_paths, walk
 from ...transport.restir_di import PARAM_SPECS, ReSTIRDI
 from ..base import FrameResult, Param, Technique, to_image
+from ..probe_base import params_from
 
 _SHADE_STREAM = 0x5EC0
 """RNG stream of the secondary-vertex shading (the ReSTIR stages use stream 0)."""
@@ -98,7 +100,7 @@ def footprint_np(points, pdfs, normals):
 
 
 def _probe_params():
-    spec = plus_params()
+    spec = params_from(DDGI_PLUS_SPECS)
     spec.pop("direct", None)
     spec["normal_bias"] = Param(0.0, "DDGI's query offset along the normal (probe spacings); 0: Sec. 3.5's "
                                 "view-path bias replaces it", min=0.0)

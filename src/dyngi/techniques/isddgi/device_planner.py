@@ -51,13 +51,12 @@ import numpy as np
 from ...backend import dr, mi
 from ...probes.arrays import upload
 from ...probes.rays import RayPlan, compact
-from ...probes.states import _cell_extents
-from ...sampling.octahedral import oct_decode
+from ...probes.states import cell_extents
 from ...sampling.rng import mix_seed
 from .device import _LOCAL, allocation_pdf_dr, sample_pairs_dr
 from .planner import ISDDGIPlanner, ISDDGIState
 from .sets import (CELL_STREAM, CHANGE_EPS, LUMINANCE_FLOOR, N_SETS, NEIGHBOUR_SHARE, PROBE_MEAN_SHARE, RAYS_LIMIT,
-                   SETS_PER_SIDE, SHADE_STREAM, SHIFT_STREAM, _NB, _hash_u32_dr)
+                   SETS_PER_SIDE, SHIFT_STREAM, _NB, _hash_u32_dr, rays_from_hash)
 
 IMPLS = ("device", "host")
 
@@ -289,7 +288,7 @@ class DeviceISDDGIPlanner:
         hsh = _hash_u32_dr(hsh ^ key)
         npair = dr.gather(mi.UInt32, capped, ray_pair)
         dr.schedule(rslot, dset, gp, check, key)          # evaluated with the rays' kernel below
-        direction, weight, shade_key = _rays_from_hash(hsh, dset, npair, self._omega)
+        direction, weight, shade_key = rays_from_hash(hsh, dset, npair, self._omega)
         offsets = np.concatenate([[0], np.cumsum(tot)])
         plan = RayPlan(rprobe, direction, None, None, pid, offsets, rslot, weight)   # ragged always (no literal)
         info = DevicePlanInfo(S, tot, totals, pid_dr, rslot, dset, gp, ray_k, paired, check, key)
@@ -330,7 +329,7 @@ class DeviceISDDGIPlanner:
         key = dr.select(check, dr.gather(mi.UInt32, self.ref_key, gp), _op(mi.UInt32, mix_seed(seed, frame, 0x1DD61)))
         hsh = _hash_u32_dr(_hash_u32_dr(rprobe * (N_SETS * RAYS_LIMIT) + dset * RAYS_LIMIT + key) ^ key)
         dr.eval(dset, gp, check, key, hsh)
-        direction, weight, shade_key = _rays_from_hash(hsh, dset, mi.UInt32(1), self._omega)
+        direction, weight, shade_key = rays_from_hash(hsh, dset, mi.UInt32(1), self._omega)
         plan = RayPlan(rprobe, direction, None, None, pid, offsets, rslot, weight)
         info = DevicePlanInfo(S, tot, xs, pid_dr, rslot, dset, gp, dr.zeros(mi.UInt32, R), dr.full(mi.Bool, True, R),
                               check, key)
@@ -449,7 +448,7 @@ class DeviceISDDGIPlanner:
         dr.scatter_reduce(dr.ReduceOp.Add, back, one, slot, dist < 0.0, mode=_LOCAL)
         dr.scatter_reduce(dr.ReduceOp.Add, front, one, slot, (dist >= 0.0) & fin, mode=_LOCAL)
         if near_surface:
-            lo, hi = _cell_extents(volume, np.asarray(plan.probe_ids, np.int64))
+            lo, hi = cell_extents(volume, np.asarray(plan.probe_ids, np.int64))
             ext = upload(np.concatenate([lo, hi], 1).astype(np.float32).ravel(), mi.Float)     # (S, 6)
             w = plan.direction
             t_exit = mi.Float(np.inf)
@@ -474,24 +473,6 @@ class DeviceISDDGIPlanner:
             dr.scatter(out, mi.UInt32(on), dr.arange(mi.UInt32, S))
         dr.eval(on, self.near_age)
         return on
-
-
-def _rays_from_hash(h, dset, npair, omega):
-    """Algorithm 1's jittered direction in set ``dset``'s octahedral texel, ``Omega_j / n_ij`` and the shading
-    key from the ray hash (:func:`~.sets._device_rays`'s formulas)."""
-    if not dr.width(h):
-        return mi.Vector3f(), mi.Float(), mi.UInt32()
-    h2 = _hash_u32_dr(h + 0x9E3779B9)
-    scale = 1.0 / 16777216.0
-    u0 = mi.Float(h >> 8) * scale
-    u1 = mi.Float(h2 >> 8) * scale
-    px = (mi.Float(dset & 15) + u0) * (2.0 / SETS_PER_SIDE) - 1.0
-    py = (mi.Float(dset >> 4) + u1) * (2.0 / SETS_PER_SIDE) - 1.0
-    direction = dr.normalize(oct_decode(mi.Point2f(px, py)))
-    weight = dr.gather(mi.Float, omega, dset) / mi.Float(dr.maximum(npair, 1))
-    key = _hash_u32_dr(h ^ SHADE_STREAM)
-    dr.eval(direction, weight, key)
-    return mi.Vector3f(direction), weight, key
 
 
 __all__ = ["DeviceISDDGIPlanner", "DevicePlanInfo", "IMPLS", "ISDDGIState"]

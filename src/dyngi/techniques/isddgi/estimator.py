@@ -50,10 +50,10 @@ import numpy as np
 
 from ...backend import dr, mi
 from ...probes.arrays import upload
-from ...probes.accumulator import BRIGHTNESS_DAMPING, CHANGE_HYSTERESIS_DROP, HysteresisAccumulator, _count_sum
+from ...probes.accumulator import BRIGHTNESS_DAMPING, CHANGE_HYSTERESIS_DROP, HysteresisAccumulator, count_sum
 from ...probes.blend import HysteresisBlend
-from ...probes.estimator import MIN_BLEND_WEIGHT, TexelEstimate, _int_power_dr
-from ...probes.states import _cell_extents
+from ...probes.estimator import MIN_BLEND_WEIGHT, TexelEstimate, int_power_dr
+from ...probes.states import cell_extents
 from ...sampling.octahedral import oct_decode_np, oct_encode_np
 from .sets import N_SETS
 
@@ -257,7 +257,7 @@ def _antipodal_sums(plan, radiance, dist, side: int, irradiance: bool, distance:
             wb += wib
         if distance:
             a = p1[0]
-            pw = dr.select(ac > cut, _int_power_dr(ac, power), 0.0) * w
+            pw = dr.select(ac > cut, int_power_dr(ac, power), 0.0) * w
             pa = dr.select(pos, pw, 0.0)
             pb = dr.select(pos, 0.0, pw)
             ma1 = dr.fma(a, pa, ma1)
@@ -358,7 +358,7 @@ class LinearMeanHysteresis(HysteresisAccumulator):
         delta = new_c - old_c
         delta = dr.select(bright, delta * BRIGHTNESS_DAMPING, delta)
         res = dr.maximum(old_c + (1.0 - hh) * delta, 0.0)
-        return res, _count_sum(n_old, m, fresh, cap)
+        return res, count_sum(n_old, m, fresh, cap)
 
 
 class SetBlend(HysteresisBlend):
@@ -402,7 +402,7 @@ def near_surface_hits(volume, probe_ids, ray_slot, dirs: np.ndarray, dist: np.nd
     (``ray_slot`` (R,), ``dirs`` (R, 3), ``dist`` (R,) signed distances)."""
     pid = np.asarray(probe_ids, np.int64)
     S = len(pid)
-    lo, hi = _cell_extents(volume, pid)                       # (S, 3) each
+    lo, hi = cell_extents(volume, pid)                       # (S, 3) each
     slot = np.asarray(ray_slot, np.int64)
     w = np.asarray(dirs, np.float32)
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -67,7 +67,7 @@ state is host NumPy (P x 256 entries; vectorised); a frame's plan is built spars
 ``slot * 256 + j`` keys of its uniform rays and importance draws, merged and capped per set -- so no P x 256
 table is built per frame (rayHitInfo's dense count/prefix tables are built on first use only), and one
 upload per frame (ray hash, set, rays of its pair) lets the device compute directions (Algorithm 1),
-weights and shading keys (:func:`_device_rays`). The sparse plan is about twice as fast as a dense host
+weights and shading keys (:func:`device_rays`). The sparse plan is about twice as fast as a dense host
 one (docs/techniques/isddgi.md).
 """
 from __future__ import annotations
@@ -84,7 +84,7 @@ from ...probes.arrays import upload
 from ...probes.rays import RayPlan
 from .sets import (SETS_PER_SIDE, N_SETS, RAYS_LIMIT, VARIANTS, LUMINANCE_FLOOR, PROBE_MEAN_SHARE, CHANGE_EPS,
                    NEIGHBOUR_SHARE, _NB, BUDGET_REDRAWS, SHADE_STREAM, set_solid_angles, _hash_u32, ray_hash,
-                   _noise_from_hash, _dirs_from_noise, probe_shift, allocation_pdf, conditional_pdf, _device_rays,
+                   _noise_from_hash, _dirs_from_noise, probe_shift, allocation_pdf, conditional_pdf, device_rays,
                    uniform_keys, sample_indices, merge_keys)  # noqa: F401  (re-exported)
 
 
@@ -149,7 +149,7 @@ class ISDDGIPlanInfo:
     ray_key : (R,) uint32     shading key: seeds the ray's NEE and hit-lookup random numbers
     ray_hash : (R,) uint64    the ray's hash (jitter and shading key derive from it); ray_npair : rays of its pair
     ``ray_dir``, ``ray_weight``, ``ray_key`` are host copies built on first use: the device computes them
-    itself from one upload of (hash, set, rays of the pair) per ray (:func:`_device_rays`).
+    itself from one upload of (hash, set, rays of the pair) per ray (:func:`device_rays`).
     """
 
     def __init__(self, S, total, ray_slot, ray_set, ray_hash, ray_npair, omega, ray_paired, ray_check, ray_rkey,
@@ -321,7 +321,7 @@ class ISDDGIPlanner:
         info.dropped = drawn - kept_imp
         info.stats = {"uniform_rays": int(is_uni.sum()), "importance_rays": kept_imp,
                       "importance_dropped": info.dropped}
-        direction, weight, shade_key = _device_rays(info, self._omega_dr())
+        direction, weight, shade_key = device_rays(info, self._omega_dr())
         plan = RayPlan.ragged(pid.astype(np.uint32), info.total, direction, weight=weight)
         plan.info = info
         plan.shade_key = shade_key

@@ -4,7 +4,7 @@ The set geometry (Sec. 2.1: each probe's 16x16 octahedral tile, set ``ds_ij`` = 
 j / 16)``, its solid angle), Algorithm 1's jittered directions from a per-ray hash, the per-probe random
 shift, the uniform cell layout and its rotation (Fig. 1: :func:`uniform_keys`), the allocation pdf over
 (probe, set) pairs and its sampling (Secs. 4.3-4.4), the per-set merge of uniform and importance rays
-(:func:`merge_keys`) and the device side of a plan (:func:`_device_rays`: directions, ``Omega_j / n_ij``
+(:func:`merge_keys`) and the device side of a plan (:func:`device_rays`: directions, ``Omega_j / n_ij``
 weights and shading keys from one upload). :mod:`.planner` (the :class:`~.planner.ISDDGIPlanner`)
 describes the choices; "ours" marks what the supplement leaves open.
 """
@@ -67,7 +67,7 @@ def ray_hash(probe, dset, k, key) -> np.ndarray:
 
 def _noise_from_hash(h: np.ndarray) -> np.ndarray:
     """(n, 2) in [0, 1)^2 from the ray hash: the top 24 bits of ``h`` and of a second hash (24 bits: the same
-    values in float32 on the device, :func:`_device_rays`)."""
+    values in float32 on the device, :func:`device_rays`)."""
     h = np.asarray(h, np.uint64)
     h2 = _hash_u32(h + np.uint64(0x9E3779B9))
     return np.stack([h >> np.uint64(8), h2 >> np.uint64(8)], -1).astype(np.float64) * (1.0 / 16777216.0)
@@ -137,10 +137,31 @@ def _hash_u32_dr(x):
     return x ^ (x >> 16)
 
 
-def _device_rays(info, omega_dr):
+def rays_from_hash(h, dset, npair, omega):
+    """Algorithm 1's jittered direction in set ``dset``'s octahedral texel, the weight ``Omega_j / n_ij`` and the
+    shading key of each ray, from its hash ``h`` (UInt32), set ``dset`` and rays of its pair ``npair`` (UInt32,
+    0 counts as 1) on the device: the same values in float32 as the host's :func:`_dirs_from_noise`. The one
+    decode of a ray hash (the host planner's plans, :func:`device_rays`, and the device planner's)."""
+    if not dr.width(h):
+        return mi.Vector3f(), mi.Float(), mi.UInt32()
+    h2 = _hash_u32_dr(h + 0x9E3779B9)
+    scale = 1.0 / 16777216.0
+    u0 = mi.Float(h >> 8) * scale
+    u1 = mi.Float(h2 >> 8) * scale
+    px = (mi.Float(dset & 15) + u0) * (2.0 / SETS_PER_SIDE) - 1.0
+    py = (mi.Float(dset >> 4) + u1) * (2.0 / SETS_PER_SIDE) - 1.0
+    direction = dr.normalize(oct_decode(mi.Point2f(px, py)))
+    weight = dr.gather(mi.Float, omega, dset) / mi.Float(dr.maximum(npair, 1))
+    key = _hash_u32_dr(h ^ SHADE_STREAM)
+    dr.eval(direction, weight, key)
+    return mi.Vector3f(direction), weight, key
+
+
+def device_rays(info, omega_dr):
     """(direction Vector3f, weight Float, shading key UInt32) of the plan's rays, computed on the device from
-    one upload per frame of (ray hash, set | (rays of its pair - 1) << 8): Algorithm 1's jitter in the set's
-    octahedral texel, ``Omega_j / n_ij`` and the shading key, all as :class:`ISDDGIPlanInfo`'s host copies."""
+    one upload per frame of (ray hash, set | (rays of its pair - 1) << 8) (:func:`rays_from_hash`): Algorithm 1's
+    jitter in the set's octahedral texel, ``Omega_j / n_ij`` and the shading key, all as
+    :class:`ISDDGIPlanInfo`'s host copies."""
     R = len(info.ray_set)
     if not R:
         return mi.Vector3f(), mi.Float(), mi.UInt32()
@@ -149,18 +170,7 @@ def _device_rays(info, omega_dr):
     i = dr.arange(mi.UInt32, R)
     h = dr.gather(mi.UInt32, buf, i)
     m = dr.gather(mi.UInt32, buf, i + dr.opaque(mi.UInt32, R))
-    dset = m & 255
-    h2 = _hash_u32_dr(h + 0x9E3779B9)
-    scale = 1.0 / 16777216.0
-    u0 = mi.Float(h >> 8) * scale
-    u1 = mi.Float(h2 >> 8) * scale
-    px = (mi.Float(dset & 15) + u0) * (2.0 / SETS_PER_SIDE) - 1.0
-    py = (mi.Float(dset >> 4) + u1) * (2.0 / SETS_PER_SIDE) - 1.0
-    direction = dr.normalize(oct_decode(mi.Point2f(px, py)))
-    weight = dr.gather(mi.Float, omega_dr, dset) / mi.Float((m >> 8) + 1)
-    key = _hash_u32_dr(h ^ SHADE_STREAM)
-    dr.eval(direction, weight, key)
-    return mi.Vector3f(direction), weight, key
+    return rays_from_hash(h, m & 255, (m >> 8) + 1, omega_dr)
 
 
 def uniform_keys(x: np.ndarray, frame: int, shift: np.ndarray) -> np.ndarray:

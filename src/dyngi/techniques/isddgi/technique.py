@@ -153,8 +153,7 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         # plan, trace and merge through the pipeline; integration (Algorithm 3) and states (Algorithm 2)
         # are this technique's update step
         self.pipeline = ProbePipeline(self.volume, self.planner, self.shader, self.blender, None, self.query,
-                                      plan_stage="states")
-        self._warmed = False
+                                      plan_stage="states", warmup=p["warmup"])
         self._near_age = np.full(self.volume.n_probes, 255, np.uint8)   # traced frames since a near hit
         self.last_plan = None
         self._shadow_per_probe_ray = 1.0      # NEE shadow rays per probe ray (measured), for equal-ray budgets
@@ -162,9 +161,14 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         self._ms_fixed = 0.0
 
     # -- one probe update -------------------------------------------------------------
-    def update(self, frame_index: int, seed: int, t: StageTimer, adapt: bool = True, warm: bool = False,
+    def update(self, frame_index: int, seed: int, t: StageTimer, warm: bool = False,
                frame: Frame | None = None) -> dict:
+        """One probe update (the pipeline's update step, :meth:`ProbePipeline.step
+        <dyngi.probes.pipeline.ProbePipeline.step>`): the pipeline plans, traces and merges; then relocation on
+        re-test frames, Algorithm 2's probe states and the change measure. ``warm``: an update of the warm-up
+        (one ray per set; the change measure does not adapt)."""
         p = self.params
+        adapt = not warm
         vol = self.volume
         st = vol.state
         live = st.states != 0
@@ -283,21 +287,17 @@ class ISDDGITechnique(_ProbeTechniqueBase):
                 self._ms_per_probe_ray = update / rays["trace probes"]
                 self._ms_fixed = max(stats["total_ms"] - update, 0.0)
 
-    def _warm_up(self, frame: Frame, t: StageTimer) -> None:
-        """The pipeline's warm-up with this technique's update step (one ray per set: the planner's
-        warm-up hooks; the change measure forgets the warm-up afterwards)."""
-        self._warmed = True
-        wr = self.pipeline.warm_up(self.scene, self.params["warmup"], frame.seed, timer=t,
-                                   step=lambda k, f, wt: self.update(f, frame.seed, wt, adapt=False, warm=True))
+    def _learn_warmup_rate(self, mask=None) -> None:
+        """The NEE shadow rays per probe ray of the warm-up (if one ran this frame), before the frame's budget."""
+        wr = self.pipeline.last_warmup_rays
         if wr.get("trace probes"):
             self._shadow_per_probe_ray = wr.get("shade probes", 0) / wr["trace probes"]
 
     def step(self, frame: Frame) -> FrameResult:
         t = StageTimer()
         self._lights_begin(frame, t)        # lights=: the sampler's per-frame hook before the first probe ray
-        if not self._warmed:
-            self._warm_up(frame, t)
-        info = self.update(frame.index, frame.seed, t, frame=frame)
+        # the warm-up (one ray per set: the planner's warm-up hooks) and the frame's update, both this update step
+        info = self.pipeline.step(self.scene, frame, t, update=self.update, before_update=self._learn_warmup_rate)
         img, ind = self._primary(frame, t)
         stats = t.as_dict()
         stats.update(info)
