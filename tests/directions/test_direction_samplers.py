@@ -15,7 +15,7 @@ class _FakeOctree:
 
 def _learned_cdq():
     """A CDQ whose leaf 0 learned a narrow lobe (tests/sampling/test_cdq.py's scripted peak)."""
-    from dyngi.sampling import cdq
+    from dyngi.directions import cdq
     g = cdq.CDQDirections(_FakeOctree(2), bits=64)
     peak = np.array([0.3, 0.5, 0.81])
     peak /= np.linalg.norm(peak)

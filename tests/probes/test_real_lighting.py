@@ -14,8 +14,8 @@ from dyngi.probes import DiffuseHitShader, ProbeGrid, ProbeQuery, ProbeVolume
 from dyngi.probes.primary import shade_primary
 from dyngi.probes.trace import DEFAULT_DIRECT, light_routing
 from dyngi.sampling.diffuse import diffuse_albedo
-from dyngi.sampling.passthrough import MAX_GLASS_LAYERS, intersect_through_glass, shadow_transmittance
-from dyngi.sampling.sunsky import split_sunsky
+from dyngi.scene.passthrough import MAX_GLASS_LAYERS, intersect_through_glass, shadow_transmittance
+from dyngi.scene.sunsky import split_sunsky
 from dyngi.scene import load_scene
 from dyngi.scene.builtin_default import room_sun_blinds
 from dyngi.techniques.base import Frame, create_technique, to_image

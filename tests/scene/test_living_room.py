@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from dyngi.backend import mi
-from dyngi.sampling.gbuffer import render_gbuffer
+from dyngi.transport.gbuffer import render_gbuffer
 from dyngi.scene import load_scene
 from dyngi.scene.builtin_living import LIVING_H, LIVING_X, LIVING_Z, near_wall_mask
 from dyngi.techniques import Frame, create_technique

@@ -38,7 +38,7 @@ def uniform_covered(backend):
 @pytest.mark.parametrize("lights", [pytest.param(n, marks=[] if n == "sll" else [pytest.mark.slow])   # CI budget
                                     for n in ("vlc", "lighttree", "sll", "sll-oracle")])
 def test_selectors_converge_to_uniform(backend, uniform_covered, lights):
-    mod = {"lighttree": "dyngi.sampling.lighttree", "sll": "dyngi.sampling.pvs", "sll-oracle": "dyngi.sampling.sll"}.get(lights)
+    mod = {"lighttree": "dyngi.lights.lighttree", "sll": "dyngi.lights.pvs", "sll-oracle": "dyngi.lights.sll"}.get(lights)
     if mod:
         pytest.importorskip(mod)
     imgs, ind, _, _ = frames_of(f"nee-pt:lights={lights}", "covered-lights", 12, 16, seed=12)
@@ -64,7 +64,7 @@ def test_vlc_is_mitsuba_at_depth_3_on_a_diffuse_scene(backend):
 
 
 def test_cdq_directions_converge(backend):
-    pytest.importorskip("dyngi.sampling.cdq")
+    pytest.importorskip("dyngi.directions.cdq")
     a, ai, _, tech = frames_of("nee-pt:lights=vlc:directions=cdq", "cornell-static", 12, 16, seed=5)
     b, bi, _, _ = frames_of("nee-pt:lights=vlc:directions=bsdf", "cornell-static", 12, 16, seed=6)
     assert tech.cdq is not None and tech.octree is not None
@@ -90,7 +90,7 @@ def test_five_rays_per_path_and_stats(backend):
 
 def test_unavailable_choices_are_clear_errors(backend, monkeypatch):
     sc = load_scene("cornell-static")
-    monkeypatch.setitem(sys.modules, "dyngi.sampling.cdq", None)
+    monkeypatch.setitem(sys.modules, "dyngi.directions.cdq", None)
     with pytest.raises(DyngiError, match="directions=cdq"):
         create_technique("nee-pt:directions=cdq", sc)
     # light samplers are discovered (dyngi.lights): one whose module fails to import is not registered, so it is
@@ -128,7 +128,7 @@ def test_reproduce_vlc_quick(backend, tmp_path):
 
 def test_vlc_with_lighttree_explorer_converges_to_uniform(backend, uniform_covered):
     """explorer=lighttree (our extension) is unbiased: z-test against lights=uniform, image and indirect."""
-    pytest.importorskip("dyngi.sampling.lighttree")
+    pytest.importorskip("dyngi.lights.lighttree")
     imgs, ind, _, _ = frames_of("nee-pt:lights=vlc:explorer=lighttree", "covered-lights", 12, 16, seed=13)
     ok, info = z_test_images(imgs, uniform_covered[0])
     assert ok, info
@@ -140,7 +140,7 @@ def test_vlc_lighttree_explorer_steady_state_compiles_nothing(backend):
     """explorer=lighttree on a static-light scene with a moving occluder: after the warm-up frames no frame
     compiles a new kernel. (With moving lights the explorer rebuilds the light tree, which, like
     lights=lighttree itself on cornell-moving-light, still compiles 1-2 kernels per rebuild: known, H2's.)"""
-    pytest.importorskip("dyngi.sampling.lighttree")
+    pytest.importorskip("dyngi.lights.lighttree")
     from helpers import assert_steady_state_compiles_nothing
 
     from dyngi.scene import load_scene

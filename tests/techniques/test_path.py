@@ -212,7 +212,7 @@ def test_indirect_only_agrees_with_mitsuba_difference(backend):
 
 def test_emitter_subset_sampling_is_unbiased_with_mis(backend):
     """The subset light sampler over all emitters (sample + pdf for MIS) still agrees with Mitsuba."""
-    from dyngi.sampling.lights import EmitterSubsetSampling
+    from dyngi.lights.emitter_sampling import EmitterSubsetSampling
 
     sc = _many_light_scene()
     lights = EmitterSubsetSampling(sc.mi_scene, lambda e: True)
@@ -226,7 +226,7 @@ def test_emitter_subset_sampling_is_unbiased_with_mis(backend):
 def test_emitter_subset_sampling_skips_excluded_emitters(backend):
     """Excluding every emitter but one: NEE sees only that one (its pdf is 0 for the others)."""
     from dyngi.backend import dr, mi
-    from dyngi.sampling.lights import EmitterSubsetSampling
+    from dyngi.lights.emitter_sampling import EmitterSubsetSampling
 
     sc = _many_light_scene()
     ems = list(sc.mi_scene.emitters())
@@ -261,7 +261,7 @@ def test_agrees_with_mitsuba_sun_sky_and_point_lights(backend, name):
 def test_emitter_subset_single_emitter_direct_call_matches_dispatch(backend):
     """One emitter in the subset: the direct call gives the same samples and weights as the dispatch path."""
     from dyngi.backend import dr, mi
-    from dyngi.sampling.lights import EmitterSubsetSampling
+    from dyngi.lights.emitter_sampling import EmitterSubsetSampling
 
     sc = _many_light_scene()
     target = list(sc.mi_scene.emitters())[2]
@@ -290,7 +290,7 @@ def test_emitter_subset_shadow_mask_and_receiver_cull(backend, single):
     """``sample_traced``: the same samples and weights as ``sample`` wherever the receiver faces the
     sample, weight 0 and no shadow ray where it does not, and the mask says which lanes cast a ray."""
     from dyngi.backend import dr, mi
-    from dyngi.sampling.lights import EmitterSubsetSampling, sample_traced
+    from dyngi.lights.emitter_sampling import EmitterSubsetSampling, sample_traced
 
     sc = _many_light_scene()
     emitters = list(sc.mi_scene.emitters())

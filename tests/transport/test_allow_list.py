@@ -17,10 +17,8 @@ CALL = re.compile(r"\bbsdf\w*\.sample\(|\.bsdf\([^)]*\)\.sample\(|\.sample\(\s*(
                   r"|sample_emitter_direction\(")
 
 ALLOWED = {
-    # the light-sampling strategies (the lights/ layer's forerunner)
-    "sampling/lights.py": "EmitterSampling: Mitsuba's emitter sampling behind the strategy interface",
     # a delta transmission lobe's weight for shadow rays through glass (no direction is sampled)
-    "sampling/passthrough.py": "thin-glass transmittance of shadow rays",
+    "scene/passthrough.py": "thin-glass transmittance of shadow rays",
     # glossy-lobe-only sampling for the DDGI family's glossy probe lookups (Eq. 6), not a path walk
     "probes/glossy.py": "sample_glossy: one glossy-lobe sample (DDGI+ Eq. 6, ddgi-primary's recursion)",
 }

@@ -1,12 +1,15 @@
 """Direction samplers (DESIGN.md ``directions/``): one interface (:mod:`dyngi.directions.base`); ``bsdf``,
 the CDQ (:mod:`dyngi.directions.cdq`) and their one-sample MIS mixture (:mod:`dyngi.directions.mixture`).
-Each registered sampler is one module of this package, found by :func:`discover`."""
+Each registered sampler is one module of this package, found by :func:`discover`. The adaptive octree
+(:mod:`dyngi.directions.octree`, one construction: :func:`~dyngi.directions.octree.make_octree`) is shared
+with the VLC (``lights/`` may import ``directions/``, never the reverse); motion vectors for its
+previous-frame lookup: :mod:`dyngi.directions.motion`."""
 from __future__ import annotations
 
 from ..registry import discover_modules
 from .base import REGISTRY, DirectionSampler, DirSample, Vertex, make, names, register
 
-_INFRA = {"base", "walk", "lobes"}
+_INFRA = {"base", "cdq", "lobes", "motion", "octree", "walk"}
 _found = False
 
 

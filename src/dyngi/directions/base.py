@@ -62,7 +62,7 @@ REGISTRY: dict[str, tuple[Callable, str]] = {}
 
 def register(name: str, factory: Callable, doc: str) -> None:
     """Register direction sampler ``name``: ``factory(guide=None)`` builds it (``guide``: a learned
-    distribution such as :class:`~dyngi.sampling.cdq.CDQDirections`, for the samplers that need one)."""
+    distribution such as :class:`~dyngi.directions.cdq.CDQDirections`, for the samplers that need one)."""
     REGISTRY[name] = (factory, doc)
 
 

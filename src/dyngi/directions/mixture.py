@@ -21,7 +21,7 @@ class MixtureDirections:
 
     def __init__(self, guide=None, fraction: float = CDQ_FRACTION):
         if guide is None:
-            raise DyngiError("directions=cdq needs a CDQ (dyngi.sampling.cdq.CDQDirections over an octree)")
+            raise DyngiError("directions=cdq needs a CDQ (dyngi.directions.cdq.CDQDirections over an octree)")
         self.guide = CDQComponent(guide)
         self.base = BSDFDirections()
         self.fraction = fraction

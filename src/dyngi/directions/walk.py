@@ -3,7 +3,7 @@
 :class:`WalkDirections` gives :func:`dyngi.transport.path_walk.walk` its indirect directions and the
 BSDF-side pdf of its MIS weights from a registered direction sampler (:mod:`dyngi.directions`). For
 ``directions=cdq`` it owns an adaptive octree (VLC paper Sec. 6) and a CDQ per leaf
-(:class:`~dyngi.sampling.cdq.CDQDirections`, Sec. 5): every path vertex is placed in the octree, and
+(:class:`~dyngi.directions.cdq.CDQDirections`, Sec. 5): every path vertex is placed in the octree, and
 every sampled direction is recorded with the luminance of ``f cos L_i / p`` where ``L_i`` is what the
 rest of *this* path gathered after the vertex (``(L_final - L_vertex) / beta_vertex``, from per-lane
 buffers scattered inside the loop; our choice: nee-pt's record excludes the emission of lights, NEE's
@@ -12,13 +12,11 @@ of the frame. Unbiased for any learned state (the mixture's pdf is exact, ``test
 """
 from __future__ import annotations
 
-import numpy as np
-
 from ..backend import dr, mi
 from ..errors import DyngiError
-from ..sampling.octree import AdaptiveOctree, scaled_thresholds
 from ..scene.surface import shading_normal
 from .base import Vertex, make, names
+from .octree import make_octree, octree_bounds
 
 RECORD_VERTICES = 3
 """Path vertices per lane whose sampled directions the CDQ learns from."""
@@ -34,14 +32,7 @@ class WalkDirections:
             raise DyngiError(f"unknown direction sampler '{kind}'; valid values: {', '.join(names())}")
         self.kind = kind
         self._ms = scene.mi_scene if hasattr(scene, "mi_scene") else scene
-        meta = getattr(scene, "meta", None)
-        if meta is not None and getattr(meta, "bounds", None) is not None:
-            lo, hi = (np.asarray(b, np.float64) for b in meta.bounds)
-        else:
-            bb = self._ms.bbox()
-            lo, hi = np.array(bb.min, np.float64), np.array(bb.max, np.float64)
-        grow = np.maximum(0.01 * max(float((hi - lo).max()), 1e-3) - (hi - lo), 0.0)
-        self.bounds = (lo - 0.5 * grow, hi + 0.5 * grow)
+        self.bounds = octree_bounds(scene)
         self.cdq_opts = dict(bits=bits, stability=stability, memory=memory)
         self.octree = self.cdq = None
         self.sampler = make(kind) if kind != "cdq" else None
@@ -50,9 +41,8 @@ class WalkDirections:
     # -- per frame ------------------------------------------------------------------------------
     def begin_frame(self, scene, frame, vertices_per_frame: int = 0) -> None:
         if self.kind == "cdq" and self.cdq is None:
-            from ..sampling.cdq import CDQDirections     # optional module (FUNCTION_IMPORTS_WHY)
-            split, collapse = scaled_thresholds(max(int(vertices_per_frame), 1))
-            self.octree = AdaptiveOctree(self.bounds[0], self.bounds[1], split, collapse)
+            from .cdq import CDQDirections     # optional module (FUNCTION_IMPORTS_WHY)
+            self.octree = make_octree(self.bounds, vertices_per_frame)
             self.cdq = CDQDirections(self.octree, **self.cdq_opts)
             self.sampler = make("cdq", guide=self.cdq)
         if self.cdq is not None:

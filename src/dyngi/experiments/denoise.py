@@ -3,7 +3,7 @@
 The DDGI Resampling paper denoises with the OptiX denoiser (Sec. 5, Fig. 1,
 "+Denoising"); we substitute OIDN (``pyoidn`` from PyPI, CPU), which also
 takes the albedo and normal auxiliary images. :func:`aux_buffers` renders those
-from the screen-space G-buffer (:mod:`dyngi.sampling.gbuffer`): diffuse albedo
+from the screen-space G-buffer (:mod:`dyngi.transport.gbuffer`): diffuse albedo
 (Mitsuba's ``eval_diffuse_reflectance``) and the viewer-facing shading normal
 of the primary hit, averaged over ``spp`` jittered rays per pixel (box filter,
 like the rendered image), so any technique can be denoised with no AOVs of its own.
@@ -20,7 +20,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
-from ..sampling.gbuffer import render_gbuffer
+from ..transport.gbuffer import render_gbuffer
 from ..sampling.rng import make_sampler
 from ..techniques.base import to_image
 

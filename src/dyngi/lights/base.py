@@ -25,26 +25,68 @@ Implementations register themselves (:func:`register`): one file per sampler in 
 discovered by :mod:`dyngi.lights` and becomes a valid value of every technique's ``lights=``. A
 sampler's options are the keyword arguments of its constructor (after ``tris``, ``mi_scene``,
 ``bounds``); :func:`make` raises :class:`~dyngi.errors.DyngiError` on an unknown sampler or option.
+
+Examples, simplest first (``docs/lights.md`` explains them): :mod:`dyngi.lights.uniform` (pmf 1/L, no
+state), :mod:`dyngi.lights.power` (a table rebuilt per frame in ``begin_frame``),
+:mod:`dyngi.lights.lighttree` (a hierarchy traversed per shading point, the pmf along its chain); the
+learning one, :mod:`dyngi.lights.vlc`, also uses ``record`` and the shared octree
+(:mod:`dyngi.directions.octree`).
 """
 from __future__ import annotations
 
 import inspect
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable, Protocol
 
+from ..backend import dr, mi
 from ..errors import DyngiError
-from ..sampling.candidates import emitter_kind  # noqa: F401  (the one emitter classification)
-from ..sampling.emitter_triangles import INVALID, EmitterTriangles
-from ..sampling.light_select import FrameCtx, LightSelector  # noqa: F401  (the per-frame context, the protocol)
-
-EmitterTable = EmitterTriangles
-"""The one emitter table: every emitter triangle as one light (:mod:`dyngi.sampling.emitter_triangles`)."""
-
-LightSampler = LightSelector
-"""The protocol every light sampler implements (module docstring)."""
+from .emitter_table import INVALID, EmitterTable, emitter_kind
 
 __all__ = ["INVALID", "EmitterTable", "FrameCtx", "LightSampler", "Entry", "register", "make", "names",
-           "options", "describe", "emitter_kind"]
+           "options", "describe", "emitter_kind", "pmf_inputs"]
+
+
+@dataclass
+class FrameCtx:
+    """What a light sampler may look at in ``begin_frame`` (one per frame)."""
+
+    mi_scene: Any
+    tris: EmitterTable
+    frame_index: int
+    time: float
+    octree: Any = None          # AdaptiveOctree when lights=vlc or directions=cdq, else None
+    bounds: tuple = ()          # scene bounds (lo[3], hi[3]) as NumPy arrays
+    camera_pos: Any = None      # (optional addition) camera position, NumPy [3], for camera-distance heuristics
+
+
+class LightSampler(Protocol):
+    """The protocol every light sampler implements (module docstring)."""
+
+    name: str
+
+    def begin_frame(self, ctx: FrameCtx) -> None: ...
+
+    def sample(self, p, n, u, active, p_prev=None) -> tuple: ...   # (mi.UInt32 light id, mi.Float pmf)
+
+    def pmf(self, p, n, light_id, active, p_prev=None): ...        # exact pmf of sample() returning light_id
+
+    def record(self, p, n, light_id, visible, active) -> None: ...
+
+    def end_frame(self) -> None: ...
+
+    def stats(self) -> dict: ...
+
+
+def pmf_inputs(p, n, light_id, active, count: int):
+    """The arguments of a sampler's ``pmf`` as Dr.Jit arrays, ``active`` of the width of ``light_id`` and
+    restricted to the ids below ``count``: (p, n, light_id, active). A sampler over no lights returns
+    ``dr.zeros(mi.Float, dr.width(light_id))`` after it (the light tree, the SLL)."""
+    p, n = mi.Point3f(p), mi.Vector3f(n)
+    light_id = mi.UInt32(light_id)
+    width = dr.width(light_id)
+    active = mi.Bool(active) & (light_id < count) & dr.full(mi.Bool, True, width)
+    return p, n, light_id, active
+
 
 _SKIP = {"self", "tris", "mi_scene", "bounds"}
 
@@ -105,7 +147,7 @@ def describe() -> dict:
     return {k: e.doc for k, e in sorted(_registry().items())}
 
 
-def make(name: str, tris: EmitterTriangles, mi_scene=None, bounds=None, **opts):
+def make(name: str, tris: EmitterTable, mi_scene=None, bounds=None, **opts):
     """Construct light sampler ``name`` over the emitter table ``tris``; unknown names or options raise."""
     e = entry(name)
     bad = sorted(set(opts) - set(e.options))

@@ -16,10 +16,10 @@ the hit), so the walk's MIS weights are exact and the estimator is unbiased for 
 of ``wi`` (the importance of the light tree, SLL and VLC is the diffuse irradiance above it).
 
 Known bias: the triangles' radiance is the table's (the emitter at each triangle's centroid), exact for
-uniform emitters, an approximation for textured ones (:mod:`dyngi.sampling.emitter_triangles`).
+uniform emitters, an approximation for textured ones (:mod:`dyngi.lights.emitter_table`).
 
 :class:`TracedNEE` adapts a :class:`LightNEE` to the light-sampling strategies' ``sample_traced`` interface
-(:func:`dyngi.sampling.lights.sample_traced`) for shading that is not a path walk: the primary-vertex NEE of
+(:func:`dyngi.lights.emitter_sampling.sample_traced`) for shading that is not a path walk: the primary-vertex NEE of
 the probe and VPL techniques (:func:`dyngi.probes.primary.shade_primary`) and the NEE at probe-ray hits
 (:class:`dyngi.probes.trace.DiffuseHitShader`).
 
@@ -33,12 +33,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from ..directions.octree import make_octree, octree_bounds
 from ..errors import DyngiError
-from ..sampling.lights import EmitterSubsetSampling
-from ..sampling.octree import AdaptiveOctree, scaled_thresholds
 from ..sampling.rng import make_sampler
 from ..scene.surface import shading_normal
 from .base import INVALID, EmitterTable, FrameCtx, entry, make
+from .emitter_sampling import EmitterSubsetSampling
 
 RECORD_VERTICES = 3
 """Path vertices per lane whose NEE samples a learning sampler records (the VLC paper's path has 2)."""
@@ -89,14 +89,7 @@ class LightNEE:
             self.others.glass = False      # shadow rays stop at glass, as Mitsuba's path (the reference)
         n_other = self.others.count if self.others is not None else 0
         self.p_tri = 1.0 if n_other == 0 else (0.0 if self.tris.count == 0 else P_TRI)
-        if meta is not None and getattr(meta, "bounds", None) is not None:
-            lo, hi = (np.asarray(b, np.float64) for b in meta.bounds)
-        else:
-            bb = ms.bbox()
-            lo, hi = np.array(bb.min, np.float64), np.array(bb.max, np.float64)
-        ext = hi - lo
-        grow = np.maximum(0.01 * max(float(ext.max()), 1e-3) - ext, 0.0)   # a flat scene: as nee-pt
-        self.bounds = (lo - 0.5 * grow, hi + 0.5 * grow)
+        self.bounds = octree_bounds(scene)
         if "dynamic_shapes" in self.entry.options and "dynamic_shapes" not in opts:
             opts["dynamic_shapes"] = list(self.dynamic)
         if "rebuild" in self.entry.options and "rebuild" not in opts:
@@ -134,8 +127,7 @@ class LightNEE:
     def begin_frame(self, scene, frame, vertices_per_frame: int = 0) -> None:
         """Refresh the table of moving lights, build the octree (first frame), call the sampler's hook."""
         if self.entry.needs_octree and self.sampler is None:
-            split, collapse = scaled_thresholds(max(int(vertices_per_frame), 1))
-            self.octree = AdaptiveOctree(self.bounds[0], self.bounds[1], split, collapse)
+            self.octree = make_octree(self.bounds, vertices_per_frame)
             self.sampler = make(self.kind, self.tris, mi_scene=self._ms, bounds=self.bounds, octree=self.octree,
                                 **{k: v for k, v in self._opts.items() if k != "octree"})
         if self._lights_move and frame.index > 0:
@@ -285,7 +277,7 @@ class _Numbers:
 
 class TracedNEE:
     """A :class:`LightNEE` as a light-sampling strategy with ``sample_traced`` (the interface of
-    :func:`dyngi.sampling.lights.sample_traced`): one NEE sample of the light sampler per call, its point
+    :func:`dyngi.lights.emitter_sampling.sample_traced`): one NEE sample of the light sampler per call, its point
     from the caller's 2D number and its light-selection number from ``numbers.next_1d()`` (a per-lane
     sampler: the caller's own, or a stream of its own, :meth:`stream`). The same estimator as the path
     walk's NEE (``path:lights=...``, pbrt-v4's ``SampleLd``): unbiased for every sampler whose pmf is that of

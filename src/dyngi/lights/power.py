@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
-from ..sampling.emitter_triangles import INVALID
+from .emitter_table import INVALID
 from .base import register
 
 

@@ -78,9 +78,9 @@ import numpy as np
 from ..backend import dr, mi
 from ..errors import DyngiError, unknown_choice
 from ..registry import Param
-from ..sampling.lights import EmitterSubsetSampling, sample_traced
+from ..lights.emitter_sampling import EmitterSubsetSampling, sample_traced
 from ..sampling.octahedral import direction_to_texel_coords
-from ..sampling.sunsky import is_sunsky, split_sunsky
+from ..scene.sunsky import is_sunsky, split_sunsky
 from ..timing import StageTimer
 from .blend import HysteresisBlend
 from .lookup import probe_radiance

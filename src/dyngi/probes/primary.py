@@ -33,7 +33,7 @@ Surfaces face the camera by :func:`~dyngi.scene.surface.shading_side` (the back 
 Camera rays pass straight through clear surfaces (``dielectric``,
 ``thindielectric``, ``null``) with their transmittance ``T``, as real-time
 engines draw glass (a transparent pass without refraction;
-:mod:`dyngi.sampling.passthrough`): a deliberate bias -- the glass's own
+:mod:`dyngi.scene.passthrough`): a deliberate bias -- the glass's own
 reflection (~4-8%) is dropped and a solid glass object is not refracted (a
 flat pane does not shift the image, a glass ball would).
 """
@@ -42,8 +42,8 @@ from __future__ import annotations
 from ..backend import dr, mi
 from ..lights.nee import PRIMARY_NEE_STREAM, TracedNEE
 from ..sampling.diffuse import diffuse_albedo
-from ..sampling.lights import sample_traced
-from ..sampling.passthrough import intersect_through_glass, scene_has_glass
+from ..lights.emitter_sampling import sample_traced
+from ..scene.passthrough import intersect_through_glass, scene_has_glass
 from ..sampling.rng import make_sampler
 from .glossy import glossy_lookup
 from .lookup import diffuse_radiance

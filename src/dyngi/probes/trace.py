@@ -60,8 +60,8 @@ closed by outward-facing planes), and solids as closed two-sided meshes
   (veach-bidir 0.36 of Mitsuba's mean). Probe rays and shadow rays pass
 straight through clear surfaces (``dielectric``, ``thindielectric``,
 ``null``), attenuated by their transmittance, up to
-:data:`~dyngi.sampling.passthrough.MAX_GLASS_LAYERS` of them: a deliberate
-bias, as real-time engines treat glass for GI (:mod:`dyngi.sampling.passthrough`).
+:data:`~dyngi.scene.passthrough.MAX_GLASS_LAYERS` of them: a deliberate
+bias, as real-time engines treat glass for GI (:mod:`dyngi.scene.passthrough`).
 
 Routing of emitters (parameter ``direct``; validated by :func:`check_direct_mode`
 only) -- every emitter's light enters the image through exactly one of NEE
@@ -69,7 +69,7 @@ only) -- every emitter's light enters the image through exactly one of NEE
 
 * ``'sun'`` (default): NEE samples every area, point, spot and directional
   emitter and the *sun* of a ``sunsky`` emitter (its ``sky_scale = 0`` part,
-  :mod:`dyngi.sampling.sunsky`); the *sky* of a ``sunsky`` (its ``sun_scale = 0``
+  :mod:`dyngi.scene.sunsky`); the *sky* of a ``sunsky`` (its ``sun_scale = 0``
   part) and plain ``envmap``/``constant`` emitters reach the image only through
   the probes' miss rays, which evaluate exactly that sky part;
 * ``'sky'``: the whole environment (infinite, non-delta emitters, a
@@ -97,10 +97,10 @@ from ..errors import DyngiError, unknown_choice
 from ..lights.nee import TracedNEE
 from ..sampling.diffuse import diffuse_albedo, front_wi, has_diffuse_lobe
 from ..scene.surface import shading_side
-from ..sampling.lights import EmitterSubsetSampling, sample_traced
-from ..sampling.passthrough import intersect_through_glass, scene_has_glass
+from ..lights.emitter_sampling import EmitterSubsetSampling, sample_traced
+from ..scene.passthrough import intersect_through_glass, scene_has_glass
 from ..sampling.rng import make_sampler
-from ..sampling.sunsky import is_sunsky, split_sunsky
+from ..scene.sunsky import is_sunsky, split_sunsky
 from ..timing import maybe_stage
 from .glossy import sample_glossy
 from .lookup import diffuse_radiance
@@ -212,7 +212,7 @@ def emitter_via_probes(emitter, mode: str, active=True, split_ids=()):
 class LightRouting:
     """Which light NEE samples and which the probes carry, for one scene and one ``direct`` mode.
 
-    * ``nee``: an :class:`~dyngi.sampling.lights.EmitterSubsetSampling` over the
+    * ``nee``: an :class:`~dyngi.lights.emitter_sampling.EmitterSubsetSampling` over the
       emitters NEE owns (plus the standalone sun part of a ``sunsky`` under ``'sun'``);
     * ``probe_env``: the emitter a probe ray's miss evaluates (the scene's
       environment, its sky part, or ``None``);

@@ -2,7 +2,7 @@
 
 A :class:`Reservoir` holds, per lane, one selected sample (any tuple of Dr.Jit
 arrays: ReSTIR DI stores ``(emitter index, payload)``,
-:mod:`dyngi.sampling.candidates`), the weight sum ``w_sum``, the candidate count
+:mod:`dyngi.lights.candidates`), the weight sum ``w_sum``, the candidate count
 ``M``, the target value of the sample at its own domain ``p_hat`` and the
 unbiased contribution weight ``W`` (an estimate of ``1 / p(y)``), plus ``src``,
 the domain index the sample came from (for MIS).

@@ -706,7 +706,7 @@ def light_behind_glass():
     ``thindielectric`` glass (a 1 x 1 m pane 0.3 m below the ceiling and four side panes).
 
     Every light path leaves the lamp through glass: NEE shadow rays and probe
-    rays must pass it (attenuated by its transmittance, :mod:`dyngi.sampling.passthrough`)
+    rays must pass it (attenuated by its transmittance, :mod:`dyngi.scene.passthrough`)
     or the room is dark (a small uncovered light adds ~10% of the power). Mitsuba's ``path`` blocks NEE
     at the glass but reaches
     the light through it by BSDF sampling (a thin slab does not refract), so its

@@ -1,4 +1,6 @@
-"""Procedural triangle meshes (numpy) and their conversion to Mitsuba meshes.
+"""Procedural triangle meshes (numpy) and their conversion to Mitsuba meshes; a mesh's triangles read
+back (:func:`mesh_triangles`) and uploaded as Dr.Jit points (:func:`to_point`), shared by the emitter table
+(:mod:`dyngi.lights.emitter_table`) and the motion vectors (:mod:`dyngi.directions.motion`).
 
 All built-in geometry is triangle meshes so that every shape can be moved the
 same way (``vertex_positions``) and every shape has a stable id (its key in the
@@ -9,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..backend import mi
+from ..backend import mi, upload
 from ..errors import DyngiError
 
 
@@ -117,3 +119,17 @@ def diffuse(rgb) -> dict:
 
 def area_light(rgb) -> dict:
     return {"type": "area", "radiance": {"type": "rgb", "value": list(map(float, rgb))}}
+
+
+def mesh_triangles(sh):
+    """(p0, p1, p2) float64 arrays [F, 3] of a mesh's triangles (current vertex positions)."""
+    V = np.asarray(sh.vertex_positions_buffer(), np.float64).reshape(-1, 3)
+    F = np.asarray(sh.faces_buffer(), np.int64).reshape(-1, 3)
+    return V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+
+
+def to_point(a, cls=mi.Point3f):
+    """NumPy [N, 3] (any float type) -> a Dr.Jit 3-vector of type ``cls`` (float32, in Dr.Jit's own memory:
+    :func:`dyngi.backend.upload`)."""
+    a = np.asarray(a, np.float32).reshape(-1, 3)
+    return cls(*upload(mi.Float, a[:, 0], a[:, 1], a[:, 2]))

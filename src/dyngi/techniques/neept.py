@@ -20,12 +20,12 @@ the CDQ learn at the vertices it reaches, and each path still traces its five ra
 
 Lights
 ------
-A light is an emitter triangle (:mod:`dyngi.sampling.emitter_triangles`). The
+A light is an emitter triangle (:mod:`dyngi.lights.emitter_table`). The
 ``lights`` parameter chooses how NEE selects one, through the one light-sampler interface
 (:mod:`dyngi.lights`; any registered sampler, e.g. ``power``):
 ``uniform`` (pmf 1/L), ``lighttree`` (light BVH, H2), ``sll`` (static light
-lists from a conservative PVS, :mod:`dyngi.sampling.pvs`, the paper's), ``sll-oracle`` (ray-cast
-per-cell visible lists, an oracle baseline, :mod:`dyngi.sampling.sll`), ``vlc`` (Visibility Light Cache, :mod:`dyngi.sampling.vlc`, default).
+lists from a conservative PVS, :mod:`dyngi.lights.pvs`, the paper's), ``sll-oracle`` (ray-cast
+per-cell visible lists, an oracle baseline, :mod:`dyngi.lights.sll`), ``vlc`` (Visibility Light Cache, :mod:`dyngi.lights.vlc`, default).
 Emitters that are not triangles are handled the same way in every variant: delta
 lights (point, spot, directional) and analytic area emitters (sphere, disk) by a
 second NEE sample through Mitsuba's emitter sampling restricted to them (a sixth
@@ -37,20 +37,20 @@ Directions
 Through the direction-sampler interface (:mod:`dyngi.directions`).
 ``directions=bsdf``: the indirect rays sample the (real at the primary hit,
 cosine at the secondary) BSDF. ``directions=cdq``: with probability 0.5 from the
-CDQ of the octree leaf (:mod:`dyngi.sampling.cdq`, issue 18) and 0.5 from the
+CDQ of the octree leaf (:mod:`dyngi.directions.cdq`, issue 18) and 0.5 from the
 BSDF, with the mixture pdf (one-sample balance heuristic); NEE/BSDF-emission MIS
 uses the mixture pdf for the BSDF side. At a primary hit whose BSDF has a delta
 lobe the CDQ is not used (its mixture pdf would be undefined).
 
 Octree (Sec. 6)
 ---------------
-With ``lights=vlc`` or ``directions=cdq`` an :class:`~dyngi.sampling.octree.AdaptiveOctree`
+With ``lights=vlc`` or ``directions=cdq`` an :class:`~dyngi.directions.octree.AdaptiveOctree`
 over the scene bounds is created; every path vertex (hits 1-3) is placed in it
 and it adapts at the end of each frame. Thresholds: the paper's 4096 / 2048 at
 1080p scaled by the number of placed vertices per frame (3 per path per spp
 here), never below 512 / 256 (issue 17 item 2; ``octree.scaled_thresholds``).
 Sampling uses the primary hit's previous-frame position (Sec. 6.3): on animated meshes
-(``scene.meta.dynamic_shapes``) :class:`~dyngi.sampling.motion.MotionVectors` gives it (the same surface
+(``scene.meta.dynamic_shapes``) :class:`~dyngi.directions.motion.MotionVectors` gives it (the same surface
 point one frame earlier), and ``octree.lookup_pair`` finds the sampling leaf (previous position) and the
 placing leaf (current position) in one traversal; the VLC and the CDQ sample with the former and record
 into the latter. Secondary hits use their current position (our choice: no G-buffer there).
@@ -71,7 +71,7 @@ the indirect sample ``f cos L_i / p_mix`` without the camera-path prefix, where
 ``L_i`` excludes the emission of lights hit by the ray (NEE's job, Sec. 5.1) but
 includes the environment and everything reflected at the next vertex.
 
-VLC extensions (ours, off by default; :mod:`dyngi.sampling.vlc`): ``record_hits``
+VLC extensions (ours, off by default; :mod:`dyngi.lights.vlc`): ``record_hits``
 (the paper records NEE samples only): an indirect ray that reaches the front of an
 emitter triangle is also recorded as a visible sample of that light at its origin
 (a free proof of visibility); ``memory`` (1 = the paper): a light stays in its
@@ -80,7 +80,7 @@ leaf's cache for that many frames after its last visible sample.
 default 0.6, 0.2, 0.2, our choice: the paper gives no weights).
 ``explorer=lighttree`` (ours; default ``global``, the paper's alias table): the VLC explores with the
 light tree of ``lights=lighttree`` (exact mixture pmf; warehouse-lights 160x90: MSE 0.00477 -> 0.00174,
-:mod:`dyngi.sampling.vlc`). ``leaf_samples`` (0 = the scaled paper thresholds): octree split threshold
+:mod:`dyngi.lights.vlc`). ``leaf_samples`` (0 = the scaled paper thresholds): octree split threshold
 raised to this many samples per leaf, collapse half of it (an ablation knob; 2048 / 4096 did not lower
 the VLC's error on warehouse-lights at 160x90: 0.00462 / 0.00472 vs 0.00477).
 The selectors' importance is the diffuse irradiance above the (side-corrected)
@@ -94,20 +94,19 @@ import numpy as np
 
 from .. import directions as direction_samplers
 from .. import lights as light_samplers
+from ..backend import dr, mi
+from ..color import luminance
 from ..directions.base import Vertex
 from ..directions.mixture import CDQ_FRACTION  # noqa: F401  (re-exported: Sec. 7's "brdf fraction of 50%")
-from ..scene.surface import shading_normal
-from ..backend import dr, mi
+from ..directions.motion import MotionVectors
+from ..directions.octree import make_octree, octree_bounds
 from ..errors import DyngiError
+from ..lights.base import INVALID, EmitterTable, FrameCtx
+from ..lights.emitter_sampling import EmitterSubsetSampling
 from ..sampling.diffuse import diffuse_albedo
-from ..sampling.emitter_triangles import INVALID, EmitterTriangles
-from ..sampling.light_select import FrameCtx
-from ..sampling.lights import EmitterSubsetSampling
-from ..sampling.motion import MotionVectors
-from ..sampling.octree import AdaptiveOctree, scaled_thresholds
 from ..sampling.rng import make_sampler, mix_seed
+from ..scene.surface import shading_normal
 from ..transport.accumulate import ProgressiveMean
-from ..color import luminance
 from ..transport.mis import mis_weight
 from ..transport.path_walk import walk
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
@@ -371,7 +370,7 @@ class NeePT(Technique):
         # nee-pt's depth is fixed (Sec. 7); exposed for the battery's depth-limited furnace value
         self.params["max_depth"] = MAX_DEPTH
         ms = scene.mi_scene
-        self.tris = EmitterTriangles(ms)
+        self.tris = EmitterTable(ms)
         tri_shapes = {sid for sid, _, _ in self.tris.shape_slices()}
         self._lights_move = bool(tri_shapes & set(scene.meta.dynamic_shapes))
         self._tri_emitters = [sh.emitter() for sh in self.tris._shapes]   # kept alive: compared by identity
@@ -383,12 +382,7 @@ class NeePT(Technique):
             return not any(e is x for x in self._tri_emitters)
 
         self.others = EmitterSubsetSampling(ms, keep) if any(keep(e) for e in ms.emitters()) else None
-        lo, hi = (np.asarray(b, np.float64) for b in scene.meta.bounds)
-        # a flat scene (one plane) has a zero extent along an axis: give the octree at least 1% of the largest
-        # extent there (our choice; the octree needs max > min)
-        ext = hi - lo
-        grow = np.maximum(0.01 * max(float(ext.max()), 1e-3) - ext, 0.0)
-        self.bounds = (lo - 0.5 * grow, hi + 0.5 * grow)
+        self.bounds = octree_bounds(scene)    # a flat scene's zero extent grown (directions.octree)
         p = self.params
         self.octree = None
         self.cdq = None
@@ -398,9 +392,9 @@ class NeePT(Technique):
         _weights(p["explore_weights"])          # bad values fail here, not at the first frame
         if p["directions"] == "cdq":
             try:
-                from ..sampling.cdq import CDQDirections  # noqa: F401
+                from ..directions.cdq import CDQDirections  # noqa: F401
             except ImportError as e:
-                raise DyngiError(f"nee-pt: directions=cdq needs dyngi.sampling.cdq ({e}); valid values: bsdf, cdq") \
+                raise DyngiError(f"nee-pt: directions=cdq needs dyngi.directions.cdq ({e}); valid values: bsdf, cdq") \
                     from None
         self.accum = ProgressiveMean()
 
@@ -409,14 +403,11 @@ class NeePT(Technique):
         p = self.params
         need_octree = p["lights"] == "vlc" or p["directions"] == "cdq"
         if need_octree:
-            split, collapse = scaled_thresholds(MAX_DEPTH * res[0] * res[1] * spp)
-            if p["leaf_samples"] > 0:
-                split, collapse = max(split, int(p["leaf_samples"])), max(collapse, int(p["leaf_samples"]) // 2)
-            self.octree = AdaptiveOctree(self.bounds[0], self.bounds[1], split, collapse)
+            self.octree = make_octree(self.bounds, MAX_DEPTH * res[0] * res[1] * spp, p["leaf_samples"])
             if self.scene.meta.dynamic_shapes:     # motion vectors for Sec. 6.3's previous/current lookup
                 self.motion = MotionVectors(self.scene.mi_scene, self.scene.meta.dynamic_shapes)
         if p["directions"] == "cdq":
-            from ..sampling.cdq import CDQDirections
+            from ..directions.cdq import CDQDirections
             self.cdq = CDQDirections(self.octree, bits=p["cdq_bits"], stability=p["cdq_stability"],
                                      memory=p["cdq_memory"])
         opts = {"fraction": float(p["cdq_fraction"])} if p["directions"] == "cdq" else {}

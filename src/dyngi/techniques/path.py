@@ -54,7 +54,7 @@ from .. import lights as light_samplers
 from ..directions.walk import WalkDirections
 from ..backend import dr, mi
 from ..lights.nee import LightNEE
-from ..sampling.lights import EmitterSampling
+from ..lights.emitter_sampling import EmitterSampling
 from ..sampling.rng import mix_seed
 from ..transport.accumulate import ProgressiveMean
 from ..transport.mis import mis_weight

@@ -5,10 +5,10 @@ an unbiased path tracer that uses ReSTIR [BWP*20] to estimate direct
 illumination at the primary vertex", Sec. 5), built from Bitterli et al. 2020
 ("Spatiotemporal reservoir resampling", ReSTIR DI) where the paper is silent:
 
-1. **G-buffer** (:mod:`dyngi.sampling.gbuffer`): one jittered primary ray per
+1. **G-buffer** (:mod:`dyngi.transport.gbuffer`): one jittered primary ray per
    pixel, motion by each shape's own rigid transform, disocclusion mask.
 2. **Initial candidates** (Bitterli Alg. 3): ``candidates`` (M = 32) light
-   samples per pixel from :class:`~dyngi.sampling.candidates.EmitterCandidates`
+   samples per pixel from :class:`~dyngi.lights.candidates.EmitterCandidates`
    (area lights in area measure, environment in solid angle, delta lights as
    point masses), streamed through a reservoir with target
    ``p_hat(y) = lum(Lg(y)) * cos+(n, wi)`` (``|cos|`` on transmissive

@@ -2,7 +2,7 @@
 
 Estimator (Veach 1997, Ch. 9; pbrt-v4's ``PathIntegrator::Li``): at each vertex the emission reached
 by the BSDF-sampled ray, weighted by MIS against light sampling (power or balance heuristic,
-:mod:`dyngi.transport.mis`), plus one light sample (NEE, :func:`dyngi.sampling.lights.sample_traced`)
+:mod:`dyngi.transport.mis`), plus one light sample (NEE, :func:`dyngi.lights.emitter_sampling.sample_traced`)
 weighted by MIS against BSDF sampling; Russian roulette from ``rr_depth`` on with survival probability
 ``min(max(beta) * eta^2, 0.95)`` (Mitsuba's ``path``). ``max_depth`` counts path vertices as in
 Mitsuba (1: emitters seen directly, 2: direct illumination; -1 unbounded). The whole path is one
@@ -70,7 +70,7 @@ from dataclasses import dataclass
 
 from ..backend import dr, mi
 from ..errors import DyngiError
-from ..sampling.lights import EmitterSampling, sample_traced
+from ..lights.emitter_sampling import EmitterSampling, sample_traced
 from ..sampling.rng import make_sampler
 from .mis import mis_weight
 

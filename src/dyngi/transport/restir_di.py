@@ -2,10 +2,10 @@
 every technique that resamples direct light at the primary vertex holds (``restir-pt``, the DDGI
 Resampling family; issue 24). The target is a parameter of each reuse stage.
 
-1. **G-buffer** (:mod:`dyngi.sampling.gbuffer`): one jittered primary ray per pixel, reprojection by
+1. **G-buffer** (:mod:`dyngi.transport.gbuffer`): one jittered primary ray per pixel, reprojection by
    each shape's own rigid motion, disocclusion mask (:meth:`ReSTIRDI.gbuffer`).
 2. **Initial candidates** (Bitterli Alg. 3, :func:`initial_candidates`): M light samples per pixel from
-   :class:`~dyngi.sampling.candidates.EmitterCandidates` (area lights in area measure, environment in
+   :class:`~dyngi.lights.candidates.EmitterCandidates` (area lights in area measure, environment in
    solid angle, delta lights as point masses) streamed through a reservoir with the default target
    ``p_hat(y) = lum(Lg(y)) * cos+(n, wi)`` (:func:`target`; ``|cos|`` on transmissive surfaces): the
    unshadowed contribution without the BSDF, so any neighbour's or the previous frame's target is
@@ -42,13 +42,12 @@ from dataclasses import dataclass
 from .. import lights as light_samplers
 from ..backend import dr, mi
 from ..errors import unknown_choice
-from ..lights.candidates import LightCandidates
+from ..lights.candidates import EmitterCandidates, LightCandidates
+from ..lights.emitter_sampling import EmitterSampling
 from ..lights.nee import LightNEE
-from ..sampling.candidates import EmitterCandidates
-from ..sampling.lights import EmitterSampling
-from ..sampling.gbuffer import GBufferHistory, render_gbuffer, similar
 from ..sampling.reservoir import COMBINE_MODES, Reservoir, finalize, finalize_single, merge
 from ..sampling.rng import make_sampler
+from .gbuffer import GBufferHistory, render_gbuffer, similar
 from .path_walk import walk
 
 PATH_STREAM = 0x7E57

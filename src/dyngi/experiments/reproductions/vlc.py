@@ -17,8 +17,8 @@
   rebuilding of all data structures, with the CDQ), path tracing LH 11.2 ms, SLL 15.1 ms, VLC 15.1 ms.
 
 Baselines: ``lights=sll`` is the paper's SLL (Quake 2 RTX: conservative PVS lists,
-:mod:`dyngi.sampling.pvs`); ``lights=sll-oracle`` (ray-cast per-cell visible lists,
-:mod:`dyngi.sampling.sll`) is an *oracle* baseline, stronger than the paper's SLL, in its own row.
+:mod:`dyngi.lights.pvs`); ``lights=sll-oracle`` (ray-cast per-cell visible lists,
+:mod:`dyngi.lights.sll`) is an *oracle* baseline, stronger than the paper's SLL, in its own row.
 
 Samples per octree leaf (issue 28): the paper splits a leaf at 4096 samples and collapses at 2048
 (Sec. 7) at 1080p with two placed vertices per path, so its leaves hold 2048-4096 samples per
@@ -59,7 +59,7 @@ ORACLE = "nee-pt:lights=sll-oracle"
 """Ray-cast per-cell visible-light lists: an oracle baseline, stronger than the paper's SLL (its own rows)."""
 VLC_LH = "nee-pt:lights=vlc:explorer=lighttree"
 """Our extension beside the paper's VLC: exploration by the light tree instead of the global alias table
-(:mod:`dyngi.sampling.vlc`, "Exploration by a light tree"); reported in its own rows."""
+(:mod:`dyngi.lights.vlc`, "Exploration by a light tree"); reported in its own rows."""
 VLC_LEAF = "nee-pt:lights=vlc:leaf_samples=4096"
 """The paper's split threshold (4096, collapse 2048) at our resolution: fewer, larger leaves."""
 VLC_MEMORY = "nee-pt:lights=vlc:memory=8"

@@ -4,7 +4,7 @@ One reservoir per pixel resamples the union of two disjoint sample spaces (a par
 integrand ``T_f (L_e + L_DDGI+)``, our choice, so that no cross pdf is needed):
 
 * part 0, **emission**: ``M = candidates`` emitter samples of
-  :class:`~dyngi.sampling.candidates.EmitterCandidates` (area lights in area measure, environment in
+  :class:`~dyngi.lights.candidates.EmitterCandidates` (area lights in area measure, environment in
   solid angle, delta lights as point masses), target ``p0(y) = lum(L_e(y) cos_y / r^2) cos_x``
   (``restir-pt``'s): the emitted light ``L_e`` of the secondary vertex enters *only* here (it is neither
   dropped nor MIS-weighted: the BSDF candidates below do not carry ``L_e`` of smooth-lobe hits);

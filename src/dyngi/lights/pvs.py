@@ -7,7 +7,7 @@ so it "includes many lights that are potentially visible but occluded" (issue 28
 SLL). NEE traverses the list with a stride so that at most 32 lights are considered, weighted by
 the same importance as the VLC (Sec. 7: "so that the techniques mainly differ in how precisely
 they capture the set of visible lights"). The traversal, the importance and the exact pmf are
-:class:`~dyngi.sampling.sll.SLLSelector`'s (this class only builds other lists).
+:class:`~dyngi.lights.sll.SLLSelector`'s (this class only builds other lists).
 
 Leaves (our stand-in for BSP leaves): the cells of a coarse uniform grid, ``cells`` cells along the
 longest axis of the scene bounds (default 9: 3 m leaves in ``warehouse-rooms``, whose 9 m rooms
@@ -56,6 +56,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
+from .base import register
 from .sll import _RAY_CHUNK, SLLSelector, _static_occluders
 
 
@@ -69,7 +70,7 @@ class PVSLightLists(SLLSelector):
 
     Parameters (keywords; the rest are accepted and ignored, contract of ``nee-pt``)
     ----------
-    tris : EmitterTriangles        the triangle lights
+    tris : EmitterTable            the triangle lights
     mi_scene : mi.Scene            the scene whose static geometry occludes (required)
     bounds : (lo[3], hi[3])        grid bounds (default: the scene's bounding box)
     cells : int = 9                leaves along the longest axis (our choice; BSP-leaf stand-in)
@@ -271,7 +272,7 @@ class PVSLightLists(SLLSelector):
         in_pvs = (self.leaf_pvs.astype(np.float32) @ self._over.T.astype(np.float32)) > 0.5     # [C, L]
         return in_pvs & self._facing.T
 
-    # ------------------------------------------------------------------ LightSelector protocol
+    # ------------------------------------------------------------------ LightSampler protocol
     def begin_frame(self, ctx) -> None:
         """Lights that moved are re-placed in the leaves (no rays; the leaf PVS is static) and the lists
         re-uploaded (a host pass, only in frames where a light moved)."""
@@ -298,3 +299,6 @@ class PVSLightLists(SLLSelector):
         s.update({"leaves": self.n_cells, "pvs": self.method, "pvs_rays": self.rays,
                   "mean_pvs_leaves": float(self.leaf_pvs.sum(1).mean())})
         return s
+
+
+register("sll", PVSLightLists, "static light lists from a conservative PVS (VLC paper Sec. 7 baseline)")

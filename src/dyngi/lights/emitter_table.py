@@ -1,14 +1,15 @@
-"""Every emitter triangle of a scene as one light (Dittebrandt et al., VLC paper Sec. 7).
+"""The one emitter table: every emitter triangle of a scene as one light (Dittebrandt et al., VLC paper
+Sec. 7), and the one emitter classification (:func:`emitter_kind`).
 
 The VLC paper's lights are triangles: "a light" is one emitter triangle, so a
 built-in quad light is two lights, and every light is a *uniform* emitter
 (constant radiance over its surface) sampled by plain area sampling (Sec. 7).
-:class:`EmitterTriangles` flattens every triangle-mesh shape that carries an
+:class:`EmitterTable` flattens every triangle-mesh shape that carries an
 ``area`` emitter into device arrays indexed by a global *light id*:
 
 * ids follow ``mi_scene.shapes()`` order and each mesh's triangle order, so
   they are stable across frames of an animated scene (the shapes are animated
-  in place; :meth:`EmitterTriangles.refresh` re-reads the positions and keeps
+  in place; :meth:`EmitterTable.refresh` re-reads the positions and keeps
   the count and ids);
 * ``radiance`` is the emitter's radiance evaluated once per triangle at its
   centroid (exact for the uniform emitters of Sec. 7; a textured emitter is
@@ -29,8 +30,26 @@ import numpy as np
 
 from ..backend import dr, mi, upload
 from ..color import luminance
+from ..scene.geometry import mesh_triangles, to_point
 
 INVALID = 0xFFFFFFFF
+"""Light id of "no light" (off emitter triangles, nothing chosen)."""
+
+AREA, ENVIRONMENT, DELTA_POSITION, DELTA_DIRECTION = 0, 1, 2, 3
+KIND_NAMES = ("area", "environment", "delta-position", "delta-direction")
+
+
+def emitter_kind(e) -> int:
+    """The one emitter classification: ``AREA``, ``ENVIRONMENT``, ``DELTA_POSITION`` or ``DELTA_DIRECTION``
+    (the measure a light sample of ``e`` lives in, :mod:`dyngi.lights.candidates`)."""
+    f = e.flags()
+    if mi.has_flag(f, mi.EmitterFlags.DeltaDirection):
+        return DELTA_DIRECTION
+    if mi.has_flag(f, mi.EmitterFlags.DeltaPosition):
+        return DELTA_POSITION
+    if mi.has_flag(f, mi.EmitterFlags.Infinite):
+        return ENVIRONMENT
+    return AREA
 
 
 def _mesh_emitter_shapes(mi_scene):
@@ -44,13 +63,6 @@ def _mesh_emitter_shapes(mi_scene):
             continue
         out.append(sh)
     return out
-
-
-def _mesh_triangles(sh):
-    """(p0, p1, p2) float64 arrays [F, 3] of a mesh's triangles (current vertex positions)."""
-    V = np.asarray(sh.vertex_positions_buffer(), np.float64).reshape(-1, 3)
-    F = np.asarray(sh.faces_buffer(), np.int64).reshape(-1, 3)
-    return V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
 
 
 def _triangle_radiance(sh, p, n):
@@ -72,12 +84,7 @@ def _triangle_radiance(sh, p, n):
     return np.asarray(dr.ravel(val), np.float64).reshape(F, 3)
 
 
-def _to_point(a, cls=mi.Point3f):
-    a = np.asarray(a, np.float32).reshape(-1, 3)
-    return cls(*upload(mi.Float, a[:, 0], a[:, 1], a[:, 2]))    # Dr.Jit's own memory (dyngi.backend.upload)
-
-
-class EmitterTriangles:
+class EmitterTable:
     """Every emitter triangle of the scene is one light (VLC paper Sec. 7; a quad light = 2 lights).
 
     Attributes (device arrays of size ``count``): ``p0``, ``e1``, ``e2`` (vertex
@@ -111,7 +118,7 @@ class EmitterTriangles:
     def _read(self, recompute_radiance: bool):
         P0, P1, P2, RAD = [], [], [], []
         for sh in self._shapes:
-            p0, p1, p2 = _mesh_triangles(sh)
+            p0, p1, p2 = mesh_triangles(sh)
             P0.append(p0), P1.append(p1), P2.append(p2)
         if self.count:
             p0 = np.concatenate(P0)
@@ -137,14 +144,14 @@ class EmitterTriangles:
         self._host = dict(p0=p0, e1=e1, e2=e2, normal=n, area=area, radiance=rad, power=power, centroid=cen)
         # padded to >= 2 entries: a 1-element array may enter a kernel as a literal (then another kernel)
         pad = (lambda a: a if a.shape[0] >= 2 else np.concatenate([a, np.zeros((2 - a.shape[0],) + a.shape[1:])]))
-        self.p0 = _to_point(pad(p0))
-        self.e1 = _to_point(pad(e1), mi.Vector3f)
-        self.e2 = _to_point(pad(e2), mi.Vector3f)
-        self.normal = _to_point(pad(n), mi.Normal3f)
+        self.p0 = to_point(pad(p0))
+        self.e1 = to_point(pad(e1), mi.Vector3f)
+        self.e2 = to_point(pad(e2), mi.Vector3f)
+        self.normal = to_point(pad(n), mi.Normal3f)
         self.area = upload(mi.Float, pad(area))
-        self.radiance = _to_point(pad(rad), mi.Color3f)
+        self.radiance = to_point(pad(rad), mi.Color3f)
         self.power = upload(mi.Float, pad(power))
-        self.centroid = _to_point(pad(cen))
+        self.centroid = to_point(pad(cen))
         dr.eval(self.p0, self.e1, self.e2, self.normal, self.area, self.radiance, self.power, self.centroid)
 
     def host_arrays(self) -> dict:
@@ -161,7 +168,7 @@ class EmitterTriangles:
         Radiance is kept (emitters are uniform; a changed radiance needs a new object)."""
         counts = [int(sh.face_count()) for sh in self._shapes]
         if counts != self._counts:
-            raise ValueError("EmitterTriangles.refresh: the emitter meshes changed their triangle counts")
+            raise ValueError("EmitterTable.refresh: the emitter meshes changed their triangle counts")
         self._read(recompute_radiance=False)
 
     # -- device queries ----------------------------------------------------

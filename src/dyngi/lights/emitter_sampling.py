@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
-from .passthrough import scene_has_glass, shadow_transmittance
+from ..scene.passthrough import scene_has_glass, shadow_transmittance
 
 
 class EmitterSampling:
@@ -48,9 +48,9 @@ class EmitterSubsetSampling:
 
     ``keep(emitter) -> bool`` selects the emitters (host side, once per scene);
     ``extra`` adds emitters that are not the scene's own (the sun part of a
-    ``sunsky``, :mod:`dyngi.sampling.sunsky`). Shadow rays pass through clear
+    ``sunsky``, :mod:`dyngi.scene.sunsky`). Shadow rays pass through clear
     surfaces (glass) attenuated by their transmittance where the scene has any
-    (:mod:`dyngi.sampling.passthrough`; a deliberate bias).
+    (:mod:`dyngi.scene.passthrough`; a deliberate bias).
     With a single emitter in the subset (a Cornell box, a sun) the emitter's
     own ``sample_direction`` is traced into the kernel directly instead of
     through a virtual call on a gathered emitter pointer (about 2 ms less per
@@ -105,7 +105,7 @@ class EmitterSubsetSampling:
         if receiver is not None:
             active &= dr.dot(receiver, ds.d) > 0.0
         shadow = si.spawn_ray_to(ds.p)
-        if self.glass:      # clear surfaces pass light, attenuated (dyngi.sampling.passthrough)
+        if self.glass:      # clear surfaces pass light, attenuated (dyngi.scene.passthrough)
             spec = mi.Color3f(spec) * shadow_transmittance(scene, shadow, active)
         else:
             spec = dr.select(active & ~scene.ray_test(shadow, active), spec, 0.0)

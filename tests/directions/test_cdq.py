@@ -9,7 +9,7 @@ from stats import chi2_uniform
 
 from dyngi.backend import dr, mi
 from dyngi.errors import DyngiError
-from dyngi.sampling import cdq
+from dyngi.directions import cdq
 
 BITS = cdq.BIT_CHOICES
 
@@ -225,7 +225,7 @@ def test_device_migration_matches_numpy_reference():
 
 def test_with_adaptive_octree_split_children_inherit_fields():
     """Through H2's octree: a leaf that splits hands its (adapted) quadtree to its 8 children."""
-    from dyngi.sampling.octree import AdaptiveOctree
+    from dyngi.directions.octree import AdaptiveOctree
 
     tree = AdaptiveOctree(np.zeros(3), np.ones(3), split_threshold=512, collapse_threshold=256)
     g = cdq.CDQDirections(tree, bits=32)
@@ -372,7 +372,8 @@ def test_neept_cdq_steady_state_compiles_nothing(backend, monkeypatch):
 
     sc = make_builtin("cornell-moving-light")
     tech = create_technique("nee-pt:lights=vlc:directions=cdq", sc)
-    from dyngi.sampling import octree, vlc
+    from dyngi.directions import octree
+    from dyngi.lights import vlc
     reads = []
     for mod in (cdq, octree, vlc):     # every device -> host transfer of the three learned structures
         monkeypatch.setattr(mod, "_to_host", lambda x, real=mod._to_host: reads.append(dr.width(x)) or real(x))

@@ -21,17 +21,17 @@ def _v(mi, A, cls=None):
 
 @pytest.fixture(scope="module")
 def warehouse(backend):
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
+    from dyngi.lights.emitter_table import EmitterTable
     from dyngi.scene.library import make_builtin
     sc = make_builtin("warehouse-lights")
-    return sc, EmitterTriangles(sc.mi_scene)
+    return sc, EmitterTable(sc.mi_scene)
 
 
 @pytest.fixture(scope="module")
 def selectors(warehouse):
-    from dyngi.sampling.lighttree import LightTreeSelector
-    from dyngi.sampling.pvs import PVSLightLists
-    from dyngi.sampling.sll import SLLSelector
+    from dyngi.lights.lighttree import LightTreeSelector
+    from dyngi.lights.pvs import PVSLightLists
+    from dyngi.lights.sll import SLLSelector
     sc, tris = warehouse
     return {"lighttree": LightTreeSelector(tris, mi_scene=sc.mi_scene, bounds=sc.meta.bounds),
             "sll": SLLSelector(tris, mi_scene=sc.mi_scene, bounds=sc.meta.bounds, cells=20),
@@ -129,8 +129,8 @@ def test_lighttree_structure(warehouse, selectors):
 def test_lighttree_small_counts(backend):
     """1, 2 and 3 lights (root leaf, split root) and no lights at all."""
     from dyngi.backend import mi
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.lighttree import LightTreeSelector
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.lighttree import LightTreeSelector
     for quads in (0, 1, 2):
         d = {"type": "scene", "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90)
                                         .scale(5)}}
@@ -138,7 +138,7 @@ def test_lighttree_small_counts(backend):
             d[f"l{q}"] = {"type": "rectangle", "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 1 + q}},
                           "to_world": mi.ScalarTransform4f().translate([q * 2.0, 2, 0]).rotate([1, 0, 0], 90)
                           .scale(0.3)}
-        tris = EmitterTriangles(mi.load_dict(d))
+        tris = EmitterTable(mi.load_dict(d))
         t = LightTreeSelector(tris)
         P = np.array([[0.5, 0.0, 0.3]] * 5000)
         N = np.array([[0.0, 1.0, 0.0]] * 5000)
@@ -152,19 +152,19 @@ def test_lighttree_small_counts(backend):
 
 
 def test_lighttree_rebuilds_for_moving_lights(backend):
-    """Lights that move (EmitterTriangles.refresh) are re-clustered in begin_frame: the tree bounds follow them
+    """Lights that move (EmitterTable.refresh) are re-clustered in begin_frame: the tree bounds follow them
     and the pmf stays normalised and matches sample()."""
     from dyngi.backend import dr, mi
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.light_select import FrameCtx
-    from dyngi.sampling.lighttree import LightTreeSelector
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.base import FrameCtx
+    from dyngi.lights.lighttree import LightTreeSelector
     T = mi.ScalarTransform4f
     d = {"type": "scene", "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(5)}}
     for q in range(5):
         d[f"l{q}"] = {"type": "rectangle", "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 2.0}},
                       "to_world": T().translate([q - 2.0, 2, 0]).rotate([1, 0, 0], 90).scale(0.2)}
     scene = mi.load_dict(d)
-    tris = EmitterTriangles(scene)
+    tris = EmitterTable(scene)
     t = LightTreeSelector(tris)
     prm = mi.traverse(scene)
     prm["l4.to_world"] = T().translate([28.0, 2, 0]).rotate([1, 0, 0], 90).scale(0.2)    # the last light quad
@@ -209,10 +209,10 @@ def _two_rooms():
 
 def test_sll_light_behind_wall_not_listed(backend):
     from dyngi.backend import mi
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.sll import SLLSelector
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.sll import SLLSelector
     scene, bounds = _two_rooms()
-    tris = EmitterTriangles(scene)
+    tris = EmitterTable(scene)
     sl = {s[0]: np.arange(s[1], s[1] + s[2]) for s in tris.shape_slices()}
     A, B = sl["lightA"], sl["lightB"]
     sll = SLLSelector(tris, mi_scene=scene, bounds=bounds, cells=22)
@@ -247,10 +247,10 @@ def test_sll_light_behind_wall_not_listed(backend):
 def test_sll_dynamic_shapes_do_not_occlude(backend):
     """A PVS knows only static geometry: with the separating wall declared dynamic, room B's light is listed
     in room A's cells (and the sampler still has an exact pmf there)."""
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.sll import SLLSelector
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.sll import SLLSelector
     scene, bounds = _two_rooms()
-    tris = EmitterTriangles(scene)
+    tris = EmitterTable(scene)
     sl = {s[0]: np.arange(s[1], s[1] + s[2]) for s in tris.shape_slices()}
     sll = SLLSelector(tris, mi_scene=scene, bounds=bounds, cells=22, dynamic_shapes=["mid"])
     P = np.array([[0.5, 0.2, 1.0], [1.5, 1.0, 0.5]])
@@ -262,7 +262,7 @@ def test_lighttree_importance_is_conservative(warehouse, selectors):
     """Wherever a light's unoccluded irradiance is positive its pmf is positive: the cone/box bounds of the
     node importance never cut off a light that can reach the receiver (NEE can sample every such light)."""
     from dyngi.backend import dr, mi
-    from dyngi.sampling.light_select import triangle_irradiance
+    from dyngi.lights.importance import triangle_irradiance
     sc, tris = warehouse
     t = selectors["lighttree"]
     L = tris.count
@@ -283,11 +283,11 @@ def test_sll_updates_moving_lights(backend):
     """A light that moves from room B into room A is re-listed in begin_frame: room A's cells list it, room B's
     no longer do, and the lists equal a fresh precompute with the light at its new place."""
     from dyngi.backend import mi
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.light_select import FrameCtx
-    from dyngi.sampling.sll import SLLSelector
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.base import FrameCtx
+    from dyngi.lights.sll import SLLSelector
     scene, bounds = _two_rooms()
-    tris = EmitterTriangles(scene)
+    tris = EmitterTable(scene)
     B = {s[0]: np.arange(s[1], s[1] + s[2]) for s in tris.shape_slices()}["lightB"]
     sll = SLLSelector(tris, mi_scene=scene, bounds=bounds, cells=22)
     pa, pb = np.array([[0.5, 0.3, 1.0]]), np.array([[3.5, 0.3, 1.0]])
@@ -309,8 +309,8 @@ def test_sll_updates_moving_lights(backend):
 def test_sll_stride_traversal_pmf(backend):
     """More than 32 lights in a list: stride traversal with a random offset keeps the pmf exact (chi^2)."""
     from dyngi.backend import mi
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.sll import SLLSelector
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.sll import SLLSelector
     T = mi.ScalarTransform4f
     d = {"type": "scene", "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(6)}}
     for q in range(40):            # 80 triangle lights on an 8 x 5 grid (no overlap), all visible from the floor
@@ -318,7 +318,7 @@ def test_sll_stride_traversal_pmf(backend):
         d[f"l{q}"] = {"type": "rectangle", "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 1 + q % 5}},
                       "to_world": T().translate([x, 2.0, z]).rotate([1, 0, 0], 90).scale(0.2)}
     scene = mi.load_dict(d)
-    tris = EmitterTriangles(scene)
+    tris = EmitterTable(scene)
     sll = SLLSelector(tris, mi_scene=scene, bounds=(np.array([-6, 0, -6]), np.array([6, 3, 6])), cells=4,
                       cell_samples=8, light_samples=2)
     p = np.array([[0.3, 0.01, -0.2]])
@@ -343,7 +343,7 @@ def test_sll_stride_traversal_pmf(backend):
 def test_steady_state_compiles_nothing(warehouse, selectors):
     """Per-frame rebuild (lighttree) and sampling with opaque per-frame randoms compile nothing new."""
     from dyngi.backend import dr, mi
-    from dyngi.sampling.light_select import FrameCtx
+    from dyngi.lights.base import FrameCtx
     from dyngi.sampling.rng import make_sampler
     sc, tris = warehouse
     P = np.c_[np.linspace(1, 39, 4000), np.zeros(4000), np.linspace(1, 19, 4000)]
@@ -366,13 +366,13 @@ def test_lighttree_rebuild_on_change_only(backend):
     same tree as the per-frame rebuild (the paper's baseline, default); a bad policy is a DyngiError."""
     from dyngi.backend import mi
     from dyngi.errors import DyngiError
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.light_select import FrameCtx
-    from dyngi.sampling.lighttree import LightTreeSelector
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.base import FrameCtx
+    from dyngi.lights.lighttree import LightTreeSelector
     from dyngi.scene import load_scene
     sc = load_scene("cornell-moving-light")
     sc.at(0.0)
-    tris = EmitterTriangles(sc.mi_scene)
+    tris = EmitterTable(sc.mi_scene)
     lazy = LightTreeSelector(tris, rebuild="change")
     eager = LightTreeSelector(tris)
     for i in range(3):
@@ -400,7 +400,7 @@ def test_lighttree_device_build(warehouse):
     """build="device" (Dr.Jit SAH levels): a valid 8-wide tree over every light (<= 2 per leaf, nested boxes), the
     same node and leaf counts as the host build, pmfs summing to 1 and matching sampling frequencies (chi^2)."""
     from dyngi.backend import mi
-    from dyngi.sampling.lighttree import LightTreeSelector
+    from dyngi.lights.lighttree import LightTreeSelector
     sc, tris = warehouse
     dev = LightTreeSelector(tris, build="device")
     host = LightTreeSelector(tris, build="host")

@@ -1,4 +1,4 @@
-"""Light candidates in each kind's measure (dyngi.sampling.candidates): exact pdfs, chi^2 frequencies."""
+"""Light candidates in each kind's measure (dyngi.lights.candidates): exact pdfs, chi^2 frequencies."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,7 +8,8 @@ import pytest
 from stats import chi2_uniform
 
 from dyngi.backend import dr, mi  # first: it selects the libLLVM before mitsuba loads drjit
-from dyngi.sampling.candidates import AREA, EmitterCandidates
+from dyngi.lights.emitter_table import AREA
+from dyngi.lights.candidates import EmitterCandidates
 from dyngi.scene import load_scene
 
 N = 400_000

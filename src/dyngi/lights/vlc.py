@@ -1,7 +1,7 @@
 """Visibility Light Cache (Dittebrandt, Hanika, Dachsbacher: "Temporal Sample Reuse for Next Event
 Estimation and Path Guiding for Real-Time Path Tracing", Sec. 4 and Algorithm 1): ``lights=vlc``.
 
-Per octree leaf (Sec. 6, :mod:`dyngi.sampling.octree`) the VLC holds the lights
+Per octree leaf (Sec. 6, :mod:`dyngi.directions.octree`) the VLC holds the lights
 that had an *unoccluded* NEE sample in that region in the previous frame, and
 NEE selects from it by per-shading-point importance; a cheap global
 exploration strategy, combined by MIS, keeps the estimator unbiased.
@@ -45,7 +45,7 @@ Frame protocol (driven by ``nee-pt``)
    ``1 - (1 - fraction) * (#such buckets) / B`` (tested exactly in tests/sampling/test_vlc.py).
 
 Device construction (``adapt="device"``, the default where the octree keeps its topology on the device,
-:mod:`dyngi.sampling.octree`): the caches never leave the device. A cache is a bit set per octree slot
+:mod:`dyngi.directions.octree`): the caches never leave the device. A cache is a bit set per octree slot
 (``ceil(L / 32)`` words; bit k = light k). ``record`` ORs the bit of each visible record into the set of
 its placing leaf (a ``dr.scatter_reduce`` that runs inside the frame's path-tracing kernel; (b)'s
 deduplication is implied by the bit set). ``begin_frame`` then runs, as Dr.Jit kernels over all
@@ -62,7 +62,7 @@ which). ``stats()`` reads a few device counters back (``report_stats``, inspecti
 
 Importance ``w_k``: the unoccluded irradiance (luminance) of triangle k at the
 shading point, analytic for a diffuse receiver
-(:func:`dyngi.sampling.light_select.triangle_irradiance`, Lambert's formula with
+(:func:`dyngi.lights.importance.triangle_irradiance`, Lambert's formula with
 horizon clipping). The paper uses LTCs for glossy receivers; after nee-pt's primary
 hit every surface is diffuse (Sec. 7), and at the primary hit we use the diffuse
 measure too (not implemented: LTC for glossy; documented limitation). A light whose
@@ -83,7 +83,7 @@ applied afresh each frame, so lights do not diffuse further over time).
 
 Exploration by a light tree (ours, ``explorer = "lighttree"``; default ``"global"``, the paper's and the
 issue's global alias table): the exploration strategy is the light hierarchy of ``lights=lighttree``
-(:class:`dyngi.sampling.lighttree.LightTreeSelector`, rebuilt only when a light moved or changed), i.e. a
+(:class:`dyngi.lights.lighttree.LightTreeSelector`, rebuilt only when a light moved or changed), i.e. a
 *local* exploration strategy that knows the shading point, as the paper's Sec. 8 (limitation 3) suggests
 ("local exploration strategies per leaf, e.g. through clustering"). The pmf stays exact:
 ``fraction * p_LH(k) + (1 - fraction) * p_VLC(k)``; ``sample`` draws the light-tree sample in the exploration
@@ -102,7 +102,7 @@ specifies the global alias table.
 Sampling uses the shading point's previous-frame position (Sec. 6.3) to find the
 leaf when the caller passes ``p_prev`` (or a ``leaf`` looked up with it): ``nee-pt`` looks up its primary
 hits' sampling leaf at the previous position given by the motion vectors of animated meshes
-(:mod:`dyngi.sampling.motion`, ``octree.lookup_pair``) and records at the current one (issue 28).
+(:mod:`dyngi.directions.motion`, ``octree.lookup_pair``) and records at the current one (issue 28).
 
 Samples per leaf: the paper's leaves hold 2048-4096 samples per frame (split 4096, collapse 2048 at
 1080p); ours hold what ``octree.scaled_thresholds`` gives at the rendered resolution (~110-160 placed
@@ -120,8 +120,9 @@ import numpy as np
 from ..backend import dr, mi
 from ..color import luminance
 from ..errors import DyngiError
-from .emitter_triangles import INVALID, EmitterTriangles
-from .light_select import FrameCtx, triangle_irradiance
+from .base import FrameCtx, register
+from .emitter_table import INVALID, EmitterTable
+from .importance import triangle_irradiance
 from .lighttree import LightTreeSelector
 
 CAPACITY = 32          # bucket capacity (Sec. 7)
@@ -260,7 +261,7 @@ def bucket_counts(leaf: np.ndarray, light: np.ndarray, n_leaves: int, prev_b: np
 class VLCSelector:
     """Visibility Light Cache light selector (``lights=vlc``); see the module docstring.
 
-    Parameters: ``tris`` (EmitterTriangles), ``octree`` (AdaptiveOctree; else taken from the FrameCtx),
+    Parameters: ``tris`` (EmitterTable), ``octree`` (AdaptiveOctree; else taken from the FrameCtx),
     ``exploration`` (fraction, 0.1), ``capacity`` (32), ``hysteresis`` (0.75), ``merge_neighbours``
     (True), ``explore_weights`` ((energy, change, distance) = (0.6, 0.2, 0.2)), ``memory`` (1),
     ``explorer`` ("global" | "lighttree", module docstring), ``adapt`` ("device" | "host": where the
@@ -271,7 +272,7 @@ class VLCSelector:
     accepts_leaf = True     # sample/pmf/record take an optional looked-up ``leaf=`` (nee-pt passes it)
     report_stats = True     # device construction: stats() reads its counters back (inspection only)
 
-    def __init__(self, tris: EmitterTriangles, mi_scene=None, bounds=None, octree=None,
+    def __init__(self, tris: EmitterTable, mi_scene=None, bounds=None, octree=None,
                  exploration: float = EXPLORATION, capacity: int = CAPACITY, hysteresis: float = HYSTERESIS,
                  merge_neighbours: bool = True, explore_weights=EXPLORE_WEIGHTS, memory: int = 1,
                  explorer: str = "global", adapt: str = "device", **_ignored):
@@ -816,3 +817,7 @@ class VLCSelector:
                 "buckets_mean": self.last.get("buckets_mean", 0.0),
                 "leaves_with_vlc": self.last.get("leaves_with_vlc", 0),
                 "records": self.last.get("records", 0), "visible_records": self.last.get("visible", 0)}
+
+
+register("vlc", VLCSelector, "Visibility Light Cache: learned visible lights per octree leaf (VLC paper Sec. 4)",
+         learns=True, needs_octree=True)

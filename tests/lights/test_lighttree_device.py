@@ -1,5 +1,5 @@
 """The light tree built on the device: ``build="device"`` runs the binned-SAH levels and the 8-wide
-collapse as Dr.Jit passes (:func:`dyngi.sampling.lighttree._collapse_device`) and must give exactly the tree the
+collapse as Dr.Jit passes (:func:`dyngi.lights.lighttree._collapse_device`) and must give exactly the tree the
 host collapse makes from the same binary tree (the host collapse is the reference; the binary levels of the two
 builds may differ at float32-vs-float64 SAH ties, so both collapses here start from the device's binary tree)."""
 from __future__ import annotations
@@ -11,13 +11,13 @@ import pytest
 @pytest.mark.slow
 @pytest.mark.parametrize("scene", ["warehouse-lights", "warehouse-rooms"])
 def test_device_collapse_equals_host_collapse(backend, monkeypatch, scene):
-    from dyngi.sampling import lighttree as lt
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
+    from dyngi.lights import lighttree as lt
+    from dyngi.lights.emitter_table import EmitterTable
     from dyngi.scene.library import make_builtin
 
     sc = make_builtin(scene)
     sc.at(0.0)
-    tris = EmitterTriangles(sc.mi_scene)
+    tris = EmitterTable(sc.mi_scene)
     dev = lt.LightTreeSelector(tris, build="device")
     assert dev._host_tree is None                      # nothing read back by the build itself
     monkeypatch.setattr(lt, "_build_binary", lambda *a: lt._build_binary_device(*a, read_back=True))
@@ -42,11 +42,11 @@ def test_steady_device_builds_compile_nothing(backend):
     compiled anew)."""
     from helpers import assert_steady_state_compiles_nothing
 
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.lighttree import LightTreeSelector
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.lighttree import LightTreeSelector
     from dyngi.scene.library import make_builtin
 
     sc = make_builtin("warehouse-rooms")
     sc.at(0.0)
-    tree = LightTreeSelector(EmitterTriangles(sc.mi_scene), build="device")
+    tree = LightTreeSelector(EmitterTable(sc.mi_scene), build="device")
     assert_steady_state_compiles_nothing(lambda f: tree.build(), frames=4, warmup=2, nonempty=True)

@@ -2,7 +2,7 @@
 of Dittebrandt et al. Sec. 7 (the NEE that shipped with Quake 2 RTX).
 
 Not the paper's SLL (issue 28): the paper's lists come from a conservative potentially-visible set over
-BSP leaves (:mod:`dyngi.sampling.pvs`, ``lights=sll``), which includes many lights that are potentially
+BSP leaves (:mod:`dyngi.lights.pvs`, ``lights=sll``), which includes many lights that are potentially
 visible but occluded. These lists instead ray-cast which lights are actually visible from each fine
 (~1/32 of the scene) cell, close to what a VLC can learn at best: an oracle baseline, labelled
 ``sll-oracle`` in every report. The stride traversal and the importance below are shared with ``sll``.
@@ -29,7 +29,7 @@ weight and the estimator stays unbiased (only noisier). Geometry that is
 animated (``dynamic_shapes``, ids of shapes, e.g. ``scene.meta.dynamic_shapes``)
 is left out of the occluders, since a PVS only knows static geometry (Sec. 7:
 "only static scene elements can affect visibility"); the lists follow the
-lights' positions: a light that moved (``EmitterTriangles.refresh``) has its
+lights' positions: a light that moved (``EmitterTable.refresh``) has its
 column of the PVS recomputed in ``begin_frame`` against the static occluders
 (Quake 2 RTX instead re-distributes a moving light through its BSP leaf's PVS;
 ours costs ``cells x cell_samples x light_samples`` rays per moved light).
@@ -38,7 +38,7 @@ Sampling at a point p with normal n: the cell c of p (clamped into the grid)
 has a sorted list of ``m`` lights; with ``stride = ceil(m / 32)`` an offset
 ``o`` is drawn uniformly in [0, stride) and the lights at positions
 ``o, o + stride, ...`` (at most 32) are weighted by the unoccluded irradiance
-:func:`~dyngi.sampling.light_select.triangle_irradiance` (importance of Sec. 4)
+:func:`~dyngi.lights.importance.triangle_irradiance` (importance of Sec. 4)
 and one is drawn in proportion (two traversals, no stored CDF, as Algorithm 1
 does for a VLC bucket). One uniform u serves both choices (u * stride = o +
 fraction). The exact pmf of light l at list position i is
@@ -64,8 +64,9 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
-from .emitter_triangles import INVALID
-from .light_select import triangle_irradiance
+from .base import pmf_inputs, register
+from .emitter_table import INVALID
+from .importance import triangle_irradiance
 
 MAX_CONSIDERED = 32          # Sec. 7: "We configured this maximum to be 32"
 _ONE_MINUS = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
@@ -102,7 +103,7 @@ class SLLSelector:
 
     Parameters (keywords; the rest are accepted and ignored, contract of ``nee-pt``)
     ----------
-    tris : EmitterTriangles        the triangle lights
+    tris : EmitterTable            the triangle lights
     mi_scene : mi.Scene            the scene whose static geometry occludes (required)
     bounds : (lo[3], hi[3])        grid bounds (default: the scene's bounding box)
     cells : int = 32               cells along the longest axis of the bounds (our choice)
@@ -278,7 +279,7 @@ class SLLSelector:
         j, acc, go = dr.while_loop((j, acc, go), cond, body, labels=("j", "acc", "go"), label="sll_sum")
         return acc, j
 
-    # ------------------------------------------------------------------ LightSelector protocol
+    # ------------------------------------------------------------------ LightSampler protocol
     def begin_frame(self, ctx) -> None:
         """Lights that moved since the lists were built get their column of the PVS recomputed against the
         static occluders (our stand-in for Quake 2 RTX re-distributing a moving light through its BSP leaf's
@@ -348,12 +349,9 @@ class SLLSelector:
 
     def pmf(self, p, n, light_id, active, p_prev=None):
         """Exact pmf: binary search of ``light_id`` in the cell's sorted list, then its stride group's sum."""
-        p, n = mi.Point3f(p), mi.Vector3f(n)
-        light_id = mi.UInt32(light_id)
-        width = dr.width(light_id)
-        active = mi.Bool(active) & (light_id < self.count) & dr.full(mi.Bool, True, width)
+        p, n, light_id, active = pmf_inputs(p, n, light_id, active, self.count)
         if self.count == 0:
-            return dr.zeros(mi.Float, width)
+            return dr.zeros(mi.Float, dr.width(light_id))
         c = self._cell_of(p)
         off = dr.gather(mi.UInt32, self._off, c, active)
         cnt = dr.gather(mi.UInt32, self._cnt, c, active)
@@ -404,3 +402,6 @@ class SLLSelector:
         return {"lights": self.count, "cells": self.n_cells, "precompute_ms": self.precompute_ms,
                 "pvs_rays": self.rays, "mean_list": self.mean_list, "max_list": self.max_list,
                 "moved_lights": self.moved_lights, "preprocess_ms": self.update_ms}
+
+
+register("sll-oracle", SLLSelector, "ray-cast per-cell visible light lists (an oracle baseline)")

@@ -12,7 +12,7 @@
 * **traversal**: from the root, one child is chosen at every node with
   probability proportional to its importance; at the leaf one of its (<= 2)
   lights is chosen by the unoccluded irradiance of the triangle,
-  :func:`~dyngi.sampling.light_select.triangle_irradiance` (the importance of
+  :func:`~dyngi.lights.importance.triangle_irradiance` (the importance of
   the VLC and the SLL; VLC paper Sec. 4). One uniform number is reused by
   rescaling it at every level.
 
@@ -55,7 +55,7 @@ fallback (device: middle of the current order; host: coordinate median).
 
 CPU fast path (documented): the build runs in NumPy/Python on the host over
 the L triangle lights (a few hundred; O(L) nodes, level-synchronous NumPy) from the host arrays
-of :class:`~dyngi.sampling.emitter_triangles.EmitterTriangles`; the flattened
+of :class:`~dyngi.lights.emitter_table.EmitterTable`; the flattened
 tree is uploaded once per frame. Sampling and pmf are Dr.Jit loops.
 """
 from __future__ import annotations
@@ -66,8 +66,9 @@ import numpy as np
 
 from ..backend import dr, mi, upload
 from ..errors import DyngiError
-from .emitter_triangles import INVALID
-from .light_select import triangle_irradiance
+from .base import pmf_inputs, register
+from .emitter_table import INVALID
+from .importance import triangle_irradiance
 
 BUILDS = ("auto", "host", "device")
 """Where the binary SAH levels are built: auto (device on CUDA, host on the CPU), host (NumPy), device (Dr.Jit)."""
@@ -473,7 +474,7 @@ class LightTreeSelector:
     """``lights=lighttree``: an 8-wide light BVH rebuilt every frame, traversed stochastically (no splitting).
 
     Parameters (keywords; the rest are accepted and ignored, contract of ``nee-pt``):
-    ``tris`` the :class:`EmitterTriangles`; ``mi_scene``, ``bounds`` unused.
+    ``tris`` the :class:`EmitterTable`; ``mi_scene``, ``bounds`` unused.
     """
 
     name = "lighttree"
@@ -712,7 +713,7 @@ class LightTreeSelector:
         ws = [dr.select(fb, pw[k], ws[k]) for k in range(2)]
         return (l0, l1), ws, dr.select(fb, pw[0] + pw[1], tot)
 
-    # ------------------------------------------------------------------ LightSelector protocol
+    # ------------------------------------------------------------------ LightSampler protocol
     def _light_state(self):
         """Host copy of what the tree depends on: triangle vertices and power (for ``rebuild="change"``)."""
         if self.count == 0:
@@ -805,12 +806,9 @@ class LightTreeSelector:
     def pmf(self, p, n, light_id, active, p_prev=None):
         """Exact probability that :meth:`sample` returns ``light_id`` at (p, n): product of the branch
         probabilities along the light's leaf-to-root chain."""
-        p, n = mi.Point3f(p), mi.Vector3f(n)
-        light_id = mi.UInt32(light_id)
-        width = dr.width(light_id)
-        active = mi.Bool(active) & (light_id < self.count) & dr.full(mi.Bool, True, width)
+        p, n, light_id, active = pmf_inputs(p, n, light_id, active, self.count)
         if self.count == 0:
-            return dr.zeros(mi.Float, width)
+            return dr.zeros(mi.Float, dr.width(light_id))
         leaf = dr.gather(mi.UInt32, self._light_leaf, light_id, active)
         slot = dr.gather(mi.UInt32, self._light_slot, light_id, active)
         (l0, l1), ws, tot = self._leaf_weights(leaf, p, n, active)
@@ -849,3 +847,6 @@ class LightTreeSelector:
         return {"lights": self.count, "nodes": self.nodes, "leaves": self.leaves, "depth": self.depth,
                 "build_ms": self.build_ms, "preprocess_ms": self.build_ms, "builds": self.builds,
                 "rebuild": self.rebuild, "device_build": self.device_build}
+
+
+register("lighttree", LightTreeSelector, "light BVH with importance per node (Conty & Kulla 2018; pbrt-v4 12.6.3)")

@@ -118,6 +118,34 @@ def scaled_thresholds(vertices_per_frame: int) -> tuple[int, int]:
     return max(MIN_SPLIT, int(round(PAPER_SPLIT * s))), max(MIN_COLLAPSE, int(round(PAPER_COLLAPSE * s)))
 
 
+def octree_bounds(scene) -> tuple:
+    """The box an octree over ``scene`` covers (lo[3], hi[3], float64): ``scene.meta.bounds`` (else the
+    Mitsuba scene's bounding box), grown on an axis of (near) zero extent to 1% of the largest extent (a
+    flat scene, one plane: the octree needs max > min; our choice). ``scene``: a dyngi Scene or an
+    ``mi.Scene``."""
+    ms = scene.mi_scene if hasattr(scene, "mi_scene") else scene
+    meta = getattr(scene, "meta", None)
+    if meta is not None and getattr(meta, "bounds", None) is not None:
+        lo, hi = (np.asarray(b, np.float64) for b in meta.bounds)
+    else:
+        bb = ms.bbox()
+        lo, hi = np.array(bb.min, np.float64), np.array(bb.max, np.float64)
+    ext = hi - lo
+    grow = np.maximum(0.01 * max(float(ext.max()), 1e-3) - ext, 0.0)
+    return lo - 0.5 * grow, hi + 0.5 * grow
+
+
+def make_octree(bounds, vertices_per_frame: int, leaf_samples: int = 0) -> "AdaptiveOctree":
+    """The one construction of the adaptive octree (the VLC's, the CDQ's, nee-pt's shared one): over
+    ``bounds`` (:func:`octree_bounds`) with the thresholds of :func:`scaled_thresholds` for
+    ``vertices_per_frame`` placed vertices (at least 1); ``leaf_samples > 0`` raises the split threshold to
+    that many samples per leaf and the collapse threshold to half of it (nee-pt's ablation knob)."""
+    split, collapse = scaled_thresholds(max(int(vertices_per_frame), 1))
+    if leaf_samples > 0:
+        split, collapse = max(split, int(leaf_samples)), max(collapse, int(leaf_samples) // 2)
+    return AdaptiveOctree(bounds[0], bounds[1], split, collapse)
+
+
 def _pack(depth, ix, iy, iz):
     """Unique int64 key of the cell (depth, ix, iy, iz)."""
     depth = np.asarray(depth, np.int64)

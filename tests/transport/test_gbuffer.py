@@ -1,11 +1,11 @@
-"""G-buffer, motion vectors and disocclusion mask (dyngi.sampling.gbuffer)."""
+"""G-buffer, motion vectors and disocclusion mask (dyngi.transport.gbuffer)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
 from dyngi.backend import dr, mi
-from dyngi.sampling.gbuffer import GBufferHistory, render_gbuffer
+from dyngi.transport.gbuffer import GBufferHistory, render_gbuffer
 from dyngi.scene import load_scene
 
 RES = (48, 36)

@@ -21,7 +21,7 @@ def _hits(sc, n=4000, seed=0):
 
 
 def test_previous_position_inverts_the_rigid_motion(backend):
-    from dyngi.sampling.motion import MotionVectors
+    from dyngi.directions.motion import MotionVectors
     from dyngi.scene import load_scene
     sc = load_scene("cornell-moving-box")
     t0, t1 = 0.40, 0.45

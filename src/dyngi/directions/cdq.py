@@ -1,6 +1,6 @@
 """Compressed Directional Quadtree (CDQ) path guiding (Dittebrandt, Hanika, Dachsbacher, Sec. 5).
 
-Each leaf of the world-space octree (:mod:`dyngi.sampling.octree`, Sec. 6) holds a tiny quadtree
+Each leaf of the world-space octree (:mod:`dyngi.directions.octree`, Sec. 6) holds a tiny quadtree
 over the octahedral map of directions, stored implicitly in a 32/64/96/128-bit field
 (default 128; device storage: 4 x ``UInt32`` per octree leaf, unused words zero).
 
@@ -97,6 +97,10 @@ the migration decision and the bit shifts as vectorised NumPy (:func:`migrate_np
 the statistics buffer, one upload of the fields per frame). The temporal ``memory`` extension runs on
 the host path only (its centroid-carrying statistics are NumPy). Sampling, pdf and statistics
 accumulation run on the device in both.
+
+As a direction sampler: :class:`CDQComponent` draws from the CDQ of a vertex's octree leaf; it is a
+component of ``directions=cdq`` (:mod:`dyngi.directions.mixture`): alone it would miss the directions it
+has not learned, so it is not registered on its own.
 """
 from __future__ import annotations
 
@@ -106,7 +110,8 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
-from .octahedral import oct_decode, oct_encode
+from ..sampling.octahedral import oct_decode, oct_encode
+from .base import Vertex
 
 BIT_CHOICES = (32, 64, 96, 128)
 WORDS = 4                 # device storage per octree leaf: 4 x UInt32 (128 bits)
@@ -835,3 +840,26 @@ class CDQDirections:
         return {"cdq_bits": self.bits, "cdq_migrations": self.migrations_last if rep else None,
                 "cdq_migrations_total": self.migrations_total if rep else None, "cdq_adapt_ms": self.adapt_ms,
                 "cdq_fields": self._rows, "cdq_adapt": self.adapt}
+
+
+class CDQComponent:
+    """Directions from the CDQ of the vertex's octree leaf; not used where the BSDF has a delta lobe."""
+
+    name = "cdq-component"
+
+    def __init__(self, guide):
+        self.guide = guide
+
+    def usable(self, v: Vertex):
+        """Lanes where the CDQ takes part: every active lane but those whose real BSDF has a delta lobe
+        (the mixture's pdf would be undefined there, nee-pt module docstring)."""
+        if v.bsdf is not None:
+            return mi.Bool(v.active) & ~mi.has_flag(v.bsdf.flags(), mi.BSDFFlags.Delta)
+        return mi.Bool(v.active)
+
+    def sample(self, v: Vertex, u2, active):
+        wo, _ = self.guide.sample(v.leaf, u2, active)
+        return wo
+
+    def pdf(self, v: Vertex, wo, active):
+        return self.guide.pdf(v.leaf, wo, active)

@@ -20,11 +20,11 @@ def _v(mi, A, cls=None):
 
 @pytest.fixture(scope="module")
 def rooms(backend):
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.pvs import PVSLightLists
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.pvs import PVSLightLists
     from dyngi.scene.library import make_builtin
     sc = make_builtin("warehouse-rooms")
-    tris = EmitterTriangles(sc.mi_scene)
+    tris = EmitterTable(sc.mi_scene)
     return sc, tris, PVSLightLists(tris, mi_scene=sc.mi_scene, bounds=sc.meta.bounds)
 
 
@@ -62,7 +62,7 @@ def test_sampled_pvs_is_not_conservative_and_flood_is_wider(rooms):
     """The ablation pvs=sampled (segments between leaf pairs, one ring of neighbours) misses visible lights that
     the portal flood keeps: the reason the flood is the default (a test that the conservativeness check can fail)."""
     from dyngi.backend import mi
-    from dyngi.sampling.pvs import PVSLightLists
+    from dyngi.lights.pvs import PVSLightLists
     sc, tris, sll = rooms
     samp = PVSLightLists(tris, mi_scene=sc.mi_scene, bounds=sc.meta.bounds, pvs="sampled", pair_samples=16, dilate=0)
     P, L, vis = _visible_pairs(mi, sc, tris, 200_000, seed=12)
@@ -88,11 +88,11 @@ def test_solid_wall_separates_closed_rooms(backend):
     """Two closed rooms whose shared solid wall lies on a leaf boundary: neither room's leaves list the other's
     light, and the sampler never picks it (pmf 0)."""
     from dyngi.backend import mi
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.pvs import PVSLightLists
-    from sampling.test_lightselect_baselines import _two_rooms
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.pvs import PVSLightLists
+    from tests.lights.test_lightselect_baselines import _two_rooms
     scene, bounds = _two_rooms()         # x in [-0.1, 4.3]; the wall x in [2.0, 2.2]
-    tris = EmitterTriangles(scene)
+    tris = EmitterTable(scene)
     sl = {s[0]: np.arange(s[1], s[1] + s[2]) for s in tris.shape_slices()}
     A, B = sl["lightA"], sl["lightB"]
     sll = PVSLightLists(tris, mi_scene=scene, bounds=bounds, cells=4)   # 1.1 m leaves: a boundary at x = 2.1
@@ -116,12 +116,12 @@ def test_moved_light_is_relisted(backend):
     """A light that moves into the other closed room is listed there (and no longer in its old room) after
     begin_frame, without new rays (the leaf PVS is static)."""
     from dyngi.backend import mi
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.light_select import FrameCtx
-    from dyngi.sampling.pvs import PVSLightLists
-    from sampling.test_lightselect_baselines import _two_rooms
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.base import FrameCtx
+    from dyngi.lights.pvs import PVSLightLists
+    from tests.lights.test_lightselect_baselines import _two_rooms
     scene, bounds = _two_rooms()
-    tris = EmitterTriangles(scene)
+    tris = EmitterTable(scene)
     sl = {s[0]: np.arange(s[1], s[1] + s[2]) for s in tris.shape_slices()}
     sll = PVSLightLists(tris, mi_scene=scene, bounds=bounds, cells=4)
     pa = sll.cell_index(np.array([[1.0, 1.0, 1.0]]))[0]
@@ -139,11 +139,11 @@ def test_moved_light_is_relisted(backend):
 
 def test_bad_parameters(backend):
     from dyngi.errors import DyngiError
-    from dyngi.sampling.pvs import PVSLightLists
-    from sampling.test_lightselect_baselines import _two_rooms
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
+    from dyngi.lights.pvs import PVSLightLists
+    from tests.lights.test_lightselect_baselines import _two_rooms
+    from dyngi.lights.emitter_table import EmitterTable
     scene, bounds = _two_rooms()
-    tris = EmitterTriangles(scene)
+    tris = EmitterTable(scene)
     for kw in ({"pvs": "exact"}, {"cells": 0}, {"face_samples": 0}):
         with pytest.raises(DyngiError):
             PVSLightLists(tris, mi_scene=scene, bounds=bounds, **kw)

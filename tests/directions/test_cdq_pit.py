@@ -21,7 +21,7 @@ pit at 96x54, 15 + 40 frames: measured CDQ/BSDF 0.11 / 0.061 / 0.10 (p = 0.016);
 @pytest.mark.slow
 def test_cdq_at_the_papers_samples_per_leaf_beats_bsdf_in_the_pit(backend):
     from dyngi.scene.library import make_builtin
-    from sampling.test_learned_gains import _mse_ratios, _one_sided_below
+    from tests.lights.test_learned_gains import _mse_ratios, _one_sided_below
 
     sc = make_builtin("sky-pit-sun-disc-2deg")
     ratios = _mse_ratios(sc, "nee-pt:directions=cdq:leaf_samples=4096", "nee-pt:directions=bsdf", (96, 54), 15, 40)

@@ -8,7 +8,7 @@ surface one frame earlier.
 
 :class:`MotionVectors` keeps, for the triangles of the scene's animated meshes (``dynamic_shapes``),
 their current and previous vertex positions as device arrays, indexed like
-:class:`~dyngi.sampling.emitter_triangles.EmitterTriangles` by an offset table over the shape's registry
+:class:`~dyngi.lights.emitter_table.EmitterTable` by an offset table over the shape's registry
 id plus ``prim_index``. :meth:`previous` re-expresses a hit point in the barycentric coordinates of its
 current triangle and evaluates them on the previous triangle (exact for rigid and deformed meshes
 alike); points on static shapes, and every point in the first frame, keep their current position.
@@ -22,7 +22,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
-from .emitter_triangles import INVALID, _mesh_triangles, _to_point
+from ..scene.geometry import mesh_triangles, to_point
+
+NO_TRIANGLE = 0xFFFFFFFF
+"""Offset-table entry of a shape that is not an animated mesh."""
 
 
 def _pad(a):
@@ -39,10 +42,10 @@ class MotionVectors:
         offs = np.concatenate([[0], np.cumsum([int(sh.face_count()) for sh in self._shapes])]).astype(np.int64)
         if self._shapes:
             rids = np.asarray(dr.reinterpret_array(mi.UInt32, mi.ShapePtr(self._shapes)), np.int64)
-            table = np.full(max(int(rids.max()) + 1, 2), INVALID, np.uint32)
+            table = np.full(max(int(rids.max()) + 1, 2), NO_TRIANGLE, np.uint32)
             table[rids] = offs[:-1].astype(np.uint32)
         else:
-            table = np.full(2, INVALID, np.uint32)
+            table = np.full(2, NO_TRIANGLE, np.uint32)
         self._offset_by_rid = mi.UInt32(table)
         self._table_size = int(table.size)
         self._cur = self._read()
@@ -54,11 +57,11 @@ class MotionVectors:
             z = np.zeros((0, 3))
             p0 = e1 = e2 = z
         else:
-            tri = [_mesh_triangles(sh) for sh in self._shapes]
+            tri = [mesh_triangles(sh) for sh in self._shapes]
             p0 = np.concatenate([t[0] for t in tri])
             e1 = np.concatenate([t[1] for t in tri]) - p0
             e2 = np.concatenate([t[2] for t in tri]) - p0
-        arrs = (_to_point(_pad(p0)), _to_point(_pad(e1), mi.Vector3f), _to_point(_pad(e2), mi.Vector3f))
+        arrs = (to_point(_pad(p0)), to_point(_pad(e1), mi.Vector3f), to_point(_pad(e2), mi.Vector3f))
         dr.eval(*arrs)
         return arrs
 
@@ -85,7 +88,7 @@ class MotionVectors:
         rid = dr.reinterpret_array(mi.UInt32, si.shape)
         ok = active & (rid < self._table_size)
         off = dr.gather(mi.UInt32, self._offset_by_rid, rid, ok)
-        ok &= off != INVALID
+        ok &= off != NO_TRIANGLE
         k = off + si.prim_index
         c0, c1, c2 = (dr.gather(type(a), a, k, ok) for a in self._cur)
         q0, q1, q2 = (dr.gather(type(a), a, k, ok) for a in self._prev)

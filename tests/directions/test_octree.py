@@ -10,7 +10,7 @@ from helpers import assert_steady_state_compiles_nothing
 
 @pytest.fixture(scope="module")
 def oct_mod(backend):
-    from dyngi.sampling import octree
+    from dyngi.directions import octree
     return octree
 
 

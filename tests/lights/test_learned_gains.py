@@ -38,13 +38,13 @@ def _arr(a, cls):
 
 def _presence(samples_per_frame: int, frames: int = 30, seed: int = 0) -> float:
     """Fraction of frames (after the rare light first entered) in which the VLC of the sampled leaf holds it."""
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.light_select import FrameCtx
-    from dyngi.sampling.octree import AdaptiveOctree
-    from dyngi.sampling.vlc import VLCSelector
-    from sampling.test_vlc import many_lights_scene
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.base import FrameCtx
+    from dyngi.directions.octree import AdaptiveOctree
+    from dyngi.lights.vlc import VLCSelector
+    from tests.lights.test_vlc import many_lights_scene
     sc = many_lights_scene(3)                     # 18 ceiling lights in a closed 10 x 4 x 10 m room
-    tris = EmitterTriangles(sc.mi_scene)
+    tris = EmitterTable(sc.mi_scene)
     lo, hi = (np.asarray(b, np.float64) for b in sc.meta.bounds)
     oc = AdaptiveOctree(lo, hi, split_threshold=1 << 30, collapse_threshold=0)    # 8 leaves, fixed
     sel = VLCSelector(tris, octree=oc)

@@ -47,7 +47,7 @@ def _run(tech, sc, frames, res=(32, 24)):
 
 
 def _ctx(tech, index=99):
-    from dyngi.sampling.light_select import FrameCtx
+    from dyngi.lights.base import FrameCtx
     return FrameCtx(tech.scene.mi_scene, tech.tris, index, 0.0, tech.octree, tech.bounds,
                     np.asarray(tech.scene.camera(0.0).origin, np.float64))
 
@@ -68,7 +68,7 @@ def _arr(a, cls):
 # -- alias table -----------------------------------------------------------------------------------
 
 def test_alias_table_reproduces_its_pmf(backend):
-    from dyngi.sampling.vlc import AliasTable
+    from dyngi.lights.vlc import AliasTable
     rng = np.random.default_rng(1)
     pmf = rng.gamma(0.5, size=37)
     pmf /= pmf.sum()
@@ -103,7 +103,7 @@ def _all_pmfs(sel, tris, p, n):
 
 
 def _importances(tris, p, n):
-    from dyngi.sampling.light_select import triangle_irradiance
+    from dyngi.lights.importance import triangle_irradiance
     N, L = p.shape[0], tris.count
     ids = mi.UInt32(np.tile(np.arange(L, dtype=np.uint32), N))
     w = triangle_irradiance(_arr(np.repeat(p, L, 0), mi.Point3f), _arr(np.repeat(n, L, 0), mi.Vector3f),
@@ -113,10 +113,10 @@ def _importances(tris, p, n):
 
 
 def test_uniform_pmf_sums_to_one_and_matches_frequencies(backend):
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.light_select import UniformSelector
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.uniform import UniformSelector
     sc = many_lights_scene(4)
-    tris = EmitterTriangles(sc.mi_scene)
+    tris = EmitterTable(sc.mi_scene)
     sel = UniformSelector(tris)
     rng = np.random.default_rng(1)
     p, n = _points(5, rng)
@@ -181,12 +181,12 @@ def test_vlc_sampling_frequencies_match_pmf(vlc_tech):
 @pytest.mark.parametrize("merge, adapt", [(True, "device"), (False, "device"), (True, "host")])
 def test_construction_keeps_every_visible_light_once(backend, merge, adapt):
     """Device construction (octree slots, bit sets) and the host pass (dense leaves, NumPy) both."""
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
-    from dyngi.sampling.light_select import FrameCtx
-    from dyngi.sampling.octree import AdaptiveOctree
-    from dyngi.sampling.vlc import VLCSelector
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.base import FrameCtx
+    from dyngi.directions.octree import AdaptiveOctree
+    from dyngi.lights.vlc import VLCSelector
     sc = many_lights_scene(10)        # 200 lights
-    tris = EmitterTriangles(sc.mi_scene)
+    tris = EmitterTable(sc.mi_scene)
     lo, hi = (np.asarray(b) for b in sc.meta.bounds)
     oc = AdaptiveOctree(lo, hi, adapt=adapt)       # 8 leaves
     cap = 8
@@ -227,7 +227,7 @@ def test_construction_keeps_every_visible_light_once(backend, merge, adapt):
 
 
 def test_bucket_hysteresis(backend):
-    from dyngi.sampling.vlc import bucket_counts
+    from dyngi.lights.vlc import bucket_counts
     light = np.arange(30)                    # 30 distinct lights
     leaf = np.zeros(30, np.int64)
     assert bucket_counts(leaf, light, 1, np.array([0]), 32, 0.75)[0] == 1      # 30 <= 32
@@ -244,7 +244,7 @@ def test_light_behind_a_wall_never_enters_a_vlc(backend, adapt, monkeypatch):
     """Both constructions; the host pass's records also show the outside light explored and occluded."""
     import functools
 
-    from dyngi.sampling import vlc as vlc_mod
+    from dyngi.lights import vlc as vlc_mod
     from dyngi.techniques import create_technique
     monkeypatch.setattr(vlc_mod.VLCSelector, "__init__", functools.partialmethod(vlc_mod.VLCSelector.__init__,
                                                                                  adapt=adapt))
@@ -279,11 +279,11 @@ def test_light_behind_a_wall_never_enters_a_vlc(backend, adapt, monkeypatch):
 def test_emitter_triangle_ids_are_stable_when_lights_move(backend):
     """cornell-moving-light: after refresh() every triangle keeps its id; light_id(si) of a ray hitting a
     triangle's centroid from the front returns that id, before and after the move; power = pi A Y(L)."""
-    from dyngi.sampling.emitter_triangles import EmitterTriangles
+    from dyngi.lights.emitter_table import EmitterTable
     from dyngi.scene import load_scene
     sc = load_scene("cornell-moving-light")
     sc.at(0.0)
-    tris = EmitterTriangles(sc.mi_scene)
+    tris = EmitterTable(sc.mi_scene)
     h0 = tris.host_arrays()
     assert tris.count >= 2
     assert np.allclose(h0["power"], np.pi * h0["area"] * (h0["radiance"] @ [0.212671, 0.715160, 0.072169]))
