@@ -32,15 +32,24 @@ reads it (the wooden staircase's hall; docs/probes.md, "The wooden staircase").
 A planner's optional ``begin_warmup`` / ``end_warmup`` hooks run around
 it; a technique with its own per-update step (IS-DDGI's set integration) passes it as ``step``.
 
-Techniques that run several traces per frame (ADGI's pilot, static and dynamic stages) call the
-stages :meth:`trace`, :meth:`trace_distances`, :meth:`merge` and :meth:`classify` themselves; they
-never call the tracing or merging functions directly. :meth:`merge_slots` is :meth:`merge` for a masked
-plan (:meth:`RayPlan.masked <dyngi.probes.rays.RayPlan.masked>`): its slots and the probes' update
-counts stay on the device (ADGI's device path, a frame without a host read).
+**One frame** (:meth:`step`, shared by ``ddgi``, ``qddgi``, the DDGI+ volume, ``isddgi`` and ``adgi``): the
+frame's probe mask (``update_offscreen=False``: the extended camera frustum), the scene's signature (a
+change re-tests every inactive probe), the warm-up on the first frame, then the update -- :meth:`update`,
+a technique's own update step (IS-DDGI's set integration and states), or a multi-pass update.
+
+**Several traces per frame** (ADGI's pilot, static and dynamic chains, each merged with its own count cap):
+the planner is a :class:`~dyngi.probes.protocols.MultiPassPlanner` that yields :class:`ProbePass` es and the
+pipeline has a :class:`~dyngi.probes.protocols.PassAccumulator` (:meth:`update_passes`): the pipeline
+traces each pass (and its ``-w`` distance rays), the accumulator merges it through :meth:`merge` /
+:meth:`merge_slots`, the planner sees the results before it plans the next pass. :meth:`merge_slots` is
+:meth:`merge` for a masked plan (:meth:`RayPlan.masked <dyngi.probes.rays.RayPlan.masked>`): its slots and
+the probes' update counts stay on the device (ADGI's device path, a frame without a host read).
 """
 from __future__ import annotations
 
 from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -50,9 +59,9 @@ from ..timing import StageTimer, maybe_stage
 from .accumulator import merge_into_volume, merge_slots_into_volume
 from .arrays import upload
 from .protocols import check_part
-from .rays import FixedSFDirections
+from .rays import FixedSFDirections, RayPlan
 from .states import ProbeStates
-from .trace import trace_probe_distances, trace_probe_rays, vector_to_numpy
+from .trace import ProbeRayResults, trace_probe_distances, trace_probe_rays, vector_to_numpy
 from .volume import ProbeVolume
 
 UPDATE_STAGES = ("trace probes", "shade probes", "blend", "states")   # the timer stages of one update
@@ -60,6 +69,41 @@ WARMUP_FRAME_BASE = 1 << 24   # frame indices of warm-up updates: distinct RNG s
 STATE_RAYS = ("update", "fixed")
 _NO_STATE = {"moved": 0, "deactivated": 0, "activated": 0}
 _DEFAULT = object()
+
+
+@dataclass
+class ProbePass:
+    """One pass of a multi-pass update (:meth:`ProbePipeline.update_passes`), as a
+    :class:`~dyngi.probes.protocols.MultiPassPlanner` yields it. Exactly one of three kinds:
+
+    * a **trace** (``plan`` given): the plan traced from the volume's probes and shaded (random stream
+      ``stream``, RNG frame ``frame`` -- None: the update's --, ``shader`` -- None: the pipeline's); with
+      ``reverse_distances`` a second, unshaded trace along ``-w`` gives the distances (ADGI's shadow rays,
+      Sec. 4.8). The accumulator merges the results; the planner receives a :class:`PassResult`;
+    * a **state re-test** (``classify`` given: probe ids): relocation/classification from the fixed rays
+      (:meth:`ProbePipeline.classify`); the planner receives the state counts;
+    * an **accumulator step** (neither): ``accumulator.accumulate(pipeline, pass, None, None)``, its return
+      value to the planner (ADGI: the end-of-frame count cap and convolution).
+
+    ``options``: what the accumulator needs to know of this pass (ADGI: N_max, per-lane caps, merge or not).
+    """
+    name: str
+    plan: RayPlan | None = None
+    stream: int | None = None
+    frame: int | None = None
+    shader: Any = None
+    reverse_distances: bool = False
+    classify: np.ndarray | None = None
+    options: dict = field(default_factory=dict)
+
+
+class PassResult(NamedTuple):
+    """What a multi-pass planner receives for a traced :class:`ProbePass`: the shaded results, the distance
+    results (``reverse_distances``; else None) and the trace's own timer (its ray counts, stages
+    ``trace probes`` / ``shade probes``)."""
+    results: ProbeRayResults
+    distances: ProbeRayResults | None
+    timer: StageTimer
 
 
 class ProbePipeline:
@@ -81,6 +125,9 @@ class ProbePipeline:
     streams : (int, int) = (11, 12)  random streams of the irradiance and distance traces
     plan_stage : str | None = None   timer stage of the planner (None: untimed; IS-DDGI: 'plan')
     warmup : int = 0              updates of :meth:`step`'s warm-up (on its first call)
+    accumulator : PassAccumulator | None   with a :class:`~dyngi.probes.protocols.MultiPassPlanner` as the
+                                  planner: :meth:`step` runs :meth:`update_passes` (ADGI); the warm-up's
+                                  updates stay single-pass (the planner's ``plan``, the ``blender``)
     update_offscreen : bool = True   False: :meth:`step` updates only the probes in the extended camera
                                   frustum (:func:`probes_in_frustum`; Q-DDGI)
 
@@ -91,9 +138,13 @@ class ProbePipeline:
     def __init__(self, volume: ProbeVolume, planner, shader, blender, states: ProbeStates | None = None,
                  query=None, reclassify_interval: int = 8, classify_rays: int = 32, distance_planner=None,
                  state_rays: str = "update", trace_inactive: bool = False, streams: tuple = (11, 12),
-                 plan_stage: str | None = None, warmup: int = 0, update_offscreen: bool = True):
+                 plan_stage: str | None = None, warmup: int = 0, update_offscreen: bool = True,
+                 accumulator=None):
         check_part("planner", planner)
         check_part("shader", shader)
+        if accumulator is not None:
+            check_part("multipass", planner)
+            check_part("pass accumulator", accumulator)
         if state_rays not in STATE_RAYS:
             raise unknown_choice("state_rays", state_rays, STATE_RAYS)
         self.volume = volume
@@ -111,6 +162,7 @@ class ProbePipeline:
         self.plan_stage = plan_stage
         self.warmup = int(warmup)
         self.update_offscreen = bool(update_offscreen)
+        self.accumulator = accumulator
         self.last_results = None
         self.last_plan = None
         self.last_warmup_rays = {}  # rays per stage of the warm-up :meth:`step` ran this frame ({}: none)
@@ -194,13 +246,19 @@ class ProbePipeline:
                                 encoding or b.encoding, slot_probe, slot_valid, self.history)
 
     def classify(self, scene, probe_ids: np.ndarray, frame: int, seed: int, timer=None) -> dict:
-        """Relocation / classification of ``probe_ids`` from ``classify_rays`` fixed rays (stage ``states``)."""
+        """Relocation / classification of ``probe_ids`` from ``classify_rays`` fixed rays (stage ``states``).
+        With device update counts (:attr:`history`) they are copied to the host before and re-uploaded after."""
         if self.states is None or len(probe_ids) == 0 or not (self.states.relocate or self.states.classify):
             return dict(_NO_STATE)
+        device = self._history is not None   # the host pass resets the counts of woken probes: device counts go
+        if device:                           # through it (merge_slots' device path)
+            self.history_to_host()
         with maybe_stage(timer, "states"):
             plan = self.classify_dirs.plan(frame, seed, probe_ids)
             c = self.states.update(self.volume, probe_ids, plan.shared_directions,
                                    self.trace_distances(scene, plan))
+        if device:
+            self.history_from_host()
         if timer is not None:
             timer.add_rays("states", len(probe_ids) * self.classify_dirs.n)
         return c
@@ -322,7 +380,38 @@ class ProbePipeline:
             before_update(mask)
         if update is not None:
             return update(frame.index, frame.seed, timer, False, frame)
+        if self.accumulator is not None:
+            return self.update_passes(scene, frame, timer)
         return self.update(scene, frame.index, frame.seed, mask, timer, force_reclassify=self.moved)
+
+    def update_passes(self, scene, frame, timer=None) -> dict:
+        """A multi-pass update (ADGI's pilot, static and dynamic chains): ``planner.passes(frame, timer)`` is a
+        generator of :class:`ProbePass` es; each is run (traced and merged by the accumulator, or a state
+        re-test, or an accumulator step) and what it gives (:class:`PassResult`, state counts, the
+        accumulator's return) is sent back, so that the next pass may depend on it (ADGI's budget, its
+        heuristics from the pilot rays). Returns the generator's return value (the update's counts).
+        The planner times its passes itself (a timer stage may enclose a ``yield``)."""
+        gen = self.planner.passes(frame, timer)
+        reply = None
+        while True:
+            try:
+                ps = gen.send(reply)
+            except StopIteration as stop:
+                return dict(stop.value or {})
+            if ps.classify is not None:
+                reply = self.classify(scene, ps.classify, frame.index, frame.seed, timer)
+            elif ps.plan is None:
+                reply = self.accumulator.accumulate(self, ps, None, None)
+            else:
+                tt = StageTimer()
+                res = self.trace(scene, ps.plan, frame.seed, frame.index if ps.frame is None else ps.frame,
+                                 stream=ps.stream, timer=tt, shader=ps.shader)
+                dist = None
+                if ps.reverse_distances:
+                    back = ps.plan.reversed()
+                    dist = ProbeRayResults(res.radiance, self.trace_distances(scene, back), back)
+                self.accumulator.accumulate(self, ps, res, dist)
+                reply = PassResult(res, dist, tt)
 
     # -- the shared warm-up ---------------------------------------------------------------------
     @contextmanager
@@ -364,6 +453,9 @@ class ProbePipeline:
                         self.update(scene, f, seed, None, wt, force_reclassify=(k == 0))
                     else:
                         step(k, f, wt)
+                end = getattr(self.accumulator, "end_warmup", None)
+                if end is not None and self.last_results is not None:
+                    end(self, self.last_results)
         finally:
             if hasattr(pl, "end_warmup"):
                 pl.end_warmup()

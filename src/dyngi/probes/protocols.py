@@ -22,6 +22,12 @@ present): ``RayPlanner.begin_warmup()`` / ``end_warmup()`` (around the shared wa
 IS-DDGI's one-ray-per-set warm-up); ``HitShader.prepare(plan)`` before a trace and ``prepare(None)``
 after (IS-DDGI's per-ray shading keys); ``Blend.update(volume, results, distance_results)`` for
 blends fed by a separate distance plan (the reference's cosine-power lobe rays).
+
+Several traces in one update (ADGI: pilot rays, static and dynamic Metropolis chains, each merged with
+its own count cap) are a :class:`MultiPassPlanner` and a :class:`PassAccumulator` of the pipeline
+(:meth:`~dyngi.probes.pipeline.ProbePipeline.update_passes`): the planner yields passes
+(:class:`~dyngi.probes.pipeline.ProbePass`), the pipeline traces each and the accumulator merges it into
+the volume's texels; the planner sees each pass's results before it plans the next.
 """
 from __future__ import annotations
 
@@ -95,14 +101,44 @@ class Blend(Protocol):
     def update(self, volume, results, *distance_results) -> None: ...
 
 
+@runtime_checkable
+class MultiPassPlanner(Protocol):
+    """A planner of several passes per update (a :class:`RayPlanner` too: its ``plan`` plans the warm-up's
+    single-pass updates).
+
+    ``passes(frame, timer)`` is a generator over one frame (``frame`` a
+    :class:`~dyngi.techniques.base.Frame`): it yields :class:`~dyngi.probes.pipeline.ProbePass` es and
+    receives, for each, what running it gave (a :class:`~dyngi.probes.pipeline.PassResult` for a trace, the
+    state counts of a re-test, the accumulator's return value of an accumulator step); its return value is
+    the update's counts. It may time its passes (a timer stage around a ``yield``)."""
+
+    def plan(self, frame: int, seed: int, probe_ids: np.ndarray, previous=None, **hints) -> Any: ...
+
+    def passes(self, frame, timer=None): ...
+
+
+@runtime_checkable
+class PassAccumulator(Protocol):
+    """Merges a pass into the volume: ``accumulate(pipeline, probe_pass, results, distance_results)``
+    (through the pipeline's :meth:`~dyngi.probes.pipeline.ProbePipeline.merge` /
+    :meth:`~dyngi.probes.pipeline.ProbePipeline.merge_slots`, with its own accumulator and encoding); for a
+    pass without a plan (``results`` None) an accumulator step whose return value goes to the planner.
+    Optional hook: ``end_warmup(pipeline, results)`` with the warm-up's last rays."""
+
+    def accumulate(self, pipeline, probe_pass, results, distance_results): ...
+
+
 PARTS = {"planner": RayPlanner, "shader": HitShader, "estimator": Estimator,
          "accumulator": TemporalAccumulator, "encoding": Encoding}
 """The five parts DESIGN names, by name (docs/probes.md)."""
 
+MULTIPASS = {"multipass": MultiPassPlanner, "pass accumulator": PassAccumulator}
+"""The two parts of a multi-pass update (ADGI), by name."""
+
 
 def check_part(kind: str, part) -> None:
     """Raise a TypeError naming the missing interface when ``part`` does not satisfy the protocol ``kind``."""
-    proto = PARTS[kind] if kind in PARTS else Blend
+    proto = PARTS.get(kind) or MULTIPASS.get(kind) or Blend
     if not isinstance(part, proto):
         raise TypeError(f"probe pipeline: {type(part).__name__} is no {kind} (needs {proto.__name__}: "
                         f"{', '.join(n for n in dir(proto) if not n.startswith('_'))})")

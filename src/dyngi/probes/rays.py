@@ -120,6 +120,12 @@ class RayPlan:
         """Rays traced: an int for a host plan, a device ``dr.count(valid)`` (UInt32, width 1) for a masked one."""
         return dr.count(self.valid) if self.valid is not None else self.n_rays
 
+    def reversed(self) -> "RayPlan":
+        """The same plan along ``-w`` (same probes, slots, weights and lanes; no shared direction set, no
+        texels): ADGI's shadow rays, whose distances go to the visibility texels (Sec. 4.8)."""
+        return RayPlan(self.probe, -self.direction, self.rays_per_probe, None, self.probe_ids, self.offsets,
+                       self.slot, self.weight, valid=self.valid, slot_valid=self.slot_valid)
+
     @staticmethod
     def masked(probe, direction, valid, n_probes: int, weight=None) -> "RayPlan":
         """A masked plan (module docstring) of ``dr.width(direction)`` lanes: lane ``i`` traces from probe

@@ -133,14 +133,14 @@ def test_probes_no_pixel_uses_get_no_update(adgi):
          "warmup": 1, "warmup_rays": 32, "pilot_updates": False, "jitter": False, "relocate": False,
          "classify": False}
     a, _ = _run("adgi", sc, p, 2, t=0.0)
-    used = np.asarray(a._used) > 0
+    used = np.asarray(a.passes.used) > 0
     assert 0 < used.sum() < a.volume.n_probes, used.sum()
     before = (np.asarray(a.radiance.count).copy(), a.volume.state.distance_count.copy(),
               a.volume.state.irradiance.copy())
     for f in range(2, 5):
         sc.at(0.0)
         a.step(Frame(f, 0.0, sc.camera(0.0), RES, seed=0, static=True))
-    assert np.array_equal(np.asarray(a._used) > 0, used)        # a still camera uses the same probes
+    assert np.array_equal(np.asarray(a.passes.used) > 0, used)        # a still camera uses the same probes
     P = a.volume.n_probes
     after = (np.asarray(a.radiance.count), a.volume.state.distance_count, a.volume.state.irradiance)
     for b, c in zip(before, after):

@@ -23,7 +23,8 @@
 The hints: ``vin`` (per probe, 1 in V_in), ``fs`` / ``fd`` (per probe octant, from the 6-10-10 word),
 ``rays`` (the stage's ray allowance or None) and ``shadow_rate`` (measured NEE shadow rays per probe
 ray). :attr:`last_samples` is the stage's sample (static) or proxy-octant (dynamic) count. The
-technique traces each plan along ``w`` (radiance) and ``-w`` (:func:`negated`, the distance rays).
+pipeline traces each plan along ``w`` (radiance) and ``-w`` (:meth:`RayPlan.reversed
+<dyngi.probes.rays.RayPlan.reversed>`, the distance rays; :class:`.passes.ADGIPasses`).
 
 Two implementations of the same sampling (``device``, ours): the host one sizes ragged plans
 (``dr.compress`` and a host sort of the probe ids: one read per plan); the device one
@@ -77,12 +78,6 @@ def sorted_plan(probe, direction, weight, n_probes: int) -> RayPlan:
     w = None if weight is None else dr.gather(mi.Float, weight, idx)
     dr.eval(d, w)
     return RayPlan.ragged(ids, counts[ids], d, weight=w)
-
-
-def negated(plan: RayPlan) -> RayPlan:
-    """The same plan along ``-w`` (the shadow rays of Sec. 4.8)."""
-    return RayPlan(plan.probe, -plan.direction, plan.rays_per_probe, None, plan.probe_ids, plan.offsets,
-                   plan.slot, plan.weight, valid=plan.valid, slot_valid=plan.slot_valid)
 
 
 def multiplicity(accepted, n_chains: int, samples_per_chain: int):

@@ -4,9 +4,12 @@ Estimates DDGI's irradiance/visibility probes, but spends the ray budget where
 a guide over probe position x direction says rays matter, sampled by
 persistent Metropolis chains (:mod:`dyngi.sampling.metropolis`); each sample
 updates the probe texels it lands in with Algorithm 3's moving average
-(:mod:`.moving_average`). The probe pipeline (:mod:`dyngi.probes.pipeline`) does the tracing,
-merging, relocation/classification and the frame-0 warm-up; the chains are its planner
-(:class:`.planner.ADGIChainPlanner`). Primary shading is ``ddgi``'s
+(:mod:`.moving_average`). The probe pipeline (:mod:`dyngi.probes.pipeline`) runs the frame: the
+frame-0 warm-up (``ddgi``'s single-pass updates), then ADGI's passes -- its multi-pass planner
+(:class:`.passes.ADGIPasses`: relocation when due, the pilot rays and heuristics, the static and dynamic
+chains of :class:`.planner.ADGIChainPlanner`, the budget between them) and its accumulator
+(:class:`.accumulate.ADGIAccumulator`: Algorithm 3 into the radiance layer and the visibility texels, the
+outer count cap, the convolution to irradiance); the pipeline traces every pass. Primary shading is ``ddgi``'s
 (:mod:`dyngi.techniques.probe_base`), with its ``glossy`` parameter (default off): the primary
 vertex adds the Eq. 6 glossy probe lookup of DDGI Resampling (:mod:`dyngi.probes.primary`), which
 Fig. 10's glossy floor needs (``dyngi reproduce adgi``).
@@ -111,7 +114,7 @@ probe-sampling time against grid size".
 Probe relocation and classification carry over from ``ddgi`` (the paper is
 silent; ours): during the warm-up updates, then every
 ``reclassify_interval`` = 8 frames on the probes of V_out and the inactive ones, with ``ddgi``'s 32 fixed
-classification rays (:meth:`ADGITechnique._states_pass`).
+classification rays (:meth:`.passes.ADGIPasses._states_pass`).
 
 Encoding ``adgi``: Table 3's ``floor(R9)floor(G9)floor(B8)-N`` /
 ``[R13][G13]-N``, visibility rounded to nearest (:class:`dyngi.probes.encoding.ADGIEncoding`).
@@ -143,30 +146,24 @@ visits keep old values; quantised irradiance storage rounds low.
 """
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from ...backend import dr, mi
 from ...errors import DyngiError
-from ...probes import DiffuseHitShader, HysteresisBlend, ProbeStates, RayPlan, ScatterEstimator, UniformSFDirections
-from ...probes.arrays import upload
-from ...probes.accumulator import MeanAccumulator, pull_from
+from ...probes import DiffuseHitShader, HysteresisBlend, ProbeStates
 from ...probes.estimator import is_cpu_backend
-from ...probes.rays import compact
 from ...probes.encoding import get_encoding
 from ...probes.lookup import diffuse_radiance
 from ...probes.pipeline import ProbePipeline
-from ...probes.trace import HIT_LOOKUPS, ProbeRayResults
+from ...probes.trace import HIT_LOOKUPS
 from ...sampling.diffuse import diffuse_albedo
 from ...sampling.metropolis import ADGI_DIRECTION_STEP
 from ..base import Frame, FrameResult, Param, StageTimer, register
 from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase
-from .heuristics import (OCTANTS, ADGIHeuristics, frusta, octant_of, pack_heuristics, unpack_heuristics,
-                         view_distances)
-from .moving_average import N_MAX_DYNAMIC, N_MAX_STATIC, Algorithm3Accumulator
-from .planner import ADGIChainPlanner, negated
-from .radiance import RadianceCache
+from .accumulate import ADGIAccumulator
+from .heuristics import OCTANTS
+from .moving_average import N_MAX_DYNAMIC, N_MAX_STATIC
+from .passes import ADGIPasses
 
 IMPLS = ("auto", "device", "host")
 
@@ -293,50 +290,22 @@ class ADGITechnique(_ProbeTechniqueBase):
             raise DyngiError(f"technique 'adgi': parameter 'burn_in' = {p['burn_in']} must be below "
                              f"'iterations' = {p['iterations']}")
         self._setup_volume(p["irradiance_texels"], p["distance_texels"])
-        g = self.grid
-        self.counts = tuple(int(c) for c in g.counts)
+        self.counts = tuple(int(c) for c in self.grid.counts)
         self.shader = PilotShader(p["direct"], lights=self.light_nee, lookup=p["hit_lookup"])
         self.encoding = get_encoding(p["encoding"])     # Table 3: visibility rounds to nearest
-        self.acc_static = Algorithm3Accumulator(p["n_max_static"])
-        self.acc_dynamic = Algorithm3Accumulator(p["n_max_dynamic"])
-        self._mean = MeanAccumulator()
-        self.est_dist = ScatterEstimator(p["distance_power"], "bin")
-        self.est_irr = ScatterEstimator(p["distance_power"], "bin")     # closest-entry: one texel per sample
-        self.heur = ADGIHeuristics(g, p["camera_threshold"] or None, p["beta"], p["mu"], p["theta"])
-        self.hstate = self.heur.initial_state()
-        # -- the planner: static chains over probe cells, dynamic ones over 3x3x3 proxies (grid units) --
-        self.planner = ADGIChainPlanner(self.volume, p)
-        # -- ddgi's warm-up pieces (hysteresis blend, shared SF set, relocation/classification) --
-        self.blender = HysteresisBlend(0.0, p["distance_power"], 1.0, 0.25, 1e30, p["encoding"], "auto")
-        self.blender.encoding = self.encoding             # the warm-up stores through the same encoding
-        # the pipeline: its own update is the warm-up's (ddgi's); the stages P, S, D call its trace and merge
-        self.pipeline = ProbePipeline(self.volume, UniformSFDirections(p["warmup_rays"]),
-                                      DiffuseHitShader(p["direct"], lights=self.light_nee,
-                                                       lookup=p["hit_lookup"]), self.blender,
-                                      ProbeStates(p["relocate"], p["classify"]), self.query, reclassify_interval=0)
-        self.updater = self.pipeline       # (older name)
-        self._warmed = False
-        self._shadow_rate = 1.0                # NEE shadow rays per probe ray (measured)
-        self._static_rays = None               # this frame's ray allowance of S and D (None: no budget)
-        self._dynamic_rays = None
-        self._time_avail_ms = None             # equal time: this frame's ms for S + D (None: no time budget)
-        self._ms_per_ray = {"S": None, "D": None}   # measured on the last frame that traced in the stage
-        self._ms_fixed = 0.0                   # measured: the last frame's time outside S and D
-        self.radiance = RadianceCache(vol_n := self.volume.n_probes, p["radiance_texels"],
-                                      self.volume.irradiance_texels)
-        self._updated = np.zeros(vol_n, bool)
-        self._used = dr.full(mi.Float, 1.0, vol_n)     # probes the last primary pass read (all, before one ran)
         # -- the device path (impl): masked plans, counts on the device, read after the frame's image --
         self.device = p["impl"] == "device" or (p["impl"] == "auto" and not is_cpu_backend())
-        self.planner.device = self.device
-        self._updated_dev = dr.zeros(mi.UInt32, vol_n)   # probes merged this frame (device path)
-        self._slots_merged = 0                            # slots merged this frame (host: the convolve width)
-        self._frame_dev = []        # this frame's device ray counts before the budget: (count, lower, estimate)
-        self._rates = []            # (probe rays, NEE shadow rays) of this frame's traces, device values
-        self._dyn_prev = False      # the last frame's "some f_d > 0" (device path, read after its image)
-        self._static_limit = self._dynamic_limit = None   # device caps of S and D under a ray budget
-        self._static_rays_max = self._dynamic_rays_max = None
-        self._avail_dev = None
+        # -- the pipeline's multi-pass planner (P, S, D) and accumulator (Algorithm 3, the radiance layer) --
+        self.passes = ADGIPasses(self.volume, p, self.shader, self.device)
+        self.accumulator = ADGIAccumulator(self.volume, p, self.encoding, self.device)
+        # -- ddgi's warm-up pieces (hysteresis blend, shared SF set, relocation/classification): the pipeline's
+        # single-pass updates before the first frame, through the same encoding --
+        self.blender = HysteresisBlend(0.0, p["distance_power"], 1.0, 0.25, 1e30, p["encoding"], "auto")
+        self.blender.encoding = self.encoding
+        self.pipeline = ProbePipeline(self.volume, self.passes,
+                                      DiffuseHitShader(p["direct"], lights=self.light_nee, lookup=p["hit_lookup"]),
+                                      self.blender, ProbeStates(p["relocate"], p["classify"]), self.query,
+                                      reclassify_interval=0, warmup=p["warmup"], accumulator=self.accumulator)
 
     def memory_per_probe(self) -> dict:
         """Bytes per probe by part: the irradiance and visibility texels as their encoded words (Table 3:
@@ -351,22 +320,27 @@ class ADGITechnique(_ProbeTechniqueBase):
         return {"irradiance": Ti * Ti * irr_bits // 8, "visibility": Td * Td * vis_bits // 8,
                 "heuristics": OCTANTS * 4, "radiance_layer": self.radiance.n_tex * 16}
 
-    # the planner's chains and guide, readable here (the viewer draws the static chains)
+    # the passes' chains, heuristics and the accumulator's radiance layer, readable here (the viewer draws the
+    # static chains; tests read the heuristics and the radiance counts)
     @property
     def static_state(self):
-        return self.planner.static_state
+        return self.passes.chains.static_state
+
+    @property
+    def hstate(self):
+        return self.passes.hstate
+
+    @property
+    def radiance(self):
+        return self.accumulator.radiance
 
     def guide_feedback(self):
         """The static guide's irradiance feedback (:meth:`.planner.ADGIChainPlanner.guide_feedback`)."""
-        return self.planner.guide_feedback()
+        return self.passes.chains.guide_feedback()
 
     def k_for(self, frame: Frame) -> float:
-        """Eq. 10's k on ``frame`` (:meth:`.heuristics.ADGIHeuristics.k_for`: the user's, else from the camera
-        distances of the active probes in view)."""
-        vol = self.volume
-        view = None if self.heur.user_k is not None else \
-            view_distances(vol, frame.camera, frame.res, vol.state.states != 0)
-        return self.heur.k_for(frame.camera.origin, view)
+        """Eq. 10's k on ``frame`` (:meth:`.passes.ADGIPasses.k_for`)."""
+        return self.passes.k_for(frame)
 
     # -- one frame ------------------------------------------------------------------------------
     def step(self, frame: Frame) -> FrameResult:
@@ -376,75 +350,13 @@ class ADGITechnique(_ProbeTechniqueBase):
         return self.finish_frame(t, stats, img, ind)
 
     def update_probes(self, frame: Frame, t: StageTimer) -> dict:
-        """One frame's probe update, stages P, S, D (and the warm-up / relocation passes when due); returns
-        its stats (device values on the device path). On the device path (``impl``) a frame without the
-        warm-up or a relocation/classification pass reads nothing back to the host here (tests/techniques/
-        adgi/test_device_path.py); the counts are read by :meth:`finish_frame`, after the image."""
-        p = self.params
+        """One frame's probe update: the pipeline's step (the warm-up on the first frame, then the passes of
+        :class:`.passes.ADGIPasses` merged by :class:`.accumulate.ADGIAccumulator`: relocation when due, P, S,
+        D); returns its stats (device values on the device path). On the device path (``impl``) a frame
+        without the warm-up or a relocation/classification pass reads nothing back to the host here (tests/
+        techniques/adgi/test_device_path.py); the counts are read by :meth:`finish_frame`, after the image."""
         self._lights_begin(frame, t)        # lights=: the sampler's per-frame hook before the first probe ray
-        if not self._warmed:
-            self._warmed = True
-            self.pipeline.warm_up(self.scene, p["warmup"], frame.seed, None, t)
-            if self.pipeline.last_results is not None:     # the warm-up's last rays seed the radiance texels
-                with t.stage("warmup"):
-                    self.radiance.merge(self.pipeline.last_results, p["n_max_static"])
-        vol = self.volume
-        # -- ddgi's relocation/classification after the warm-up (the paper is silent; ours) --
-        if self._warmed and frame.index > 0 and p["reclassify_interval"] and \
-                frame.index % p["reclassify_interval"] == 0 and (p["relocate"] or p["classify"]):
-            _, _, near = frusta(vol, frame.camera, frame.res, self.k_for(frame))
-            self._states_pass(frame, t, near | (vol.state.states == 0))
-        active = vol.state.states != 0
-        fc, v_in, v_out = frusta(vol, frame.camera, frame.res, self.k_for(frame))
-        v_in &= active
-        v_out &= active
-        stats = {}
-        # -- P: pilot rays and heuristics (Sec. 4.1-4.4) --
-        with t.stage("P"):
-            ids = np.flatnonzero(v_out).astype(np.uint32)
-            res = None
-            if len(ids):
-                plan = self.heur.pilot.plan(frame.index, frame.seed, ids)
-                # both frames of a pair draw the same NEE samples (sampler seeded by the pair): f_r's time
-                # difference then sees scene changes, not NEE noise (ours)
-                tt = StageTimer()
-                res = self.pipeline.trace(self.scene, plan, frame.seed, frame.index // 2, stream=41, timer=tt,
-                                          shader=self.shader)
-                lum = mi.luminance(self.shader.last_direct)
-                n_p = self._count(tt)
-                t.add_rays("P", n_p)
-                if self.device and not isinstance(n_p, int):   # the budget's device count (and host bounds)
-                    self._frame_dev.append((n_p, 8 * len(ids), 8 * len(ids) * (1.0 + self._shadow_rate)))
-                self.hstate = self.heur.update(self.hstate, frame.index, ids, res.distance, lum, fc)
-                if p["pilot_updates"] and frame.index % 2 == 0:
-                    self._merge(res, None, self.acc_static, p["n_max_static"])
-            else:
-                self.hstate = self.heur.update(self.hstate, frame.index, ids, mi.Float(), mi.Float(), fc)
-            # -- the 6-10-10 heuristics word per octant (Sec. 4.3); the chains read the quantised values --
-            vin_dr = upload(v_in.astype(np.float32), mi.Float)
-            vin_e = dr.gather(mi.Float, vin_dr, dr.arange(mi.UInt32, vol.n_probes * OCTANTS) // OCTANTS)
-            self.lut, self.lut_scale = pack_heuristics(self.hstate.fv, self.hstate.fs, self.hstate.fd(p["mu"]),
-                                                       vin_e)
-            _, fs_q, fd, _ = unpack_heuristics(self.lut, self.lut_scale)
-            self._fs_q = fs_q
-            dr.eval(fs_q, fd)
-        self._plan_budget(frame, t)
-        # -- Sec. 4.9's culling: the chains sample only probes of V_in that the last primary pass used --
-        samp_dr = vin_dr * self._used if p["cull_unused"] else vin_dr
-        # -- S: static chains (Sec. 4.8) --
-        with t.stage("S"):
-            stats["static_samples"] = self._static(frame, samp_dr, fd, t)
-        if self._time_avail_ms is not None:      # equal time: D gets what S left
-            per = self._ms_per_ray["D"] or self._ms_per_ray["S"]
-            self._dynamic_rays = None if per is None else max(self._time_avail_ms - t.ms.get("S", 0.0), 0.0) / per
-        # -- D: dynamic chains on proxies (Sec. 4.9) --
-        with t.stage("D"):
-            stats["dynamic_proxy_octants"] = self._dynamic(frame, samp_dr, fd, t)
-            self._cap_outer(v_out & ~v_in, p["outer_count_cap"])
-            stats["probes_updated"] = self._convolve_updated()
-        stats["v_in"], stats["v_out"] = int(v_in.sum()), int(v_out.sum())
-        stats["static_chains_run"] = self.planner.n_run
-        return stats
+        return self.pipeline.step(self.scene, frame, t)
 
     def finish_frame(self, t: StageTimer, stats: dict, img, ind) -> FrameResult:
         """The frame's result after :meth:`update_probes` and the primary pass: the timer's stats with the
@@ -452,8 +364,8 @@ class ADGITechnique(_ProbeTechniqueBase):
         out = t.as_dict()
         out.update(stats)
         if self.device:
-            self._finish_device_frame(out)
-        self._measure_time(out)
+            self.passes.finish_frame(out)
+        self.passes.measure_time(out)
         return FrameResult(image=img, indirect=ind, stats=out)
 
     def _primary(self, frame: Frame, t: StageTimer):
@@ -472,264 +384,5 @@ class ADGITechnique(_ProbeTechniqueBase):
         finally:
             self.query = inner
         dr.eval(used)
-        self._used = used
+        self.passes.used = used
         return out
-
-    # -- equal-ray and equal-time budgets (ours) ----------------------------------------------------
-    def _plan_budget(self, frame: Frame, t: StageTimer) -> None:
-        """Share ``frame.ray_budget`` after the primary and pilot rays: the static chains get what the
-        dynamic ones do not reserve (half when dynamic chains are on), by running only the first
-        ``n`` static chains (``n`` from the rays a sample costs: 2 + the measured NEE shadow rays); the
-        dynamic stage then traces proxy octants in order while the remainder lasts.
-
-        ``frame.time_budget_ms`` (equal time): the budget minus the last frame's time outside S and D
-        (P, primary, states) is the ms of S + D; it becomes rays through the ms per ray each stage
-        measured on its last frame (S: its share; D: what S actually left, after S has run), so the
-        chain counts scale with the time budget. Nothing measured yet (the first frame): the defaults."""
-        self._static_rays = self._dynamic_rays = self._time_avail_ms = None
-        self._static_limit = self._dynamic_limit = self._avail_dev = None
-        self._static_rays_max = self._dynamic_rays_max = None
-        # the dynamic stage is reserved its half only when some entry has f_d > 0 this frame (else it
-        # traces nothing and S gets it all); one host read of the f_d scale, only under a budget
-        if frame.ray_budget is None and frame.time_budget_ms is None:
-            return
-        if self.device and frame.ray_budget is not None:
-            return self._plan_budget_device(frame, t)
-        dyn = self._dyn_prev if self.device else \
-            self.planner.dynamic_state is not None and float(np.asarray(self.lut_scale).ravel()[0]) > 0.0
-        share = float(self.params["dynamic_share"]) if dyn else 0.0
-        if frame.ray_budget is None:
-            if frame.time_budget_ms is not None and self._ms_per_ray["S"]:
-                self._time_avail_ms = max(float(frame.time_budget_ms) - self._ms_fixed, 0.0)
-                self._static_rays = self._time_avail_ms * (1.0 - share) / self._ms_per_ray["S"]
-            return
-        p = self.params
-        spent = sum(v for k, v in t.as_dict()["rays"].items() if k != "warmup")
-        primary = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
-        avail = max(float(frame.ray_budget) - spent - primary, 0.0)
-        self._static_rays = avail * (1.0 - share)
-        self._dynamic_rays = avail      # less what S spends
-
-    def _plan_budget_device(self, frame: Frame, t: StageTimer) -> None:
-        """:meth:`_plan_budget` without a host read (device path): the exact caps are device values -- the
-        rays spent so far (the pilot's NEE shadow rays are counted on the device) and the dynamic share only
-        when some f_d > 0 *this* frame (the 6-10-10 word's scale, on the device) -- while the host sizes the
-        chains run and the plans' widths from the last frame's "some f_d > 0" and shadow-ray rate (an
-        estimate) and from the fewest rays spent so far (an upper bound of the widths)."""
-        p = self.params
-        ints = sum(v for k, v in t.rays.items() if k != "warmup")
-        primary = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
-        fixed = float(frame.ray_budget) - ints - primary
-        lower = sum(lo for _, lo, _ in self._frame_dev)
-        est = sum(e for _, _, e in self._frame_dev)
-        dyn_on = self.planner.dynamic_state is not None
-        share = float(p["dynamic_share"]) if dyn_on else 0.0
-        avail_est = max(fixed - est, 0.0)
-        self._static_rays = avail_est * (1.0 - (share if self._dyn_prev else 0.0))
-        self._static_rays_max = self._dynamic_rays_max = max(fixed - lower, 0.0)
-        self._dynamic_rays = avail_est
-        spent = mi.Float(0.0)
-        for c, _, _ in self._frame_dev:
-            spent = spent + mi.Float(c)
-        avail = dr.maximum(dr.opaque(mi.Float, fixed) - spent, 0.0)
-        dyn = (self.lut_scale > 0.0) if dyn_on else mi.Bool(False)
-        per = 2.0 + self._shadow_rate
-        self._avail_dev = avail
-        self._static_limit = mi.UInt32(avail * (1.0 - dr.select(dyn, dr.opaque(mi.Float, share), 0.0))
-                                       / dr.opaque(mi.Float, per))
-        dr.make_opaque(self._static_limit)     # evaluated, as the planner's opaque caps: the same kernels
-
-    def _finish_device_frame(self, out: dict) -> None:
-        """Device path, after the frame's image: its stats as ints, the NEE shadow rays per probe ray and the
-        "some f_d > 0" flag for the next frame's sizes, the planner's counts (:meth:`.planner.ADGIChainPlanner
-        .finish_frame`)."""
-        for k in ("static_samples", "dynamic_proxy_octants", "probes_updated"):
-            if not isinstance(out.get(k, 0), int):
-                out[k] = int(np.asarray(out[k]).ravel()[0])
-        for probe_rays, shadow in self._rates:
-            pr = int(np.asarray(probe_rays).ravel()[0]) if not isinstance(probe_rays, int) else probe_rays
-            if pr:
-                self._shadow_rate = int(np.asarray(shadow).ravel()[0]) / pr
-        self._rates.clear()
-        self._frame_dev.clear()
-        self._dyn_prev = self.planner.dynamic_state is not None and \
-            float(np.asarray(self.lut_scale).ravel()[0]) > 0.0
-        self.planner.finish_frame()
-
-    def _measure_time(self, stats: dict) -> None:
-        """Learn ms per ray of S and D and the ms outside them (for equal-time budgets); not on frames
-        with the warm-up (its time is one-off)."""
-        ms, rays = stats["ms"], stats["rays"]
-        if "warmup" in ms:
-            return
-        for k in ("S", "D"):
-            if rays.get(k):
-                self._ms_per_ray[k] = ms[k] / rays[k]
-        self._ms_fixed = max(stats["total_ms"] - ms.get("S", 0.0) - ms.get("D", 0.0), 0.0)
-
-    def _states_pass(self, frame: Frame, t: StageTimer, mask: np.ndarray) -> None:
-        """``ddgi``'s relocation and classification after the warm-up (issue 12 item 5; the paper is
-        silent, ours): every ``reclassify_interval`` frames, the probes of ``V_out`` (those the frame can
-        use; ``ddgi`` re-tests the probes it updates) and every inactive probe (``ddgi``'s re-test) are
-        re-tested with ``ddgi``'s fixed set of classification rays (:meth:`ProbePipeline.classify
-        <dyngi.probes.pipeline.ProbePipeline.classify>`, 32 spherical-Fibonacci rays) and
-        :class:`~dyngi.probes.states.ProbeStates` moves / (de)activates it as ``ddgi`` does. The rays are
-        counted (stage ``states``) and come out of an equal-ray budget before the chains are sized."""
-        if self.device:     # the host pass resets the counts of woken probes: the device counts go through it
-            self.pipeline.history_to_host()
-        self.pipeline.classify(self.scene, np.flatnonzero(mask).astype(np.uint32), frame.index, frame.seed, t)
-        if self.device:
-            self.pipeline.history_from_host()
-
-    # -- the stages' traces and merges ----------------------------------------------------------------
-    def _static(self, frame: Frame, vin_dr, fd, t: StageTimer) -> int:
-        """S: the planner's static plan, traced and merged with N_max static (Sec. 4.8)."""
-        plan = self.planner.plan(frame.index, frame.seed, stage="static", vin=vin_dr, fs=self._fs_q, fd=fd,
-                                 rays=self._static_rays, shadow_rate=self._shadow_rate,
-                                 rays_max=self._static_rays_max, limit=self._static_limit)
-        if plan is None:
-            return 0
-        lane_cap = None
-        if self.params["change_cap"]:    # samples of entries with f_d > 0 merge with the dynamic N_max (ours)
-            changed = dr.gather(mi.Float, fd, plan.probe * OCTANTS + octant_of(plan.direction)) > 0.0
-            lane_cap = dr.select(changed, mi.UInt32(self.params["n_max_dynamic"]),
-                                 mi.UInt32(self.params["n_max_static"]))
-        spent = self._trace_and_merge(frame, plan, self.acc_static, self.params["n_max_static"], stream=43,
-                                      lane_cap=lane_cap)
-        t.add_rays("S", spent)
-        if self._avail_dev is not None:       # device path: D's exact cap on the device
-            self._dynamic_limit = mi.UInt32(dr.maximum(self._avail_dev - mi.Float(spent), 0.0)
-                                            / dr.opaque(mi.Float, 2.0 + self._shadow_rate))
-            dr.make_opaque(self._dynamic_limit)
-        elif self._dynamic_rays is not None:
-            self._dynamic_rays = max(self._dynamic_rays - spent, 0.0)
-        return self.planner.last_samples
-
-    def _dynamic(self, frame: Frame, vin_dr, fd, t: StageTimer) -> int:
-        """D: the planner's dynamic plan, traced and merged with N_max dynamic (Sec. 4.9)."""
-        plan = self.planner.plan(frame.index, frame.seed, stage="dynamic", vin=vin_dr, fd=fd,
-                                 rays=self._dynamic_rays, shadow_rate=self._shadow_rate,
-                                 rays_max=self._dynamic_rays_max, limit=self._dynamic_limit)
-        if plan is not None:
-            t.add_rays("D", self._trace_and_merge(frame, plan, self.acc_dynamic, self.params["n_max_dynamic"],
-                                                  stream=45))
-        return self.planner.last_samples
-
-    def _trace_and_merge(self, frame: Frame, plan: RayPlan, acc, n_max: int, stream: int, lane_cap=None) -> int:
-        """Trace ``plan`` (radiance along ``w``, distance along ``-w``) and merge; returns the rays cast
-        (probe rays, their NEE shadow rays and the ``-w`` rays)."""
-        tt = StageTimer()
-        res = self.pipeline.trace(self.scene, plan, frame.seed, frame.index, stream=stream, timer=tt,
-                                  shader=self.shader)
-        back = negated(plan)
-        dist = self.pipeline.trace_distances(self.scene, back)
-        self._merge(res, ProbeRayResults(res.radiance, dist, back), acc, n_max, lane_cap)
-        return self._count(tt) + plan.rays_cast()
-
-    def _count(self, tt: StageTimer):
-        """Rays a trace cast (from its private timer: its stage times are part of ours); learns the NEE
-        shadow rays per probe ray for the equal-ray budget. Device path: a device count (the lazy counts of
-        the trace's timer, not read; the rate is learnt after the frame's image)."""
-        if self.device:
-            lazy = list(getattr(tt, "_lazy", ()))       # the timer's unread device counts
-            total = sum(tt.rays.values())
-            if lazy:            # the host part opaque: it changes per frame (a literal would recompile)
-                total = dr.opaque(mi.UInt32, total)
-                for _, n in lazy:
-                    total = n + total
-            probe = dict(lazy).get("trace probes", tt.rays.get("trace probes", 0))
-            self._rates.append((probe, dict(lazy).get("shade probes", 0)))
-            return total
-        rays = tt.as_dict()["rays"]
-        if rays.get("trace probes"):
-            self._shadow_rate = rays.get("shade probes", 0) / rays["trace probes"]
-        return int(sum(rays.values()))
-
-    def _merge(self, irr_res, dist_res, acc, n_max: int, lane_cap=None) -> None:
-        """Radiance of ``irr_res`` into the radiance texels (:mod:`.radiance`), distance moments of
-        ``dist_res`` (or of ``irr_res`` when None: the pilot rays' own distances) into the visibility texels,
-        both with Algorithm 3's batch rule; the probes are convolved to irradiance at the end of the frame."""
-        vol = self.volume
-        plan = irr_res.plan
-        if self.params["cache_update"] == "closest-entry":
-            self._merge_closest(irr_res, acc, lane_cap)
-        else:
-            self.radiance.merge(irr_res, n_max, lane_cap)
-        est_d = self.est_dist.distance(vol, dist_res if dist_res is not None else irr_res)
-        if plan.weight is not None:      # the static plan's weight is a multiplicity: m samples of one ray
-            est_d = dataclasses.replace(est_d, count=mi.UInt32(dr.round(est_d.weight)))
-        if self.device:
-            slot_probe, slot_valid = self._slots(plan)
-            self.pipeline.merge_slots(None, est_d, slot_probe, slot_valid, accumulator=acc, encoding=self.encoding)
-            dr.scatter(self._updated_dev, mi.UInt32(1), slot_probe, slot_valid)
-            self._slots_merged += dr.width(slot_probe)
-            return
-        self.pipeline.merge(None, est_d, plan.probe_ids, plan.counts, accumulator=acc, encoding=self.encoding)
-        self._updated[plan.probe_ids[plan.counts > 0]] = True
-
-    @staticmethod
-    def _slots(plan: RayPlan):
-        """(probe per slot, slot used) on the device: a masked plan's own, a host plan's uploaded."""
-        if plan.is_masked:
-            return plan.probe_ids, plan.slot_valid
-        return (upload(np.asarray(plan.probe_ids, np.uint32), mi.UInt32),
-                upload((plan.counts > 0).astype(np.uint32), mi.UInt32) != 0)
-
-    def _merge_closest(self, res, acc, lane_cap=None) -> None:
-        """``cache_update='closest-entry'``: each sample's radiance updates the irradiance texel its direction
-        falls in (Algorithm 2's closest entry) with Algorithm 3's batch form through the encoding (the word
-        stores the texel's mean radiance, not a cosine integral: biased where radiance varies over the
-        hemisphere); with ``lane_cap`` the samples of changed octants merge with the dynamic N_max."""
-        plan = res.plan
-        w = mi.Float(1.0) + dr.zeros(mi.Float, plan.n_rays) if plan.weight is None else plan.weight
-        parts = [(w, acc)]
-        if lane_cap is not None:
-            changed = lane_cap < int(self.params["n_max_static"])
-            parts = [(dr.select(changed, 0.0, w), acc), (dr.select(changed, w, 0.0), self.acc_dynamic)]
-        for wp, a in parts:
-            sub = ProbeRayResults(res.radiance, res.distance, dataclasses.replace(plan, weight=wp))
-            est = self.est_irr.irradiance(self.volume, sub)
-            est = dataclasses.replace(est, count=mi.UInt32(dr.round(est.weight)))
-            if self.device:
-                self.pipeline.merge_slots(est, None, *self._slots(plan), accumulator=a, encoding=self.encoding)
-            else:
-                self.pipeline.merge(est, None, plan.probe_ids, plan.counts, accumulator=a, encoding=self.encoding)
-
-    def _convolve_updated(self):
-        """The per-texel convolution pass (:mod:`.radiance`) for the probes updated this frame. Device path:
-        those probes packed on the device (at most the slots merged this frame), the device convolution, a
-        slot merge; returns a device count."""
-        if self.device:
-            S = max(min(self.volume.n_probes, self._slots_merged), 1)
-            self._slots_merged = 0
-            ids, ok = compact(self._updated_dev != 0, S)
-            n = dr.count(ok)
-            if self.params["cache_update"] == "convolve":
-                est = self.radiance.irradiance_estimate_device(ids)
-                self.pipeline.merge_slots(est, None, ids, ok, accumulator=self._mean, encoding=self.encoding)
-            self._updated_dev = dr.zeros(mi.UInt32, self.volume.n_probes)
-            return n
-        ids = np.flatnonzero(self._updated).astype(np.uint32)
-        self._updated[:] = False
-        if len(ids) and self.params["cache_update"] == "convolve":
-            est = self.radiance.irradiance_estimate(ids)
-            self.pipeline.merge(est, None, ids, accumulator=self._mean, encoding=self.encoding)
-        return len(ids)
-
-    def _cap_outer(self, mask: np.ndarray, cap: int) -> None:
-        """``N <- min(N, cap)`` for the texels of probes in ``mask`` (V_out - V_in, Sec. 4.8)."""
-        if not mask.any():
-            return
-        self.radiance.cap_counts(mask, cap)
-        vol = self.volume
-        dev = vol.device
-        m = upload(mask.astype(np.uint32), mi.UInt32) != 0
-        capd = dr.opaque(mi.UInt32, int(cap))
-        for name, T in (("irradiance_count", vol.irradiance_texels), ("distance_count", vol.distance_texels)):
-            c = getattr(dev, name)
-            k = dr.arange(mi.UInt32, dr.width(c))
-            sel = dr.gather(mi.Bool, m, k // (T * T))
-            new = dr.select(sel, dr.minimum(c, capd), c)
-            dr.eval(new)
-            setattr(dev, name, new)
-        vol.state.device_is_newer(pull_from(dev))
