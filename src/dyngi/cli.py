@@ -401,8 +401,10 @@ def cmd_demo(args) -> int:
         summary = json.load(f)
     print(f"demo written to {out} in {summary['wall_s']:.0f} s: one section per paper, each against its baseline")
     for s in summary["sections"]:
-        agrees = {True: "yes", False: "no"}.get(s["measured"]["agrees"], "n/a")
-        print(f"  {s['title']} ({s['scene']}): {s['measured']['text']} [as the paper: {agrees}]")
+        print(f"  {s['title']} ({s['scene']}): {s['measured']['text']}")
+        for c in s.get("claims", []):      # computed from the seeds (dyngi.experiments.claims), never by hand
+            why = f" ({'; '.join(c['conditions'])})" if c["conditions"] else ""
+            print(f"    {c['claim']} ({c['where']}): {c['verdict']}{why}")
     print(f"open {os.path.join(out, 'report.html')}")
     prog = os.path.relpath(sys.argv[0]) if os.path.basename(sys.argv[0]) == "dyngi" else "dyngi"
     view = summary["sections"][0]["view"] if summary["sections"] else "dyngi view tunnel-gate --techniques qddgi,adgi"
