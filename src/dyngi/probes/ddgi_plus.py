@@ -23,7 +23,7 @@ i.e. a probe ray records, at its hit ``y`` (shader :class:`PlusHitShader`):
   ray (Sec. 3.5's view-path self-shadow offset, which replaces DDGI's normal/view offset: the path here
   is the probe ray), ``d = min(update_view_path_bias x s_min, t / 2)`` with ``s_min`` the smallest probe
   spacing. Default 0: at ``y`` with the query's own offsets (none for the DDGI Resampling family), our
-  choice by measurement (:data:`DEFAULT_UPDATE_VIEW_PATH_BIAS`).
+  choice by measurement (:data:`~dyngi.probes.params.DEFAULT_UPDATE_VIEW_PATH_BIAS`).
 
 The probes then converge to ``L_DDGI+ ~= T_f L`` (Sec. 3.3), the *total*
 irradiance (direct from emitters and sky + indirect), not DDGI's
@@ -77,7 +77,6 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError, unknown_choice
-from ..registry import Param
 from ..lights.emitter_sampling import EmitterSubsetSampling, sample_traced
 from ..sampling.octahedral import direction_to_texel_coords
 from ..scene.sunsky import is_sunsky, split_sunsky
@@ -85,23 +84,17 @@ from ..timing import StageTimer
 from .blend import HysteresisBlend
 from .lookup import probe_radiance
 from .grid import ProbeGrid
-from .params import COMMON_SPECS, DDGI_SPECS, parse_probe_counts
+from .params import (ATTENUATIONS, DDGI_PLUS_SPECS, DEFAULT_ATTENUATION, DEFAULT_EMISSION_SCALE,  # noqa: F401
+                     DEFAULT_UPDATE_VIEW_PATH_BIAS, parse_params, parse_probe_counts)
 from .query import ProbeQuery, bilinear_gather
 from .rays import UniformSFDirections
 from .states import ProbeStates
 from ..scene.surface import shading_side
 from .trace import DiffuseHitShader, HIT_LOOKUPS, check_direct_mode
-from .pipeline import ProbePipeline, probes_in_frustum
+from .pipeline import ProbePipeline
 from .volume import ProbeVolume
 
 MODES = ("plus", "ddgi")
-ATTENUATIONS = ("ratio", "inverse-square", "none")
-DEFAULT_ATTENUATION = "ratio"
-DEFAULT_EMISSION_SCALE = 1.0
-DEFAULT_UPDATE_VIEW_PATH_BIAS = 0.0
-"""Sec. 3.5's offset at probe-ray hits, in smallest probe spacings; 0 (none) by default, our choice by
-measurement: 0.2 (the secondary-vertex shading's factor) over-lights the two-storey stair hall by 13 %
-against Mitsuba (0 by 3 %) and does not lower the per-frame error (docs/techniques/ddgi-resampling.md)."""
 ATTENUATION_CLIP = 1.0
 """The probe boundary of the emission heuristic: the box probe +- ATTENUATION_CLIP x spacing (module docstring)."""
 
@@ -228,48 +221,20 @@ class PlusHitShader:
         return L, hit, front, shadow
 
 
-def plus_params():
-    """The probe parameters :class:`DDGIPlusVolume` takes (``Param`` entries; techniques merge them).
-
-    ``ddgi``'s probe parameters (:mod:`dyngi.probes.params`, one table for every probe technique) less
-    the primary-shading ones, and the DDGI+ ones below (:class:`~dyngi.registry.Param` entries).
-    """
-    skip = ("jitter", "direct_samples", "encoding", "glossy")
-    out = {k: Param(**v) for k, v in {**COMMON_SPECS, **DDGI_SPECS}.items() if k not in skip}
-    out.update({
-        "emission_attenuation": Param(DEFAULT_ATTENUATION, "DDGI+ emission heuristic (Sec. 3.3): 'ratio' "
-                                      "(t/(t+d))^2 (decided by test), 'inverse-square' 1/(t+d)^2, 'none'",
-                                      choices=ATTENUATIONS),
-        "emission_scale": Param(DEFAULT_EMISSION_SCALE, "user scale of the attenuated emission (the paper's "
-                                "slider)", min=0.0, max=1e6),
-        "probe_glossy": Param(True, "glossy term of Eq. 6 at probe-ray hits"),
-        "update_view_path_bias": Param(DEFAULT_UPDATE_VIEW_PATH_BIAS, "Sec. 3.5 at probe-ray hits: the previous "
-                                       "probes are read this many smallest probe spacings back along the probe "
-                                       "ray (at most half of it) instead of at the hit with DDGI's normal/view "
-                                       "offsets; 0 (default, measured): at the hit with the query's offsets",
-                                       min=0.0, max=10.0),
-    })
-    return out
-
-
 class DDGIPlusVolume:
     """A DDGI probe volume updated in DDGI+ mode (Sec. 3.3, Eq. 5) and its queries.
 
-    Parameters: ``params`` as :func:`plus_params` declares them (a dict of
-    already validated values, or a partial dict: missing keys take their
-    defaults, unknown keys are an error); ``mode`` ``'plus'`` (Eq. 5) or
-    ``'ddgi'`` (today's update, bounced light only).
+    Parameters: ``params`` as :data:`~dyngi.probes.params.DDGI_PLUS_SPECS` declares them (``ddgi``'s probe
+    parameters and the DDGI+ ones; a dict of already validated values, or a partial dict: missing keys take
+    their defaults, unknown keys are an error); ``mode`` ``'plus'`` (Eq. 5) or ``'ddgi'`` (``ddgi``'s update,
+    bounced light only). The update is the probe pipeline's (:meth:`ProbePipeline.step
+    <dyngi.probes.pipeline.ProbePipeline.step>`: frustum mask, scene signature, warm-up, update).
     """
 
     def __init__(self, scene, params: dict | None = None, mode: str = "plus"):
         if mode not in MODES:
             raise unknown_choice("DDGI+ volume mode", mode, MODES)
-        spec = plus_params()
-        params = dict(params or {})
-        unknown = [k for k in params if k not in spec]
-        if unknown:
-            raise DyngiError(f"unknown DDGI+ volume parameter '{unknown[0]}'; valid: {', '.join(sorted(spec))}")
-        p = {k: (spec[k].parse(k, params[k]) if k in params else v.default) for k, v in spec.items()}
+        p = parse_params(DDGI_PLUS_SPECS, params, "DDGI+ volume")
         self.params = p
         self.mode = mode
         self.scene = scene
@@ -294,15 +259,14 @@ class DDGIPlusVolume:
         else:
             check_direct_mode(p["direct"])
             self.shader = DiffuseHitShader(p["direct"], lookup=p["hit_lookup"])
-        self.directions = UniformSFDirections(p["rays_per_probe"])
         self.blender = HysteresisBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
                                        p["change_threshold"], p["brightness_threshold"], "fp32", p["estimator"])
         self.states = ProbeStates(p["relocate"], p["classify"])
-        self.pipeline = ProbePipeline(self.volume, self.directions, self.shader, self.blender, self.states,
-                                      self.update_query, reclassify_interval=p["reclassify_interval"])
-        self.updater = self.pipeline       # (older name; ddgi-resampling's control variate reads its last rays)
-        self._warmed = False
-        self._last_signature = None
+        # ddgi's pipeline (ddgi-resampling's control variate reads its last rays, ``pipeline.last_results``)
+        self.pipeline = ProbePipeline(self.volume, UniformSFDirections(p["rays_per_probe"]), self.shader,
+                                      self.blender, self.states, self.update_query,
+                                      reclassify_interval=p["reclassify_interval"], warmup=p["warmup"],
+                                      update_offscreen=p["update_offscreen"])
         self._stats = {}
 
     # -- contract ------------------------------------------------------------------
@@ -322,15 +286,7 @@ class DDGIPlusVolume:
         ``warmup``, ``trace probes``, ``shade probes``, ``blend``, ``states``), ``probes_traced``, ...
         With ``timer`` the stages are recorded there too (the returned dict is this update's alone)."""
         t = StageTimer()
-        p = self.params
-        mask = None if p["update_offscreen"] else probes_in_frustum(self.volume, frame.camera, frame.res)
-        sig = self.scene.signature(frame.time) if hasattr(self.scene, "signature") else None
-        moved = sig != self._last_signature and self._last_signature is not None
-        self._last_signature = sig
-        if not self._warmed:
-            self._warmed = True
-            self.pipeline.warm_up(self.scene, p["warmup"], frame.seed, mask, t)
-        info = self.pipeline.update(self.scene, frame.index, frame.seed, mask, t, force_reclassify=moved)
+        info = self.pipeline.step(self.scene, frame, t)
         stats = t.as_dict()
         stats.update({k: v for k, v in info.items() if k != "rays"})
         stats["active_probes"] = int(np.count_nonzero(self.volume.state.states))
