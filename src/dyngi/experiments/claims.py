@@ -33,7 +33,9 @@ equivalence claim at the 5 % level). A claim of similarity is an equivalence tes
 """
 from __future__ import annotations
 
+import dataclasses
 import math
+import os
 import subprocess
 from dataclasses import dataclass, field
 from typing import Callable
@@ -43,6 +45,7 @@ import numpy as np
 from ..errors import DyngiError
 from ..registry import NO_PAPER_VALUE
 from ..techniques.base import get_technique, parse_spec, resolve_params
+from .compare import execute, prepare
 
 VERDICTS = ("reproduced", "reproduced only with ours", "not reproduced", "undecided")
 """The verdict words (:func:`decide`)."""
@@ -175,7 +178,6 @@ class Claim:
 
     def at_scale(self, **scale) -> "Claim":
         """This claim at another scale of ours (the demo's, a quick run's): ``scale_ours`` updated."""
-        import dataclasses
         return dataclasses.replace(self, scale_ours={**self.scale_ours, **scale})
 
     def __post_init__(self):
@@ -323,7 +325,6 @@ def decide(claim: Claim, ratios: dict, quick: bool = False, rows: list | None = 
 
 def current_commit() -> str:
     """The commit of the code that ran (``git rev-parse HEAD`` beside this package), or 'unknown'."""
-    import os
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], cwd=os.path.dirname(__file__), capture_output=True,
                               text=True, timeout=10).stdout.strip() or "unknown"
@@ -447,8 +448,6 @@ def run_on_harness(claims: list, scene_name: str, frames: int, res, ref_spp: int
     harness's per-frame metrics. Returns the
     :class:`ClaimResult` list.
     """
-    from .compare import execute, prepare
-
     seeds = tuple(claims[0].seeds if seeds is None else seeds)
     specs: list = []
     for c in claims:

@@ -35,6 +35,7 @@ run only renders the techniques; how long the tour takes is in docs/harness.md (
 """
 from __future__ import annotations
 
+import dataclasses
 import html
 import json
 import os
@@ -52,6 +53,7 @@ from .compare import execute, prepare
 from .io import atomic_output_dir, check_writable, write_json
 from .report import data_uri, write_outputs
 from .claims import claims_json, result_from_values
+from .reproductions import adgi, cdq, ddgi_resampling, isddgi, smcir, vlc
 from .reproductions.isddgi import UPDATE_STAGES
 
 METRICS = ["mse", "relmse", "mape", "flip", "ssim"]
@@ -224,7 +226,6 @@ makes the section's report and figures, all three the claims' intervals."""
 
 
 def _demo_metric(claims, text):
-    import dataclasses
     return [dataclasses.replace(c, metric=f"{text} (the tour's reading)") for c in claims]
 
 
@@ -236,7 +237,6 @@ def _leaf_samples(rs, label):
 
 
 def claims_adgi(sec, res, frames, rs=None):
-    from .reproductions import adgi
     after = max(0.0, sec.start + sec.span - adgi.GATE_DONE)
     return [c for c in adgi.declare_claims({"res": res, "dt": sec.span / max(frames - 1, 1)}, after)
             if c.key == "adgi.fig8.level"]
@@ -247,17 +247,14 @@ def value_adgi(claim, rs, label):
 
 
 def claims_isddgi(sec, res, frames, rs=None):
-    from .reproductions import isddgi
     return isddgi.declare_claims(sec.scene, {"res": res, "seeds": SEEDS}, frames)
 
 
 def value_isddgi(claim, rs, label):
-    from .reproductions import isddgi
     return isddgi.claim_metric(claim, rs, label)
 
 
 def claims_ddgi_resampling(sec, res, frames, rs=None):
-    from .reproductions import ddgi_resampling
     return _demo_metric(ddgi_resampling.declare_claims(sec.scene, {"res": res, "seeds": len(SEEDS),
                                                                    "max_frames": frames}),
                         "ms to reach ddgi-resampling's first-frame MAPE (frames x median steady frame time)")
@@ -268,7 +265,6 @@ def value_ddgi_resampling(claim, rs, label):
 
 
 def claims_smcir(sec, res, frames, rs=None):
-    from .reproductions import smcir
     return _demo_metric(smcir.declare_claims({"specs": sec.specs, "res": res, "frames": frames}, sec.scene,
                                              methods=("ir",)), "|E'| over every pixel (Sec. 5.2)")
 
@@ -278,7 +274,6 @@ def value_smcir(claim, rs, label):
 
 
 def claims_vlc(sec, res, frames, rs=None):
-    from .reproductions import vlc
     fig = None if rs is None else {vlc.HEADLINE[0]: {"samples_per_leaf": _leaf_samples(rs, vlc.HEADLINE[0])}}
     return [c for c in vlc.declare_claims({"res": res, "frames": frames}, sec.scene, fig) if c.baseline in sec.specs]
 
@@ -289,7 +284,6 @@ def value_vlc(claim, rs, label):
 
 
 def claims_cdq(sec, res, frames, rs=None):
-    from .reproductions import cdq
     lb = "nee-pt:directions=cdq"
     a = {"scene": sec.scene, "techniques": {lb: {"samples_per_leaf": None if rs is None else _leaf_samples(rs, lb)}}}
     return _demo_metric(cdq.declare_claims({"res_a": res, "frames_a": frames, "warmup_a": frames // 2}, a),

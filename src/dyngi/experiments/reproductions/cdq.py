@@ -58,6 +58,7 @@ import numpy as np
 
 from ...errors import DyngiError
 from .. import cluster
+from ..claims import Claim, Criterion, claims_json, result_from_values, verdict_table
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
@@ -340,7 +341,6 @@ LEAF_NEED = 2048
 def declare_claims(cfg: dict, a: dict) -> list:
     """Fig. 8 (b)'s claim on one part-(a) scene (dyngi.experiments.claims): CDQ's 1-spp MSE on the pixels the
     sun lights indirectly, against BSDF sampling, frames after the CDQ's adaptation."""
-    from ..claims import Claim, Criterion
     cdq = f"{BASE}:directions=cdq"
     leaf = (a["techniques"].get(cdq) or {}).get("samples_per_leaf")
     paper = {"resolution": "1920x1080", "samples per octree leaf per frame": "2048-4096", "spp": 1}
@@ -357,7 +357,6 @@ def declare_claims(cfg: dict, a: dict) -> list:
 
 
 def decide_claims(a_all: list, cfg: dict, quick: bool) -> list:
-    from ..claims import result_from_values
     out = []
     for a in a_all:
         for c in declare_claims(cfg, a):
@@ -389,7 +388,6 @@ def reproduce_cdq(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
         if f"x:{part['scene']}" in got:
             part["extras"] = got[f"x:{part['scene']}"][0]
     b = got["b"][0]
-    from ..claims import claims_json, verdict_table
     results = decide_claims(a, cfg, quick)
     rows = _rows(a, b)
     md = "\n".join([f"# reproduce cdq ({'quick' if quick else 'full'} run)", "", "CDQ: " + PAPER + ".",

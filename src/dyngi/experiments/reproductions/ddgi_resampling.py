@@ -74,6 +74,7 @@ from ...metrics.image import mape
 from ...scene import builtin_names, load_scene
 from ...techniques import create_technique
 from .. import cluster
+from ..claims import Claim, Criterion, claims_json, result_from_values, verdict_table
 from ..denoise import aux_buffers, available, denoise
 from ..references.path import cached_reference, half_spp, scene_max_depth
 from ..reproduce import paper_table, register_experiment
@@ -697,7 +698,6 @@ def declare_claims(scene: str, cfg: dict, fig: dict | None = None) -> list:
     update's share of the frame: the paper's 1080p frame gives 0.25 probe rays per pixel, so a scale with more
     probe rays per pixel cannot decide it (``needs``); Secondary DDGI needs 8-79 frames in Table 1, so a run
     that measures fewer than 80 frames cannot decide the second."""
-    from ..claims import Claim, Criterion
     res = cfg["res"]
     ppr = None if not fig or not fig.get("probe_rays_per_pixel") else 1.0 / fig["probe_rays_per_pixel"]
     sc = {"resolution": f"{res[0]}x{res[1]}", "pixels per probe ray": ppr if ppr is None else round(ppr, 3),
@@ -719,7 +719,6 @@ def declare_claims(scene: str, cfg: dict, fig: dict | None = None) -> list:
 
 def decide_claims(fig: dict, cfg: dict, quick: bool) -> list:
     """The claims of one scene from its per-seed times (:func:`run_scene`'s figures)."""
-    from ..claims import result_from_values
     out = []
     tech = fig["techniques"]
     for c in declare_claims(fig["scene"], cfg, fig):
@@ -743,7 +742,6 @@ def reproduce_ddgi_resampling(out_dir: str, quick: bool = False, quiet: bool = T
     notes += [f"`{f['scene']}`: the reference's noise MAPE {f['reference']['noise_mape']:.4f} is not 10x below the "
               f"target {f['target_mape']:.3f} at the largest spp ({f['reference']['spp']})"
               for f in figs if not f["reference"]["ok"]]
-    from ..claims import claims_json, verdict_table
     results = []
     for f in figs:      # the verdict column: the computed words of the scene's claims
         got = [] if f["scene"] in EXTRA else decide_claims(f, cfg, quick)

@@ -48,6 +48,7 @@ import numpy as np
 
 from ...errors import DyngiError
 from .. import cluster
+from ..claims import Claim, Criterion, claims_json, result_from_values, verdict_table
 from ..compare import execute, prepare
 from ..io import atomic_output_dir
 from ..references.clamped import check_reference
@@ -341,7 +342,6 @@ TABLE1_QUOTE = ("Table 1: with an equal VPL budget, SMC-IR has the lowest tempor
 def declare_claims(cfg: dict, scene: str, methods=None) -> list:
     """Table 1's |E'| claim on one sequence (dyngi.experiments.claims): smcir's tracked-pixel |E'| below each
     other method's (MIR, IR, TCAS; ``methods``: a subset), equal VPL budget, per seed."""
-    from ..claims import Claim, Criterion
     specs = cfg["specs"]
     paper = {"resolution": "1280x720", "VPLs": "the paper's budget per scene (Sec. 5.3)", "frames": "the sequence",
              "visibility": "128x128 paraboloid shadow maps"}
@@ -355,7 +355,6 @@ def declare_claims(cfg: dict, scene: str, methods=None) -> list:
 
 
 def decide_claims(figs: dict, cfg: dict, quick: bool) -> list:
-    from ..claims import result_from_values
     out = []
     for sc, runs in figs.items():
         for c in declare_claims(cfg, sc):
@@ -394,7 +393,6 @@ def reproduce_smcir(out_dir: str, quick: bool = False, quiet: bool = True, refer
             if all(f"{sc}/seed{int(sd)}" in got for sd in cfg["seeds"])}
     wall = time.time() - t0
     pair_walls = _pair_walls(out_dir, pairs)
-    from ..claims import claims_json, verdict_table
     results = decide_claims(figs, cfg, quick)
     rows = _rows(figs, cfg)
     _plot(figs, cfg, out_dir)

@@ -45,6 +45,7 @@ import os
 import numpy as np
 
 from .. import cluster
+from ..claims import Claim, Criterion, claims_json, result_from_values, verdict_table
 from ..compare import execute, prepare
 from ..io import atomic_output_dir
 from ..report import write_outputs
@@ -263,7 +264,6 @@ cannot decide the VLC's claims (its per-leaf lists learn from fewer samples)."""
 
 def declare_claims(cfg: dict, scene: str, fig: dict | None = None) -> list:
     """Fig. 8's claims on one scene (dyngi.experiments.claims): the VLC's 1-spp MSE against SLL and LH."""
-    from ..claims import Claim, Criterion
     vlc, sll, lh = HEADLINE
     leaf = None if fig is None else (fig.get(vlc) or {}).get("samples_per_leaf")
     paper = {"resolution": "1920x1080", "samples per octree leaf per frame": "2048-4096", "spp": 1}
@@ -280,7 +280,6 @@ def declare_claims(cfg: dict, scene: str, fig: dict | None = None) -> list:
 
 
 def decide_claims(figs: dict, cfg: dict, quick: bool) -> list:
-    from ..claims import result_from_values
     out = []
     for sc, f in figs.items():
         for c in declare_claims(cfg, sc, f):
@@ -298,7 +297,6 @@ def reproduce_vlc(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
     names = [sc for sc, _, _ in SCENES]     # independent runs: tasks of the job's executor (--cluster)
     figs = cluster.run_named(names, run_scene, [(sc, cfg, os.path.join(out_dir, sc), quiet) for sc in names],
                              "reproduce vlc", quiet)
-    from ..claims import claims_json, verdict_table
     results = decide_claims(figs, cfg, quick)
     rows = _rows(figs, cfg)
     os.makedirs(out_dir, exist_ok=True)
