@@ -387,18 +387,25 @@ def test_equal_time_ratio_reported(env, tmp_path):
 
 
 def test_ddgi_equal_rays_within_budget(env, tmp_path):
-    """ddgi under path's rays: its steady frames spend at most 5% over in total (it floors to its ray
-    ladder; its shadow rays per probe ray are estimated from the last frame, so one frame may be a few
-    percent over, and the carried balance repays it). Frame 0 holds its documented warm-up."""
+    """ddgi under path's rays, every frame from frame 0 counted (issue 40): without a warm-up it spends at
+    most 5% over in total (it floors to its ray ladder; its shadow rays per probe ray are estimated from the
+    last frame, so one frame may be a few percent over, and the carried balance repays it); with its
+    default warm-up (8 updates on frame 0) the accounting sees the warm-up's rays and calls it overspent."""
     from dyngi.experiments.budgets import MAX_OVERSPEND
 
     out = tmp_path / "ddgi-rays"
-    _compare(out, ["path:spp=8", "ddgi", "ddgi:hysteresis=0.9"], frames=4, budget="equal-rays")
+    _compare(out, ["path:spp=8", "ddgi:warmup=0", "ddgi:warmup=0:hysteresis=0.9", "ddgi"], frames=4,
+             budget="equal-rays")
     js = _json(out)
-    for t in ("ddgi", "ddgi:hysteresis=0.9"):
+    for t in ("ddgi:warmup=0", "ddgi:warmup=0:hysteresis=0.9"):
         acc = js["techniques"][t]["budget_accounting"]
-        assert acc["total_ratio"] <= 1.0 + MAX_OVERSPEND and acc["steady_max_ratio"] <= 1.15, acc
+        # the balance is carried: what frame 0 left unspent frame 1 may spend, so every prefix of the run,
+        # not every single frame, keeps near its budget
+        prefix = np.cumsum(acc["spent"]) / np.cumsum(acc["budget"])
+        assert acc["total_ratio"] <= 1.0 + MAX_OVERSPEND and prefix.max() <= 1.15, acc
         assert acc["total_ratio"] > 0.7, acc
+    acc = js["techniques"]["ddgi"]["budget_accounting"]
+    assert acc["overspent"] and acc["frame0_ratio"] > 1.5, acc
 
 
 def test_cli_specs_with_indirect_as_a_new_user(env, tmp_path, capsys):

@@ -159,7 +159,7 @@ def summary_md(scene, techniques, specs, summary, ctx, names, title: str | None 
         acc = ctx.get("accounting") or {}
         if any(acc.get(t) for t in techniques[1:]):
             unit = "rays" if budget == "equal-rays" else "wall time"
-            lines += ["", f"| technique | {unit} spent / budget: steady total | steady max frame | "
+            lines += ["", f"| technique | {unit} spent / budget: {'every frame from 0' if budget == 'equal-rays' else 'all frames'} | steady max frame | "
                       + ("steady median | " if budget == "equal-time" else "") + "frame 0 | within 5% |",
                       "|---|---|---|" + ("---|" if budget == "equal-time" else "") + "---|---|"]
             for t in techniques[1:]:
@@ -170,9 +170,9 @@ def summary_md(scene, techniques, specs, summary, ctx, names, title: str | None 
                 lines.append(f"| {t} | {a['total_ratio']:.3f} | {a['steady_max_ratio']:.3f} |{med} "
                              f"{a['frame0_ratio']:.3f} | {'no' if a['overspent'] else 'yes'} |")
             lines += ["", f"Rule: no technique spends more than {100 * MAX_OVERSPEND:.0f}% over its budget "
-                      "(equal rays: over the steady frames, a step over the budget on one frame is repaid on the "
-                      "next; equal time: the median steady frame, wall time on a shared CPU is noisy). Frame 0 "
-                      "holds one-off work (compilation, warm-up, pilot)."]
+                      "(equal rays: over every frame from frame 0, warm-up and pilot included, a step over the "
+                      "budget on one frame repaid on the next; equal time: the median steady frame, wall time on "
+                      "a shared CPU is noisy, frame 0 holding the kernel compilation)."]
     lines += ["", verdict(techniques, summary, names)]
     lines += ["", "## Milliseconds per frame by stage (steady state)", ""]
     for t in techniques:
