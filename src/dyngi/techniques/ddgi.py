@@ -140,7 +140,7 @@ class DDGITechnique(_ProbeTechniqueBase):
 
         Equal rays: the budget minus the primary rays (camera + ``direct_samples``
         shadow rays per pixel, an upper bound that does not change from frame
-        to frame) is shared by the probes that will be traced, each probe ray
+        to frame) and, on frame 0, the warm-up's rays (charged to it) is shared by the probes that will be traced, each probe ray
         costing itself + the shadow rays per probe ray measured in the warm-up
         and then on the last frame (1 before any is measured). Equal time: the budget minus the
         previous frame's time outside the probe update, divided by the measured
@@ -154,6 +154,7 @@ class DDGITechnique(_ProbeTechniqueBase):
         if frame.ray_budget is not None:
             other = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])      # camera + NEE rays
             other += len(up.probes_to_reclassify(frame.index, mask)) * up.classify_dirs.n
+            other += sum(up.last_warmup_rays.values())       # the warm-up is charged to frame 0
             n = (frame.ray_budget - other) / ((1.0 + self._shadow_per_probe_ray) * probes)
         elif frame.time_budget_ms is not None and self._ms_per_probe_ray:
             n = (frame.time_budget_ms - self._ms_fixed) / (self._ms_per_probe_ray * probes)

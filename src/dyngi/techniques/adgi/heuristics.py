@@ -10,7 +10,11 @@ Frusta (Fig. 6b)
 ``V_in``: ``|clip xy| <= 1.2`` and ``f_c >= 0.75``; ``V_out``: ``|clip xy| <= 1.4``
 and ``f_c >= 0.5`` (:func:`frusta`; the clip test is
 :func:`~dyngi.probes.pipeline.probes_in_frustum`, which also keeps probes within
-one cell diagonal of the camera).
+one cell diagonal of the camera: ours). The four numbers are the labels of Fig. 6b (the arXiv text gives
+them only there; its extraction loses which boundary each label sits on): the pairing (1.2 and 0.75 the
+inner volume, 1.4 and 0.5 the outer) is our reading of the figure, so they are the technique's parameters
+``v_in_clip``, ``v_in_fc``, ``v_out_clip``, ``v_out_fc``, marked ours with the figure's values as the
+paper's (the default is the paper-literal value: no ablation row).
 
 Pilot rays (Sec. 4.4)
 ---------------------
@@ -93,8 +97,8 @@ from ...probes.pipeline import probes_in_frustum
 from ...sampling.rng import mix_seed
 
 OCTANTS = 8
-V_IN_CLIP, V_IN_FC = 1.2, 0.75         # Fig. 6b
-V_OUT_CLIP, V_OUT_FC = 1.4, 0.5
+V_IN_CLIP, V_IN_FC = 1.2, 0.75         # Fig. 6b's labels; the technique's params v_in_clip, v_in_fc (marked)
+V_OUT_CLIP, V_OUT_FC = 1.4, 0.5         # Fig. 6b's labels; v_out_clip, v_out_fc
 BETA = 5.0                              # Eq. 12
 MU = 2.0                                # Eq. 20
 THETA = 16.0                            # trigger decay in frames (ours)
@@ -129,21 +133,24 @@ def camera_falloff(distance, k: float):
     return np.exp(-np.maximum(d - k, 0.0))
 
 
-def view_distances(volume, camera, res, active=None) -> np.ndarray:
-    """Camera distances of the probes inside the ``V_out`` clip frustum (``|clip xy| <= 1.4``, Fig. 6b),
-    of the ``active`` ones when given: what Eq. 10's default k is taken from (:meth:`ADGIHeuristics.k_for`)."""
-    inside = probes_in_frustum(volume, camera, res, V_OUT_CLIP)
+def view_distances(volume, camera, res, active=None, out_clip: float = V_OUT_CLIP) -> np.ndarray:
+    """Camera distances of the probes inside the ``V_out`` clip frustum (``|clip xy| <= out_clip``, 1.4 in
+    Fig. 6b), of the ``active`` ones when given: what Eq. 10's default k is taken from
+    (:meth:`ADGIHeuristics.k_for`)."""
+    inside = probes_in_frustum(volume, camera, res, out_clip)
     if active is not None:
         inside &= np.asarray(active, bool)
     return np.linalg.norm(volume.positions()[inside] - np.asarray(camera.origin, np.float64), axis=1)
 
 
-def frusta(volume, camera, res, k: float):
-    """(f_c (P,) float64, V_in (P,) bool, V_out (P,) bool) of Fig. 6b (host arrays)."""
+def frusta(volume, camera, res, k: float, cuts: tuple = (V_IN_CLIP, V_IN_FC, V_OUT_CLIP, V_OUT_FC)):
+    """(f_c (P,) float64, V_in (P,) bool, V_out (P,) bool) of Fig. 6b (host arrays); ``cuts``: ``(in_clip,
+    in_fc, out_clip, out_fc)``, the technique's ``v_in_clip``, ``v_in_fc``, ``v_out_clip``, ``v_out_fc``."""
+    in_clip, in_fc, out_clip, out_fc = cuts
     dist = np.linalg.norm(volume.positions() - np.asarray(camera.origin, np.float64), axis=1)
     fc = camera_falloff(dist, k)
-    v_in = probes_in_frustum(volume, camera, res, V_IN_CLIP) & (fc >= V_IN_FC)
-    v_out = probes_in_frustum(volume, camera, res, V_OUT_CLIP) & (fc >= V_OUT_FC)
+    v_in = probes_in_frustum(volume, camera, res, in_clip) & (fc >= in_fc)
+    v_out = probes_in_frustum(volume, camera, res, out_clip) & (fc >= out_fc)
     return fc, v_in, v_out | v_in
 
 

@@ -19,7 +19,8 @@ Between the passes: the equal-ray / equal-time budget (:meth:`ADGIPasses._plan_b
 what S left), Sec. 4.9's culling (``used``: the probes the last primary pass read), and the rays counted
 exactly (probe rays, their NEE shadow rays, the ``-w`` rays). On the device path (``device``) the counts
 stay device values until :meth:`ADGIPasses.finish_frame`, after the frame's image. The warm-up's updates
-plan ``ddgi``'s shared spherical-Fibonacci set of ``warmup_rays`` (:meth:`ADGIPasses.plan`).
+plan ``ddgi``'s shared spherical-Fibonacci set of ``warmup_rays`` (:meth:`ADGIPasses.plan`; 32 by
+default, Q-DDGI's warm-up) and are charged to frame 0: an equal-ray budget on frame 0 counts them as spent.
 """
 from __future__ import annotations
 
@@ -51,6 +52,7 @@ class ADGIPasses:
         self.device = bool(device)
         self.heur = ADGIHeuristics(volume.grid, p["camera_threshold"] or None, p["beta"], p["mu"], p["theta"])
         self.hstate = self.heur.initial_state()
+        self.cuts = (p["v_in_clip"], p["v_in_fc"], p["v_out_clip"], p["v_out_fc"])     # Fig. 6b (marked)
         # -- the chains: static over probe cells, dynamic over 3x3x3 proxies (grid units) --
         self.chains = ADGIChainPlanner(volume, p)
         self.chains.device = self.device
@@ -79,7 +81,7 @@ class ADGIPasses:
         distances of the active probes in view)."""
         vol = self.volume
         view = None if self.heur.user_k is not None else \
-            view_distances(vol, frame.camera, frame.res, vol.state.states != 0)
+            view_distances(vol, frame.camera, frame.res, vol.state.states != 0, self.cuts[2])
         return self.heur.k_for(frame.camera.origin, view)
 
     # -- one frame's passes (MultiPassPlanner) --------------------------------------------------------
@@ -92,10 +94,10 @@ class ADGIPasses:
         # -- ddgi's relocation/classification after the warm-up (the paper is silent; ours) --
         if frame.index > 0 and p["reclassify_interval"] and frame.index % p["reclassify_interval"] == 0 and \
                 (p["relocate"] or p["classify"]):
-            _, _, near = frusta(vol, frame.camera, frame.res, self.k_for(frame))
+            _, _, near = frusta(vol, frame.camera, frame.res, self.k_for(frame), self.cuts)
             yield self._states_pass(near | (vol.state.states == 0))
         active = vol.state.states != 0
-        fc, v_in, v_out = frusta(vol, frame.camera, frame.res, self.k_for(frame))
+        fc, v_in, v_out = frusta(vol, frame.camera, frame.res, self.k_for(frame), self.cuts)
         v_in &= active
         v_out &= active
         stats = {}
@@ -208,7 +210,8 @@ class ADGIPasses:
 
     # -- equal-ray and equal-time budgets (ours) ----------------------------------------------------
     def _plan_budget(self, frame: Frame, t: StageTimer) -> None:
-        """Share ``frame.ray_budget`` after the primary and pilot rays: the static chains get what the
+        """Share ``frame.ray_budget`` after the primary and pilot rays (and, on frame 0, the warm-up's: charged
+        to it): the static chains get what the
         dynamic ones do not reserve (half when dynamic chains are on), by running only the first
         ``n`` static chains (``n`` from the rays a sample costs: 2 + the measured NEE shadow rays); the
         dynamic stage then traces proxy octants in order while the remainder lasts.
@@ -235,7 +238,7 @@ class ADGIPasses:
                 self._static_rays = self._time_avail_ms * (1.0 - share) / self._ms_per_ray["S"]
             return
         p = self.params
-        spent = sum(v for k, v in t.as_dict()["rays"].items() if k != "warmup")
+        spent = sum(t.as_dict()["rays"].values())      # the warm-up's rays too: charged to frame 0
         primary = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
         avail = max(float(frame.ray_budget) - spent - primary, 0.0)
         self._static_rays = avail * (1.0 - share)
@@ -248,7 +251,7 @@ class ADGIPasses:
         chains run and the plans' widths from the last frame's "some f_d > 0" and shadow-ray rate (an
         estimate) and from the fewest rays spent so far (an upper bound of the widths)."""
         p = self.params
-        ints = sum(v for k, v in t.rays.items() if k != "warmup")
+        ints = sum(t.rays.values())          # the warm-up's rays too: charged to frame 0
         primary = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
         fixed = float(frame.ray_budget) - ints - primary
         lower = sum(lo for _, lo, _ in self._frame_dev)

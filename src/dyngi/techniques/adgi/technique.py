@@ -5,7 +5,9 @@ a guide over probe position x direction says rays matter, sampled by
 persistent Metropolis chains (:mod:`dyngi.sampling.metropolis`); each sample
 updates the probe texels it lands in with Algorithm 3's moving average
 (:mod:`.moving_average`). The probe pipeline (:mod:`dyngi.probes.pipeline`) runs the frame: the
-frame-0 warm-up (``ddgi``'s single-pass updates), then ADGI's passes -- its multi-pass planner
+frame-0 warm-up (``ddgi``'s single-pass updates; Q-DDGI's by default -- ``warmup`` = 8 updates x ``warmup_rays`` =
+32 rays on the probes ``qddgi`` warms -- its rays counted in frame 0's stats (``rays['warmup']``) and charged to
+frame 0's budget; ``warmup_rays=256`` is the former ADGI warm-up, ours), then ADGI's passes -- its multi-pass planner
 (:class:`.passes.ADGIPasses`: relocation when due, the pilot rays and heuristics, the static and dynamic
 chains of :class:`.planner.ADGIChainPlanner`, the budget between them) and its accumulator
 (:class:`.accumulate.ADGIAccumulator`: Algorithm 3 into the radiance layer and the visibility texels, the
@@ -138,6 +140,16 @@ outer_count_cap : int = 16        (Sec. 4.8)
 encoding : str = 'adgi'           R9G9B8 + 6-bit count / R13G13 + count (Sec. 4.5-4.6, Table 3)
 guide_mip : int = 1               mip level of g in the static guide (ours; Sec. 4.8 "a higher mip-level")
 reclassify_interval : int = 8     frames between relocation/classification passes after the warm-up (ddgi's)
+warmup, warmup_rays : int = 8, 32 Q-DDGI's warm-up (ours: the paper describes none), charged to frame 0
+cache_update : str = 'convolve'   ours; the paper's Algorithm 2 is 'closest-entry' (marked, paper value)
+v_in_clip, v_in_fc, v_out_clip, v_out_fc = 1.2, 0.75, 1.4, 0.5   Fig. 6b's labels (the pairing ours; marked)
+
+Marked settings (``Param(ours=True)``, issue 40; :mod:`dyngi.experiments.claims` builds the paper-literal and
+ablation rows from them): with a paper value ``change_cap`` (paper: false), ``cache_update`` (paper:
+'closest-entry') and the four Fig. 6b cuts (paper: their defaults); without one ``iterations``, ``burn_in``,
+``position_step``, ``dynamic_rays``, ``camera_threshold``, ``theta``, ``radiance_texels``, ``warmup``,
+``warmup_rays``, ``relocate``, ``classify``, ``cull_unused``, ``dynamic_share``, ``reclassify_interval``,
+``guide_mip``.
 impl : str = 'auto'               'device' (no host read in a steady update) | 'host' | 'auto' (device on a
                                   GPU, host on the CPU: measured faster there)
 
@@ -161,7 +173,7 @@ from ...sampling.metropolis import ADGI_DIRECTION_STEP
 from ..base import Frame, FrameResult, Param, StageTimer, register
 from ..probe_base import COMMON_PARAMS, _ProbeTechniqueBase
 from .accumulate import ADGIAccumulator
-from .heuristics import OCTANTS
+from .heuristics import OCTANTS, V_IN_CLIP, V_IN_FC, V_OUT_CLIP, V_OUT_FC
 from .moving_average import N_MAX_DYNAMIC, N_MAX_STATIC
 from .passes import ADGIPasses
 
@@ -218,6 +230,26 @@ class CageMarkingQuery:
             dr.scatter(self.used, mi.Float(1.0), i + nx * (j + ny * k), ok)
 
 
+def allocated_bytes(objs) -> int:
+    """Bytes allocated by ``objs``: NumPy arrays (``nbytes``), Dr.Jit arrays (the ``nbytes`` of their
+    evaluated contents, every component of a vector) and the array fields of a dataclass or plain object
+    (one level); ``None`` counts 0 and each array once."""
+    seen: set = set()
+
+    def one(x) -> int:
+        if x is None or id(x) in seen:
+            return 0
+        seen.add(id(x))
+        if isinstance(x, np.ndarray):
+            return int(x.nbytes)
+        if dr.is_array_v(x):
+            return int(np.asarray(x).nbytes)
+        if hasattr(x, "__dict__"):
+            return sum(one(v) for v in vars(x).values() if isinstance(v, np.ndarray) or dr.is_array_v(v))
+        return 0
+    return sum(one(x) for x in objs)
+
+
 @register
 class ADGITechnique(_ProbeTechniqueBase):
     """ADGI (Datta et al. 2022): heuristics + static/dynamic Metropolis chains + Algorithm 3 caches."""
@@ -230,53 +262,80 @@ class ADGITechnique(_ProbeTechniqueBase):
         "static_chains": Param(4096, "persistent static chains (Sec. 5)", min=1, max=1 << 20),
         "dynamic_chains": Param(1024, "persistent dynamic chains on 3x3x3 proxies (Sec. 5; 0: off)", min=0,
                                 max=1 << 20),
-        "iterations": Param(20, "Metropolis iterations per chain per frame (M)", min=2, max=256),
-        "burn_in": Param(4, "burn-in iterations per frame (K < M); the others each yield a sample", min=0,
-                         max=255),
-        "position_step": Param(0.5, "static chains' position step, in probe spacings", min=1e-3, max=64.0),
+        "iterations": Param(20, "Metropolis iterations per chain per frame (M; ours: Algorithm 1 takes M as an "
+                            "input, the paper gives no value)", min=2, max=256, ours=True),
+        "burn_in": Param(4, "burn-in iterations per frame (K < M); the others each yield a sample (ours: the paper "
+                         "rejects 'a few' initial samples, no value)", min=0, max=255, ours=True),
+        "position_step": Param(0.5, "static chains' position step, in probe spacings (ours: Sec. 4.8 says "
+                               "'proportional to the size of a voxel', no factor)", min=1e-3, max=64.0, ours=True),
         "direction_step": Param(ADGI_DIRECTION_STEP, "static chains' direction step (radians)", min=1e-3,
                                 max=3.0),
         "dynamic_position_scale": Param(3.0, "dynamic/static position step ratio (Sec. 4.9)", min=0.1),
         "dynamic_direction_scale": Param(6.0, "dynamic/static direction step ratio (Sec. 4.9)", min=0.1),
-        "dynamic_rays": Param(64, "deterministic rays per probe octant of a sampled proxy (a square)",
-                              choices=(16, 64, 256)),
+        "dynamic_rays": Param(64, "deterministic rays per probe octant of a sampled proxy (a square; ours: the "
+                              "paper sends them through the octant's irradiance texel centres, which an octant of "
+                              "our 8x8 map holds only 3-6 of, and gives no count)", choices=(16, 64, 256),
+                              ours=True),
         "camera_threshold": Param(0.0, "k of Eq. 10 in world units (0: the 0.9 quantile of the camera "
-                                  "distances of the probes in view)", min=0.0),
+                                  "distances of the probes in view; ours: the paper leaves k to the user, no "
+                                  "value)", min=0.0, ours=True),
         "beta": Param(5.0, "range of the radiance heuristic (Eq. 12)", min=1e-3),
         "mu": Param(2.0, "weight of the radiance change in f_d (Eq. 20)", min=0.0),
-        "theta": Param(16.0, "temporal trigger decay in frames (Eq. 14)", min=1.0),
+        "theta": Param(16.0, "temporal trigger decay in frames (Eq. 14; ours: the paper names theta, gives no "
+                       "value)", min=1.0, ours=True),
         "n_max_static": Param(N_MAX_STATIC, "N_max of static updates (Table 3)", min=1, max=63),
         "n_max_dynamic": Param(N_MAX_DYNAMIC, "N_max of dynamic updates (Table 3)", min=1, max=63),
         "outer_count_cap": Param(16, "count cap of probes in V_out - V_in (Sec. 4.8)", min=1, max=63),
         "pilot_updates": Param(True, "pilot rays update the caches on alternate frames (Sec. 4.4)"),
         "radiance_texels": Param(8, "radiance texels per side incl. border that samples are binned into "
                                  "(convolved to irradiance each frame; 8: the irradiance map's, Algorithm 2's "
-                                 "closest entry)", min=4, max=64),
+                                 "closest entry; ours: the radiance layer is ours, see cache_update; no paper "
+                                 "value)", min=4, max=64, ours=True),
         "irradiance_texels": Param(8, "irradiance texels per side incl. the 1-texel border", min=4, max=64),
         "distance_texels": Param(16, "distance texels per side incl. the 1-texel border", min=4, max=64),
         "distance_power": Param(50.0, "cosine power of the warm-up's distance blend", min=1.0),
         "encoding": Param("adgi", "texel storage encoding", choices=("fp32", "qddgi", "adgi")),
         "hit_lookup": Param("stochastic", "how probe-ray hits read the previous probes (multi-bounce)",
                             choices=HIT_LOOKUPS),
-        "warmup": Param(8, "ddgi-style probe updates on the first frame (no hysteresis)", min=0, max=256),
-        "warmup_rays": Param(256, "rays per probe of each warm-up update", min=8, max=1 << 14),
-        "relocate": Param(True, "move probes out of geometry (warm-up, then every reclassify_interval frames)"),
-        "classify": Param(True, "deactivate probes inside geometry or far from surfaces (as relocate)"),
+        "warmup": Param(8, "ddgi-style probe updates on the first frame (no hysteresis), Q-DDGI's warm-up (ours: "
+                        "the paper describes no warm-up; charged to frame 0's rays and budget)", min=0, max=256,
+                        ours=True),
+        "warmup_rays": Param(32, "rays per probe of each warm-up update: 32, Q-DDGI's (qddgi's warm-up: 8 updates "
+                             "x 32 rays on the same probes, charged to frame 0); 256 the former ADGI warm-up "
+                             "(ours: the paper describes no warm-up)", min=8, max=1 << 14, ours=True),
+        "relocate": Param(True, "move probes out of geometry (warm-up, then every reclassify_interval frames; "
+                          "ours, ddgi's: the paper is silent)", ours=True),
+        "classify": Param(True, "deactivate probes inside geometry or far from surfaces (as relocate; ours, "
+                          "ddgi's: the paper is silent)", ours=True),
         "cull_unused": Param(True, "Sec. 4.9: the static and dynamic stages skip probes that no pixel's probe "
-                             "cage used on the previous frame's primary pass"),
+                             "cage used on the previous frame's primary pass (the paper culls in D; in S too is "
+                             "ours, no paper setting for it)", ours=True),
         "cache_update": Param("convolve", "how a radiance sample updates the irradiance texels: 'convolve' (the "
                               "radiance layer, convolved each frame) or 'closest-entry' (Algorithm 2 literally: the "
-                              "irradiance texel the sample falls in, Algorithm 3 in the encoded word; biased)",
-                              choices=("convolve", "closest-entry")),
+                              "irradiance texel the sample falls in, Algorithm 3 in the encoded word; biased). "
+                              "Ours: 'convolve'; the paper's: 'closest-entry'",
+                              choices=("convolve", "closest-entry"), ours=True, paper="closest-entry"),
         "change_cap": Param(True, "static samples in octants with f_d > 0 merge into the radiance texels with "
-                            "the dynamic N_max (ours)"),
+                            "the dynamic N_max (ours: the paper snaps such samples to texel centres but has no cap "
+                            "on their count; its value: false, no cap)", ours=True, paper=False),
         "dynamic_share": Param(0.5, "share of an equal-ray/equal-time budget (after primary and pilot rays) "
-                               "reserved for the dynamic stage when some octant has f_d > 0 (ours)", min=0.0,
-                               max=1.0),
+                               "reserved for the dynamic stage when some octant has f_d > 0 (ours: the paper runs "
+                               "fixed chain counts, no budget)", min=0.0, max=1.0, ours=True),
         "reclassify_interval": Param(8, "frames between ddgi's relocation/classification passes after the "
-                                     "warm-up (fixed rays; 0: warm-up only)", min=0),
+                                     "warm-up (fixed rays; 0: warm-up only; ours, ddgi's: the paper is silent)",
+                                     min=0, ours=True),
         "guide_mip": Param(1, "mip level of the irradiance feedback g in the static guide (Sec. 3.2/4.8; "
-                           "0: the texel itself)", min=0, max=3),
+                           "0: the texel itself; ours: the paper says 'a higher mip-level', not which)",
+                           min=0, max=3, ours=True),
+        "v_in_clip": Param(V_IN_CLIP, "V_in's clip-space bound |clip xy| (Fig. 6b's label 1.2; ours: the pairing "
+                           "of Fig. 6b's labels with the two volumes is our reading of the figure)", min=0.0,
+                           ours=True, paper=V_IN_CLIP),
+        "v_in_fc": Param(V_IN_FC, "V_in's camera falloff cut f_c >= (Fig. 6b's label 0.75; ours: the pairing is "
+                         "our reading of the figure)", min=0.0, max=1.0, ours=True, paper=V_IN_FC),
+        "v_out_clip": Param(V_OUT_CLIP, "V_out's clip-space bound |clip xy| (Fig. 6b's label 1.4; ours: the "
+                            "pairing is our reading of the figure)", min=0.0, ours=True, paper=V_OUT_CLIP),
+        "v_out_fc": Param(V_OUT_FC, "V_out's camera falloff cut f_c >= (Fig. 6b's label 0.5; ours: the pairing is "
+                          "our reading of the figure)", min=0.0, max=1.0, ours=True, paper=V_OUT_FC),
         "impl": Param("auto", "'device': masked fixed-width plans, no host read in the probe update; 'host': "
                       "ragged plans sized on the host (reads back); 'auto': device on a GPU, host on the CPU",
                       choices=IMPLS),
@@ -308,17 +367,31 @@ class ADGITechnique(_ProbeTechniqueBase):
                                       reclassify_interval=0, warmup=p["warmup"], accumulator=self.accumulator)
 
     def memory_per_probe(self) -> dict:
-        """Bytes per probe by part: the irradiance and visibility texels as their encoded words (Table 3:
-        ``adgi``'s ``R9G9B8-N`` and ``R13G13-N`` are 32 bits each, so 8x8 + 16x16 words = 1280 B), the
-        6-10-10 heuristics word per octant (Sec. 4.3, 32 B), and ours: the radiance layer as held (fp32 RGB +
-        a UInt32 count per interior texel, 16 B each; Table 3 has none) and the fp32 moments' working copy
-        is not counted (the encoded word is what is stored). Bits per word from the encoding."""
-        enc = self.encoding
-        irr_bits = sum(getattr(enc, "IRR_BITS", (32, 32, 32, 32)))
-        vis_bits = sum(getattr(enc, "VIS_BITS", (32, 32, 32)))
-        Ti, Td = self.volume.irradiance_texels, self.volume.distance_texels
-        return {"irradiance": Ti * Ti * irr_bits // 8, "visibility": Td * Td * vis_bits // 8,
-                "heuristics": OCTANTS * 4, "radiance_layer": self.radiance.n_tex * 16}
+        """Bytes per probe by part, *measured*: the sum of the ``nbytes`` of the per-probe arrays the technique
+        holds (host NumPy and device Dr.Jit alike; the device mirrors of the host atlases count apart) over the
+        probe count (:func:`allocated_bytes`). Parts: ``irradiance`` / ``visibility`` (the volume's atlases and
+        texel counts, host and device), ``probe_state`` (offsets, states, update counts, positions),
+        ``heuristics`` (the per-octant tables of :class:`.heuristics.HeuristicState`, the 6-10-10 word, the
+        culling mask), ``radiance_layer`` (ours: :class:`.radiance.RadianceCache`), ``total``. Beside them,
+        not measured: ``table3`` -- what the paper's Table 3 words would take (8x8 + 16x16 32-bit words and
+        the 6-10-10 word per octant, 1312 B): our texels are fp32 values quantised through the encoding, not
+        packed words, so the measured figure is larger (docs/techniques/adgi.md)."""
+        P = self.volume.n_probes
+        vol, st, dev = self.volume, self.volume.state, self.volume.device
+        st.irradiance       # noqa: B018  (pulls a newer device atlas into the host copy first)
+        parts = {
+            "irradiance": [st._irradiance, st._irradiance_count, dev.irradiance, dev.irradiance_count],
+            "visibility": [st._distance, st._distance_count, dev.distance, dev.distance_count],
+            "probe_state": [st.offsets, st.states, st.updates, dev.positions, dev.states, dev.probe_data,
+                            self.pipeline._history],
+            "heuristics": [self.passes.hstate, getattr(self.passes, "lut", None), self.passes.used],
+            "radiance_layer": [self.radiance.value, self.radiance.count],
+        }
+        out = {k: allocated_bytes(v) / P for k, v in parts.items()}
+        out["total"] = sum(out.values())
+        Ti, Td = vol.irradiance_texels, vol.distance_texels
+        out["table3"] = (Ti * Ti + Td * Td) * 4 + OCTANTS * 4
+        return out
 
     # the passes' chains, heuristics and the accumulator's radiance layer, readable here (the viewer draws the
     # static chains; tests read the heuristics and the radiance counts)

@@ -264,13 +264,14 @@ class ISDDGITechnique(_ProbeTechniqueBase):
         """Probe rays this frame may trace under ``frame.ray_budget`` / ``time_budget_ms``; None: no budget.
 
         Equal rays: the budget minus the primary rays (camera + ``direct_samples`` NEE rays per pixel, an upper
-        bound), over 1 + the NEE shadow rays per probe ray measured on the last frame (the warm-up's before
+        bound) and, on frame 0, the warm-up's rays (charged to it), over 1 + the NEE shadow rays per probe ray measured on the last frame (the warm-up's before
         the first). Equal time: the budget minus the last frame's time outside the probe update, over the
         last frame's update ms per probe ray (a linear model; the first frame runs the defaults). At least
         one ray per traced probe."""
         p = self.params
         if frame.ray_budget is not None:
             other = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
+            other += sum(self.pipeline.last_warmup_rays.values())     # the warm-up is charged to frame 0
             n = (frame.ray_budget - other) / (1.0 + self._shadow_per_probe_ray)
         elif frame.time_budget_ms is not None and self._ms_per_probe_ray:
             n = (frame.time_budget_ms - self._ms_fixed) / self._ms_per_probe_ray
