@@ -80,7 +80,16 @@ def _count(ray, active, stage: str, lanes: bool) -> None:
         return
     if lanes:
         return
-    add(stage, dr.width(ray.o) if active is None else dr.count(mi.Bool(active)))
+    # the ray's width, not its origin's: camera rays share one origin (a width-1 literal)
+    w = dr.width(ray)
+    if active is None:
+        add(stage, w)
+        return
+    m = mi.Bool(active)
+    if dr.width(m) == 1 and w > 1:     # a width-1 mask (a literal True) broadcasts to every lane
+        add(stage, w if bool(m[0]) else 0)
+        return
+    add(stage, dr.count(m))
 
 
 def intersect(scene, ray, ray_flags=None, coherent: bool = False, active=None, *, stage: str = "trace",

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from ..rays import intersect
 from ..sampling.diffuse import diffuse_albedo
 from ..sampling.octahedral import direction_to_texel_coords
 from ..scene.geometry import diffuse, make_mesh, uv_sphere
@@ -52,8 +53,8 @@ def render_probe_view(scene, volume: ProbeVolume, camera, res, radius: float = 0
     probes_scene, tris = probe_spheres(volume, radius)
     idx = dr.arange(mi.UInt32, n)
     ray = camera.sample_rays(res, idx, mi.Point2f(0.5, 0.5))
-    si_p = probes_scene.ray_intersect(ray)
-    si_s = scene.mi_scene.ray_intersect(ray)
+    si_p = intersect(probes_scene, ray, stage="probe view")
+    si_s = intersect(scene.mi_scene, ray, stage="probe view")
     probe = si_p.prim_index // tris
     center = dr.gather(mi.Point3f, volume.device.positions, probe, si_p.is_valid())
     nrm = dr.normalize(si_p.p - center)

@@ -40,6 +40,7 @@ flat pane does not shift the image, a glass ball would).
 from __future__ import annotations
 
 from ..backend import dr, mi
+from ..rays import intersect
 from ..lights.nee import PRIMARY_NEE_STREAM, TracedNEE
 from ..sampling.diffuse import diffuse_albedo
 from ..lights.emitter_sampling import sample_traced
@@ -92,7 +93,7 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     if glass:
         si, throughput, _, passes = intersect_through_glass(mscene, ray, mi.Bool(True))
     else:
-        si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
+        si = intersect(mscene, ray, mi.RayFlags.All, True, stage="primary")
     hit = si.is_valid()
     bsdf = si.bsdf(ray)
     front, n_side = shading_side(si, ray, bsdf, hit)    # two-sided surfaces face the camera from both sides

@@ -38,6 +38,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from ..rays import intersect
 from ..scene.passthrough import intersect_through_glass, scene_has_glass
 from .arrays import upload
 from .grid import PROBE_ACTIVE, PROBE_INACTIVE
@@ -268,7 +269,7 @@ def safe_moves(mscene, p0: np.ndarray, p1: np.ndarray, cross: np.ndarray, cleara
         if glass:
             si, _, t, _ = intersect_through_glass(mscene, r, active)
             return si, dr.select(active & si.is_valid(), t, dr.inf)
-        si = mscene.ray_intersect(r, ray_flags=mi.RayFlags.Minimal, coherent=False, active=active)
+        si = intersect(mscene, r, mi.RayFlags.Minimal, False, active, stage="relocation")
         return si, dr.select(active & si.is_valid(), si.t, dr.inf)
 
     si1, s1 = first_hit(ray, mi.Bool(True))

@@ -95,6 +95,7 @@ import numpy as np
 from ..backend import dr, mi
 from ..errors import DyngiError, unknown_choice
 from ..lights.nee import TracedNEE
+from ..rays import intersect, intersect_preliminary
 from ..sampling.diffuse import diffuse_albedo, front_wi, has_diffuse_lobe
 from ..scene.surface import shading_side
 from ..lights.emitter_sampling import EmitterSubsetSampling, sample_traced
@@ -423,12 +424,12 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
         if glass:   # clear surfaces pass the ray (attenuated); one kernel with the shading
             si, throughput, t_hit, _ = intersect_through_glass(mscene, ray, active)
         elif masked:
-            pi = mscene.ray_intersect_preliminary(ray, coherent=False, active=active)
+            pi = intersect_preliminary(mscene, ray, False, active, stage="trace probes")
             dr.eval(pi)
             si = pi.compute_surface_interaction(ray, mi.RayFlags.All, active)
             t_hit = si.t
         else:
-            pi = mscene.ray_intersect_preliminary(ray, coherent=False)
+            pi = intersect_preliminary(mscene, ray, False, stage="trace probes")
             # only the hits are stored: the shade kernel recomputes the rays (two gathers) instead of
             # reading back 6 floats per ray
             dr.eval(pi)
@@ -453,8 +454,9 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
     return ProbeRayResults(L, dist, plan)
 
 
-def trace_probe_distances(scene, volume, plan: RayPlan) -> "mi.Float":
-    """Signed hit distances only (classification rays): back faces ``-0.2 t``, misses ``+inf``."""
+def trace_probe_distances(scene, volume, plan: RayPlan, stage: str = "distances") -> "mi.Float":
+    """Signed hit distances only (classification rays): back faces ``-0.2 t``, misses ``+inf``. ``stage``:
+    the name its rays are counted under (:mod:`dyngi.rays`)."""
     mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
     volume.geometry = mscene
     origin = dr.gather(mi.Point3f, volume.device.positions, plan.probe)
@@ -464,10 +466,10 @@ def trace_probe_distances(scene, volume, plan: RayPlan) -> "mi.Float":
     if glass:     # clear surfaces are no geometry for classification either
         si, _, t_hit, _ = intersect_through_glass(mscene, ray, plan.valid if masked else mi.Bool(True))
     elif masked:  # a masked plan: only its valid lanes trace
-        si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=False, active=plan.valid)
+        si = intersect(mscene, ray, mi.RayFlags.Minimal, False, plan.valid, stage=stage)
         t_hit = si.t
     else:
-        si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.Minimal, coherent=False)
+        si = intersect(mscene, ray, mi.RayFlags.Minimal, False, stage=stage)
         t_hit = si.t
     hit = si.is_valid()
     front = probe_hit_front(mscene, volume, ray, si, t_hit, hit, glass)
@@ -512,7 +514,7 @@ def probe_hit_front(mscene, volume, ray, si, t_hit, hit, glass: bool = False):
         si2, _, t2, _ = intersect_through_glass(mscene, opp, near)
     else:
         opp.maxt = dr.select(near, chord - t_hit, 0.0)
-        si2 = mscene.ray_intersect(opp, ray_flags=mi.RayFlags.Minimal, coherent=False, active=near)
+        si2 = intersect(mscene, opp, mi.RayFlags.Minimal, False, near, stage="two-sided")
         t2 = si2.t
     hit2 = near & si2.is_valid() & (t2 <= chord - t_hit)
     front2, two2 = _two_sided_hit(si2, opp, hit2)

@@ -39,6 +39,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..color import luminance
+from ..rays import intersect
 from ..sampling.rng import make_sampler
 from ..transport.path_walk import trace_paths_split
 from ..vpl.density import MIN_RADIUS, KNNGrid, knn_k
@@ -57,7 +58,7 @@ def path_radiance_device(mscene, pos, nrm, sampler, active, max_depth: int, ligh
     ray = mi.Ray3f(pos + nrm * eps, -nrm)
     L, _, n_rays, _ = trace_paths_split(mscene, sampler, ray, active, int(max_depth), int(max_depth) + 1, lights,
                                         True, split=False)
-    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
+    si = intersect(mscene, ray, mi.RayFlags.All, False, active, stage="paths")
     L = L - mi.Color3f(si.emitter(mscene).eval(si, active))
     L = dr.select(active & dr.isfinite(dr.max(L)), dr.maximum(L, 0.0), 0.0)
     return L, n_rays

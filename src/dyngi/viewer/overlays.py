@@ -23,6 +23,7 @@ from ..color import luminance
 from ..experiments.io import tonemap_srgb
 from ..probes.debug import render_probe_view
 from ..probes.volume import ProbeVolume
+from ..rays import intersect
 from ..techniques.vpl_base import VPLTechnique
 from ..vpl.points import camera_sees
 
@@ -188,7 +189,7 @@ def _draw_octree(tech, scene, camera, res, frame_u8):
     w, h = res
     idx = dr.arange(mi.UInt32, w * h)
     ray = camera.sample_rays(res, idx, mi.Point2f(0.5, 0.5))
-    si = scene.mi_scene.ray_intersect(ray)
+    si = intersect(scene.mi_scene, ray, stage="overlay")
     valid = np.asarray(si.is_valid(), bool)
     p = np.asarray(si.p, np.float32)
     if p.shape == (3, w * h):

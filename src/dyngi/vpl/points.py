@@ -22,6 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from ..rays import occluded
 from ..scene.surface import diffuse_surface
 from ..sampling.rng import make_sampler
 from .emission import sample_photon_ray
@@ -153,7 +154,7 @@ def segment_clear(scene, a: np.ndarray, na: np.ndarray | None, b: np.ndarray, nb
     eps = dr.opaque(mi.Float, RAY_EPS) * (1.0 + dr.maximum(dr.max(dr.abs(A)), dr.max(dr.abs(B))))
     ray = mi.Ray3f(A + wdir * eps, wdir)
     ray.maxt = dr.maximum(dist - 2.0 * eps, 0.0)   # (o, d, x): x would be the time
-    ok &= ~mscene.ray_test(ray, ok)
+    ok &= ~occluded(mscene, ray, ok, stage="visibility")
     dr.eval(ok)
     okn = np.asarray(ok, bool)[:n_in]
     return okn, n_in

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from ..rays import intersect
 from ..transport.path_walk import trace_paths_split
 from .points import aligned, padded, to_point, to_vector
 
@@ -116,7 +117,7 @@ def estimate_radiosity_device(mscene, pos, nrm, seeds, spp: int, max_depth: int,
     rng.seed(dr.gather(mi.UInt64, mi.UInt64(seeds), v), mi.UInt64(idx % spp))
     L, _, n_rays, _ = trace_paths_split(mscene, PCGSampler(rng), ray, act, int(max_depth), int(max_depth) + 1,
                                         lights, True, split=False)
-    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=act)
+    si = intersect(mscene, ray, mi.RayFlags.All, False, act, stage="radiosity")
     L = L - mi.Color3f(si.emitter(mscene).eval(si, act))
     dr.eval(L, n_rays)     # the walk once: each reduction below would otherwise evaluate (re-trace) it anew
     chans = []

@@ -48,6 +48,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import unknown_choice
+from ..rays import add as add_rays, occluded
 from .points import RAY_EPS, to_color, to_point, to_vector
 
 MODES = ("interleaved", "exhaustive")
@@ -83,7 +84,7 @@ def _vpl_loop(mscene, p, n, active, pos, nrm, flux, start, stride, count, gmax, 
         G = dr.minimum(cx * cy / dr.maximum(d2, 1e-20), gmax)
         ray = mi.Ray3f(p + wdir * eps, wdir)
         ray.maxt = dr.maximum(dist - 2.0 * eps, 0.0)
-        vis = ~mscene.ray_test(ray, ok)
+        vis = ~occluded(mscene, ray, ok, stage="shading", lanes=True)   # counted in n_rays
         n_rays += mi.UInt32(ok)
         E[ok & vis] += f * G
         k += 1
@@ -143,7 +144,9 @@ class VPLShader:
                               count, gmax, eps)
         E = E * dr.opaque(mi.Float, weight)
         dr.eval(E, n_rays)
-        self.rays += int(dr.sum(n_rays)[0])
+        total = dr.sum(n_rays)
+        add_rays("shading", total)      # the loop's shadow rays (dyngi.rays: per-lane counter, summed here)
+        self.rays += int(total[0])
         if self.mode == "interleaved":
             E = self.bilateral(E, mi.Point3f(p), mi.Vector3f(n), active)
         return E

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..backend import dr, mi
+from ..rays import occluded
 from .points import RAY_EPS
 from .store import VPLStore
 
@@ -56,7 +57,7 @@ def _segment_clear(mscene, A, na, B, nb, ok):
     eps = dr.opaque(mi.Float, RAY_EPS) * (1.0 + dr.maximum(dr.max(dr.abs(A)), dr.max(dr.abs(B))))
     ray = mi.Ray3f(A + wdir * eps, wdir)
     ray.maxt = dr.maximum(dist - 2.0 * eps, 0.0)
-    return ok & ~mscene.ray_test(ray, ok)
+    return ok & ~occluded(mscene, ray, ok, stage="visibility")
 
 
 def segment_clear_device(mscene, a, na, b, nb, active):

@@ -34,6 +34,7 @@ import numpy as np
 
 from ...backend import dr, mi
 from ...errors import DyngiError
+from ...rays import intersect
 from ...sampling.rng import make_sampler, mix_seed
 from ...techniques.vpl_base import COMMON_PARAMS, VPLTechnique
 from ...transport.path_walk import trace_paths_split
@@ -74,7 +75,7 @@ def clamped_indirect(scene, t: float, res, spp: int, max_depth: int = 5, gmax: f
         si, okx, nx, alb = diffuse_surface(mscene, ray, mi.Bool(True))
         d = mi.Frame3f(nx).to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
         ray2 = si.spawn_ray(d)
-        si2 = mscene.ray_intersect(ray2, ray_flags=mi.RayFlags.All, coherent=False, active=okx)
+        si2 = intersect(mscene, ray2, mi.RayFlags.All, False, okx, stage="reference")
         hit = okx & si2.is_valid()
         d2 = dr.squared_norm(si2.p - si.p)
         G = dr.dot(nx, d) * dr.abs(dr.dot(si2.n, d)) / dr.maximum(d2, 1e-20)

@@ -39,6 +39,7 @@ import numpy as np
 
 from ...backend import dr, mi
 from ...probes.ddgi_plus import DDGIPlusVolume
+from ...rays import intersect
 
 CV_FACE_RES = 2
 """Texels per cube-face edge of the nearest-ray control variate's direction bins (``6 K^2`` per probe;
@@ -168,8 +169,8 @@ class NearestRayCV:
         if self.exclude_emitters:   # rays that hit an emitter (or the sky) carry L_e, which part 1 does not
             mscene = self.vol.scene.mi_scene
             o = dr.gather(mi.Point3f, self.vol.volume.device.positions, plan.probe)
-            si = mscene.ray_intersect(mi.Ray3f(o, plan.direction), ray_flags=mi.RayFlags.Minimal,
-                                      coherent=False)
+            si = intersect(mscene, mi.Ray3f(o, plan.direction), mi.RayFlags.Minimal, False,
+                           stage="shade secondary")
             rad = dr.select(si.is_valid() & (si.shape.emitter() == None), rad, 0.0)    # noqa: E711
             self.extra_rays = dr.width(plan.probe)
         # per (traced probe, bin) lane a loop over that probe's rays (CSR): a fixed summation order, so

@@ -76,6 +76,7 @@ from __future__ import annotations
 
 from ...backend import dr, mi
 from ...probes.lookup import diffuse_radiance
+from ...rays import intersect, occluded
 from ...sampling.diffuse import diffuse_albedo
 from ...sampling.reservoir import Reservoir
 from ...sampling.rng import make_sampler
@@ -181,7 +182,7 @@ class DDGIResamplingTechnique(SecondaryShading):
         dist = dr.norm(d)
         ray = mi.Ray3f(o, d / dr.maximum(dist, 1e-30))
         ray.maxt = dist * (1.0 - SAME_POINT_TOL)
-        return mi.Bool(active) & ~self.scene.mi_scene.ray_test(ray, active)
+        return mi.Bool(active) & ~occluded(self.scene.mi_scene, ray, active, stage="spatial")
 
     def _bsdf_factor(self, sid, w, active):
         """``lum(f_r(x, w) cos)`` at the domain's primary vertex ``sid`` (a surface interaction whose ``wi``
@@ -398,7 +399,7 @@ class DDGIResamplingTechnique(SecondaryShading):
             ray_z = si.spawn_ray_to(yz)
             t_to_z = mi.Float(ray_z.maxt)    # a copy: the assignment below writes into the field
             ray_z.maxt = dr.inf
-            si_z = mscene.ray_intersect(ray_z, ray_flags=mi.RayFlags.All, coherent=False, active=p1)
+            si_z = intersect(mscene, ray_z, mi.RayFlags.All, False, p1, stage="shadow")
             vis_z = p1 & si_z.is_valid() & (si_z.t >= t_to_z * (1.0 - SAME_POINT_TOL) - SAME_POINT_TOL * self.s_min)
             # the geometry term of the stored sample (the target's, Eq. 9's integrand in area measure)
             J_z = dr.maximum(dr.dot(nz, -wz), 0.0) / dr.maximum(dr.square(rz), 1e-30)

@@ -56,6 +56,7 @@ from ...directions.bsdf import BSDFDirections
 from ...directions.lobes import LobeDirections
 from ...probes.glossy import GLOSSY_LOBES, GLOSSY_NORMALISATION, sample_glossy
 from ...probes.lookup import diffuse_radiance
+from ...rays import intersect
 from ...scene.surface import shading_side
 from ...sampling.diffuse import diffuse_albedo
 from ...transport.accumulate import ProgressiveMean
@@ -236,7 +237,7 @@ class SecondaryShading(Technique):
         w = mi.Color3f(d.weight)
         ok = gb.valid & (d.pdf > 0.0) & dr.all(dr.isfinite(w))
         ray = si.spawn_ray(d.wo)
-        si2 = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=ok)
+        si2 = intersect(mscene, ray, mi.RayFlags.All, False, ok, stage="bsdf sample")
         bs = SimpleNamespace(pdf=d.pdf, wo=si.to_local(d.wo))     # the sample's pdf and local direction
         return bs, mi.Color3f(dr.select(ok, w, 0.0)), ok, ray, si2, mi.Bool(d.delta)
 
