@@ -2,15 +2,18 @@
 paper's abstract: 3.29-6.64x faster probe tracing, 1.27-2.47x faster in total; our target: the update at
 least 2x faster than ``ddgi``'s).
 
-Per scene and seed both techniques (their defaults; ``--isddgi`` / ``--ddgi`` add ``key=value,...``
-settings) are created in one process and stepped **alternately** frame by frame (``isddgi``, ``ddgi``,
-``isddgi``, ...) over the scene's animation from t = 0, so that both see the same machine load. The update is
-the four stages both report (``trace probes``, ``shade probes``, ``blend``, ``states``; IS-DDGI's allocation
-is inside ``states``); the first ``--skip`` frames (frame 0 holds the warm-up and the kernel compilation)
-and IS-DDGI's re-test frames (every ``reclassify_interval``: relocation reads the rays back, as ``ddgi``'s
-does every frame) are left out. Printed per scene: the mean stage ms of each technique over seeds and
-steady frames, the update and trace speed-ups (mean over seeds, [min-max]), probe rays, and ``uptime``
-before and after; then a one-line summary per scene::
+Per scene and seed three runs are created in one process and stepped **round-robin** frame by frame
+(``isddgi``, ``ddgi``, ``ddgi@equal-rays``, ``isddgi``, ...) over the scene's animation from t = 0, so that all
+see the same machine load: both techniques at their defaults (``--isddgi`` / ``--ddgi`` add ``key=value,...``
+settings) and ``ddgi`` given IS-DDGI's rays of the same frame as its ``Frame.ray_budget`` (the equal-rays row:
+what is left of the speed-up when DDGI traces as few rays). **Every frame counts** (issue 40): only the first
+``--skip`` frames (default 1: frame 0's kernel compilation) are left out of the times, IS-DDGI's relocation
+and re-test frames included; rays are counted from frame 0. Reported apart: the *update* (the four stages
+both report, ``trace probes``, ``shade probes``, ``blend``, ``states``; IS-DDGI's allocation is inside
+``states``) and the *total* DDGI time (every stage of the frame, the probe query and shading included: the
+abstract's "total DDGI time"). Printed per scene: the mean stage ms of each run over seeds and frames, the
+update, total and trace speed-ups (mean over seeds, [min-max]), probe rays, and ``uptime`` before and
+after; then a one-line summary per scene::
 
     nice .venv/bin/python benchmarks/isddgi_update.py [--scenes a,b] [--all] [--seeds 0,1,2] [--frames 45]
         [--res 32x24] [--isddgi K=V,...] [--ddgi K=V,...]
@@ -35,33 +38,44 @@ from common import parse_settings, uptime
 STAGES = ("trace probes", "shade probes", "blend", "states")
 
 
+RUNS = ("isddgi", "ddgi", "ddgi@equal-rays")
+
+
 def run_scene(name: str, seeds, frames: int, res, skip: int, extra: dict) -> dict:
-    """Both techniques stepped alternately per seed; returns per-technique stage ms and per-seed speed-ups."""
+    """The three runs stepped round-robin per seed; returns per-run stage ms and per-seed speed-ups."""
+    from dyngi.experiments.runner import SequenceResult, _step
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique
-    ms = {t: {s: [] for s in STAGES} for t in ("isddgi", "ddgi")}
-    rays = {t: [] for t in ("isddgi", "ddgi")}
+    ms = {t: {s: [] for s in STAGES + ("total",)} for t in RUNS}
+    rays = {t: [] for t in RUNS}
     per_seed = []
     for seed in seeds:
         sc = load_scene(name)
-        techs = {t: create_technique(t, sc, extra[t]) for t in ("isddgi", "ddgi")}
-        interval = int(techs["isddgi"].params["reclassify_interval"])
-        seed_ms = {t: {s: [] for s in STAGES} for t in techs}
+        techs = {"isddgi": create_technique("isddgi", sc, extra["isddgi"]),
+                 "ddgi": create_technique("ddgi", sc, extra["ddgi"]),
+                 "ddgi@equal-rays": create_technique("ddgi", sc, extra["ddgi"])}
+        seqs = {t: SequenceResult(t) for t in RUNS}
+        seed_ms = {t: {s: [] for s in STAGES + ("total",)} for t in RUNS}
         for i in range(frames):
             t = sc.frame_time(i)
             sc.at(t)
             for tn, tech in techs.items():
-                r = tech.step(Frame(i, t, sc.camera(t), res, seed=int(seed)))
-                if i >= skip and i % interval:
+                budget = seqs["isddgi"].stats[i]["total_rays"] if tn == "ddgi@equal-rays" else None
+                _step(tech, Frame(i, t, sc.camera(t), res, seed=int(seed), ray_budget=budget), seqs[tn], False)
+                st = seqs[tn].stats[i]
+                rays[tn].append(st.get("counted_rays") or st.get("total_rays", 0))
+                if i >= skip:
                     for s in STAGES:
-                        seed_ms[tn][s].append(r.stats["ms"].get(s, 0.0))
-                    rays[tn].append(r.stats["rays"].get("trace probes", 0))
-        for tn in techs:
-            for s in STAGES:
+                        seed_ms[tn][s].append(st["ms"].get(s, 0.0))
+                    seed_ms[tn]["total"].append(st.get("total_ms", 0.0))
+        for tn in RUNS:
+            for s in seed_ms[tn]:
                 ms[tn][s] += seed_ms[tn][s]
-        upd = {tn: sum(np.mean(seed_ms[tn][s]) for s in STAGES) for tn in techs}
-        tr = {tn: np.mean(seed_ms[tn]["trace probes"]) for tn in techs}
-        per_seed.append({"update": upd["ddgi"] / upd["isddgi"], "trace": tr["ddgi"] / tr["isddgi"]})
+        upd = {tn: sum(np.mean(seed_ms[tn][s]) for s in STAGES) for tn in RUNS}
+        tot = {tn: np.mean(seed_ms[tn]["total"]) for tn in RUNS}
+        tr = {tn: np.mean(seed_ms[tn]["trace probes"]) for tn in RUNS}
+        per_seed.append({"update": upd["ddgi"] / upd["isddgi"], "total": tot["ddgi"] / tot["isddgi"],
+                         "trace": tr["ddgi"] / tr["isddgi"], "total_equal_rays": tot["ddgi@equal-rays"] / tot["isddgi"]})
     return {"ms": {tn: {s: float(np.mean(v)) for s, v in d.items()} for tn, d in ms.items()},
             "rays": {tn: float(np.mean(v)) for tn, v in rays.items()}, "per_seed": per_seed}
 
@@ -72,7 +86,7 @@ def main(argv=None) -> None:
     ap.add_argument("--all", action="store_true", help="the full reproduction's five scenes")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--frames", type=int, default=45)
-    ap.add_argument("--skip", type=int, default=2)
+    ap.add_argument("--skip", type=int, default=1, help="frames left out of the times (frame 0: compilation)")
     ap.add_argument("--res", default="32x24")
     ap.add_argument("--isddgi", default=None)
     ap.add_argument("--ddgi", default=None)
@@ -87,17 +101,18 @@ def main(argv=None) -> None:
         up0, t0 = uptime(), time.perf_counter()
         r = run_scene(name, seeds, a.frames, res, a.skip, extra)
         print(f"== {name}  (before: {up0})")
-        for tn in ("isddgi", "ddgi"):
+        for tn in RUNS:
             m = r["ms"][tn]
-            print(f"   {tn:7s} " + "  ".join(f"{s} {m[s]:6.1f}" for s in STAGES)
-                  + f"  update {sum(m.values()):6.1f} ms  probe rays {r['rays'][tn]:.0f}")
-        u = [p["update"] for p in r["per_seed"]]
-        tr = [p["trace"] for p in r["per_seed"]]
+            print(f"   {tn:16s} " + "  ".join(f"{s} {m[s]:6.1f}" for s in STAGES)
+                  + f"  update {sum(m[s] for s in STAGES):6.1f} ms  total {m['total']:6.1f} ms  rays/frame "
+                  f"{r['rays'][tn]:.0f} (counted, from frame 0)")
+        f = {k: [p[k] for p in r["per_seed"]] for k in r["per_seed"][0]}
         print(f"   after {time.perf_counter() - t0:.0f} s: {uptime()}")
-        lines.append(f"{name}: update speed-up {np.mean(u):.2f}x [{min(u):.2f}-{max(u):.2f}], trace speed-up "
-                     f"{np.mean(tr):.2f}x [{min(tr):.2f}-{max(tr):.2f}] (paper: 1.27-2.47x total, 3.29-6.64x trace; "
-                     f"target 2x), rays {r['rays']['ddgi'] / max(r['rays']['isddgi'], 1):.1f}x fewer, "
-                     f"seeds {','.join(map(str, seeds))}")
+        rng = lambda v: f"{np.mean(v):.2f}x [{min(v):.2f}-{max(v):.2f}]"    # noqa: E731
+        lines.append(f"{name}: total speed-up {rng(f['total'])} (paper: 1.27-2.47x), update {rng(f['update'])}, "
+                     f"trace {rng(f['trace'])} (paper: 3.29-6.64x), total at equal rays {rng(f['total_equal_rays'])}; "
+                     f"rays {r['rays']['ddgi'] / max(r['rays']['isddgi'], 1):.1f}x fewer; every frame after "
+                     f"{a.skip}, seeds {','.join(map(str, seeds))}")
     print("\n".join(["", "summary:"] + lines))
 
 

@@ -41,7 +41,7 @@ from ..techniques.base import REGISTRY, TechniqueSpec, as_spec, create_technique
 from ..vpl.shading import clamp_value
 from . import cluster
 from .budgets import budget_accounting, run_with_budget
-from .cluster import Task, failed, scene_ref
+from .cluster import Task, TaskFailure, describe_error, failed, scene_ref
 from .denoise import aux_buffers, denoise, require
 from .evaluate import (LABELS, METRIC_NAMES, check_metric_names, collect_clamped_references,  # noqa: F401
                        collect_references, evaluate_sequence, failures, indirect_reference_fn, summarize_noise)
@@ -50,7 +50,7 @@ from .reference_job import reference_job
 from .references.clamped import check_reference, reference_clamp_distance
 from .references.path import DEFAULT_REF_SPP, half_spp, scene_max_depth
 from .report import write_outputs
-from .runner import BUDGETS, SequenceResult
+from .runner import BUDGETS, SequenceResult, run_round_robin
 
 
 def parse_specs(techniques) -> list[TechniqueSpec]:
@@ -315,9 +315,10 @@ def _budget_view(seq):
 def run_sequences(run: dict, res, seed: int, ex, bar=None, progress=None) -> dict:
     """``{label: SequenceResult}`` of every technique of ``run``, each one task on ``ex``.
 
-    ``equal-frames``: all at once; a budget: the first, then the others with its budget. In-process the
-    tasks use the techniques :func:`prepare` made, in order, exactly as before executors; on a cluster
-    each worker makes its own. A technique that failed (after retries) is dropped from ``run['labels']``
+    ``equal-frames``: all at once (in-process: stepped round-robin, frame ``i`` of every technique before
+    frame ``i + 1`` of any, :func:`~dyngi.experiments.runner.run_round_robin`, so their timings share the
+    machine's load); a budget: the first, then the others with its budget. In-process the tasks use the
+    techniques :func:`prepare` made, in order; on a cluster each worker makes its own. A technique that failed (after retries) is dropped from ``run['labels']``
     with a warning; when the budget-setting first one or every one failed, a DyngiError names them."""
     scene, labels, frames, budget = run["scene"], list(run["labels"]), run["frames"], run["budget"]
     if ex.in_process:
@@ -332,7 +333,20 @@ def run_sequences(run: dict, res, seed: int, ex, bar=None, progress=None) -> dic
                     (src, label, run["specs"][label].name, (run.get("params") or {}).get(label, {}), frames,
                      tuple(res), seed, budget, first, bar if ex.in_process else None))
 
-    if ex.in_process:     # one after another, each checked as it ends, as before executors
+    if ex.in_process and budget == "equal-frames" and len(labels) > 1:
+        # stepped round-robin (issue 40): every technique's frame i under the same machine load
+        seqs, errors = run_round_robin(scene, {lb: run["techs"][lb] for lb in labels}, frames, res, seed,
+                                       progress=bar)
+        outs = []
+        for lb in labels:
+            if lb in errors:
+                outs.append(TaskFailure(f"{lb} on {scene.name} (seed {seed})", describe_error(errors[lb]), 1))
+                continue
+            seqs[lb].technique = lb
+            if run["indirect"] and any(x is None for x in seqs[lb].indirect):
+                raise _no_indirect([lb])
+            outs.append(seqs[lb])
+    elif ex.in_process:     # one after another, each checked as it ends, as before executors
         outs, first = [], None
         for lb in labels:
             seq = ex.map([task(lb, first)], progress=progress)[0]

@@ -88,22 +88,59 @@ def run_sequence(scene, technique, frames: int, res: tuple[int, int], seed: int 
         if tb is not None:
             frame.time_budget_ms = tb
         prev_sig = sig
-        w0 = time.perf_counter()
-        with counting() as ledger:
-            r: FrameResult = technique.step(frame)
-        wall = 1e3 * (time.perf_counter() - w0)
-        r.stats["counted_rays"] = ledger.total()     # every ray through dyngi.rays (issue 40), after the timing
-        if not np.all(np.isfinite(r.image)):
-            bad = int(np.sum(~np.isfinite(r.image)))
-            r.stats["nonfinite_pixels"] = bad
-        out.times.append(t)
-        out.stats.append(r.stats)
-        out.wall_ms.append(wall)
-        if keep_images:
-            out.images.append(r.image)
-            out.indirect.append(r.indirect)
+        r = _step(technique, frame, out, keep_images)
         if progress is not None:
             progress.update(1)
         if on_frame is not None and on_frame(i, frame, r):
             break
     return out
+
+
+def _step(technique, frame: Frame, out: SequenceResult, keep_images: bool = True) -> FrameResult:
+    """One timed step of ``technique`` with its rays counted, appended to ``out``."""
+    w0 = time.perf_counter()
+    with counting() as ledger:
+        r: FrameResult = technique.step(frame)
+    wall = 1e3 * (time.perf_counter() - w0)
+    r.stats["counted_rays"] = ledger.total()     # every ray through dyngi.rays (issue 40), after the timing
+    if not np.all(np.isfinite(r.image)):
+        r.stats["nonfinite_pixels"] = int(np.sum(~np.isfinite(r.image)))
+    out.times.append(frame.time)
+    out.stats.append(r.stats)
+    out.wall_ms.append(wall)
+    if keep_images:
+        out.images.append(r.image)
+        out.indirect.append(r.indirect)
+    return r
+
+
+def run_round_robin(scene, techniques: dict, frames: int, res: tuple[int, int], seed: int = 0, t0: float = 0.0,
+                    progress=None) -> tuple[dict, dict]:
+    """Step every technique of ``techniques`` (``{label: Technique}``) over the same frames in turn: frame
+    ``i`` of each before frame ``i + 1`` of any, in one process (issue 40: timings compared under the same
+    machine load, which drifts over a run on a shared CPU; every frame timed). The scene moves once per
+    frame. Returns ``({label: SequenceResult}, {label: exception})``: a technique that raises is left out
+    of the later frames and named with its error; the others go on.
+    """
+    if frames < 1:
+        raise DyngiError(f"number of frames must be >= 1, got {frames}")
+    outs = {lb: SequenceResult(tech.name) for lb, tech in techniques.items()}
+    errors: dict = {}
+    prev_sig = None
+    for i in range(frames):
+        t = t0 + scene.frame_time(i)
+        scene.at(t)
+        sig = scene.signature(t)
+        for lb, tech in techniques.items():
+            if lb in errors:
+                continue
+            frame = Frame(index=i, time=t, camera=scene.camera(t), res=tuple(res), seed=seed,
+                          ray_budget=None, static=(sig == prev_sig))
+            try:
+                _step(tech, frame, outs[lb])
+            except Exception as e:       # noqa: BLE001 -- one technique's failure leaves the others running
+                errors[lb] = e
+            if progress is not None:
+                progress.update(1)
+        prev_sig = sig
+    return {lb: o for lb, o in outs.items() if lb not in errors}, errors
