@@ -56,6 +56,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import rays
 from ..backend import dr, mi
 from ..scene.surface import shading_normal
 from .emitter_table import AREA, DELTA_DIRECTION, DELTA_POSITION, ENVIRONMENT, INVALID, emitter_kind
@@ -282,10 +283,11 @@ class EmitterCandidates:
         r_inf = si.spawn_ray(ev.wi)
         return dr.select(finite, r_fin, r_inf)
 
-    def visible(self, si, ev: LightEval, active=True):
+    def visible(self, si, ev: LightEval, active=True, *, stage: str = "shadow"):
+        """Lanes whose candidate is unoccluded: one shadow ray each (counted under ``stage``, :mod:`dyngi.rays`)."""
         active = mi.Bool(active) & ev.valid
         ray = self.shadow_ray(si, ev)
-        return active & ~self.mi_scene.ray_test(ray, active)
+        return active & ~rays.occluded(self.mi_scene, ray, active, stage=stage)
 
 
 class LightCandidates:
@@ -370,6 +372,7 @@ class LightCandidates:
         finite = dr.isfinite(ev.dist)
         return dr.select(finite, si.spawn_ray_to(ev.p_light), si.spawn_ray(ev.wi))
 
-    def visible(self, si, ev: LightEval, active=True):
+    def visible(self, si, ev: LightEval, active=True, *, stage: str = "shadow"):
+        """Lanes whose candidate is unoccluded: one shadow ray each (counted under ``stage``, :mod:`dyngi.rays`)."""
         active = mi.Bool(active) & ev.valid
-        return active & ~self.mi_scene.ray_test(self.shadow_ray(si, ev), active)
+        return active & ~rays.occluded(self.mi_scene, self.shadow_ray(si, ev), active, stage=stage)

@@ -14,14 +14,21 @@ are measured, not assumed) and, given a ``receiver`` normal, skips the shadow
 ray of samples below it; :func:`sample_traced` falls back to ``sample`` for
 strategies without it.
 
+Shadow rays are traced through :mod:`dyngi.rays` and counted there (issue 40; Mitsuba's own visibility
+test in ``sample_emitter_direction``, whose rays no wrapper sees, is not used):
+``sample_traced(..., stage=, lanes=)`` counts them under ``stage``; with ``lanes=True`` (a caller inside a
+symbolic loop, the path walk) it does not, and returns a fourth value, the rays traced per lane, for the
+caller's per-lane count.
+
 ReSTIR, the light BVH, the VLC and the CDQ replace :class:`EmitterSampling`.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from .. import rays
 from ..backend import dr, mi
-from ..scene.passthrough import scene_has_glass, shadow_transmittance
+from ..scene.passthrough import count_lanes, scene_has_glass, shadow_transmittance
 
 
 class EmitterSampling:
@@ -30,7 +37,28 @@ class EmitterSampling:
     name = "emitter"
 
     def sample(self, scene, si, u2, active):
-        return scene.sample_emitter_direction(si, u2, True, active)
+        ds, spec, _ = self.sample_traced(scene, si, u2, active)
+        return ds, spec
+
+    def sample_traced(self, scene, si, u2, active, receiver=None, *, stage: str = "shadow", lanes: bool = False):
+        """Mitsuba's ``scene.sample_emitter_direction`` with its visibility test: the shadow ray traced here, as
+        Mitsuba traces it (``spawn_ray_to(ds.p)`` where ``ds.pdf != 0``; weight and pdf 0 where occluded),
+        and counted (:mod:`dyngi.rays`). Returns (ds, weight, lanes whose sample is unoccluded with a nonzero
+        pdf: the mask Mitsuba's result leaves) and with ``lanes`` the shadow rays per lane. With a ``receiver``
+        normal, samples below it get weight 0 (their shadow ray is still traced, as before)."""
+        active = mi.Bool(active)
+        ds, spec = scene.sample_emitter_direction(si, u2, False, active)
+        shot = active & (ds.pdf != 0.0)
+        occ = rays.occluded(scene, si.spawn_ray_to(ds.p), shot, stage=stage, lanes=lanes)
+        spec = dr.select(occ, 0.0, spec)
+        ds.pdf = dr.select(occ, 0.0, ds.pdf)
+        w = mi.Color3f(spec)
+        if receiver is not None:
+            w = dr.select(dr.dot(receiver, ds.d) > 0.0, w, 0.0)
+        traced = active & (ds.pdf != 0.0)
+        if lanes:
+            return ds, w, traced, mi.UInt32(shot)
+        return ds, w, traced
 
     def pdf(self, scene, ref_si, ds, active):
         return scene.pdf_emitter_direction(ref_si, ds, active)
@@ -82,8 +110,9 @@ class EmitterSubsetSampling:
         ds, w, _ = self.sample_traced(scene, si, u2, active)
         return ds, w
 
-    def sample_traced(self, scene, si, u2, active, receiver=None):
-        """``sample``, plus the mask of lanes that cast a shadow ray.
+    def sample_traced(self, scene, si, u2, active, receiver=None, *, stage: str = "shadow", lanes: bool = False):
+        """``sample``, plus the mask of lanes that cast a shadow ray (counted under ``stage``,
+        :mod:`dyngi.rays`; with ``lanes`` not counted, and a fourth value: the rays traced per lane).
 
         With a ``receiver`` normal, samples with ``dot(receiver, d) <= 0`` get
         weight 0 and no shadow ray: exact for a receiver that only reflects
@@ -91,7 +120,8 @@ class EmitterSubsetSampling:
         normal), as pbrt skips the shadow ray of a zero BSDF value.
         """
         if not self.count:
-            return dr.zeros(mi.DirectionSample3f), mi.Color3f(0.0), mi.Bool(False)
+            out = dr.zeros(mi.DirectionSample3f), mi.Color3f(0.0), mi.Bool(False)
+            return out + (mi.UInt32(0),) if lanes else out
         active = mi.Bool(active)
         if self.single is not None:      # no selection, no virtual call
             ds, spec = self.single.sample_direction(si, u2, active)
@@ -106,9 +136,14 @@ class EmitterSubsetSampling:
             active &= dr.dot(receiver, ds.d) > 0.0
         shadow = si.spawn_ray_to(ds.p)
         if self.glass:      # clear surfaces pass light, attenuated (dyngi.scene.passthrough)
-            spec = mi.Color3f(spec) * shadow_transmittance(scene, shadow, active)
+            T, n = shadow_transmittance(scene, shadow, active, stage=stage, lanes=True)
+            spec = mi.Color3f(spec) * T
+            count_lanes(stage, n, lanes)
         else:
-            spec = dr.select(active & ~scene.ray_test(shadow, active), spec, 0.0)
+            spec = dr.select(active & ~rays.occluded(scene, shadow, active, stage=stage, lanes=lanes), spec, 0.0)
+            n = mi.UInt32(active)
+        if lanes:
+            return ds, mi.Color3f(spec), active, n
         return ds, mi.Color3f(spec), active
 
     def pdf(self, scene, ref_si, ds, active):
@@ -120,12 +155,15 @@ class EmitterSubsetSampling:
         return ds.emitter.pdf_direction(ref_si, ds, active & (pmf > 0.0)) * pmf
 
 
-def sample_traced(lights, scene, si, u2, active, receiver=None):
-    """``lights.sample_traced(...)``: (ds, weight, lanes that cast a shadow ray); for a strategy without
-    it, ``sample`` with the shadow-ray mask taken as the lanes with a nonzero pdf."""
+def sample_traced(lights, scene, si, u2, active, receiver=None, *, stage: str = "shadow", lanes: bool = False):
+    """``lights.sample_traced(...)``: (ds, weight, lanes that cast a shadow ray), its shadow rays counted under
+    ``stage`` (:mod:`dyngi.rays`; with ``lanes`` not counted, and a fourth value: the rays per lane). A
+    strategy without ``sample_traced`` must trace through :mod:`dyngi.rays` itself; its shadow-ray mask is
+    taken as the lanes with a nonzero pdf."""
     if hasattr(lights, "sample_traced"):
-        return lights.sample_traced(scene, si, u2, active, receiver)
+        return lights.sample_traced(scene, si, u2, active, receiver, stage=stage, lanes=lanes)
     ds, w = lights.sample(scene, si, u2, active)
     if receiver is not None:
         w = dr.select(dr.dot(receiver, ds.d) > 0.0, w, 0.0)
-    return ds, w, mi.Bool(active) & (ds.pdf != 0.0)
+    traced = mi.Bool(active) & (ds.pdf != 0.0)
+    return (ds, w, traced, mi.UInt32(traced)) if lanes else (ds, w, traced)

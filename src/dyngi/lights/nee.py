@@ -32,12 +32,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import rays
 from ..backend import dr, mi
 from ..directions.octree import make_octree, octree_bounds
 from ..errors import DyngiError
 from ..sampling.rng import make_sampler
 from ..scene.surface import shading_normal
 from .base import INVALID, EmitterTable, FrameCtx, entry, make
+from ..scene.passthrough import count_lanes
 from .emitter_sampling import EmitterSubsetSampling
 
 RECORD_VERTICES = 3
@@ -169,11 +171,14 @@ class LightNEE:
     def _lk(self, leaf):
         return {"leaf": leaf} if (leaf is not None and getattr(self.sampler, "accepts_leaf", False)) else {}
 
-    def sample_walk(self, scene, si, sampler, active, depth=None, emitters: bool = False):
+    def sample_walk(self, scene, si, sampler, active, depth=None, emitters: bool = False, *, stage: str = "shadow",
+                    lanes: bool = False):
         """One NEE sample at ``si``: (ds, weight = Le * visibility / pdf, lanes that cast a shadow ray).
 
         ``emitters``: also set ``ds.emitter`` (the sampled light's emitter), which a caller that routes light
-        by emitter needs (:class:`TracedNEE`); the path walk does not read it."""
+        by emitter needs (:class:`TracedNEE`); the path walk does not read it. The shadow ray is counted
+        under ``stage`` (:mod:`dyngi.rays`); with ``lanes`` (the path walk's symbolic loop) it is not, and a
+        fourth value gives the rays traced per lane."""
         u2 = sampler.next_2d()
         u_sel = sampler.next_1d()
         active = mi.Bool(active)
@@ -182,6 +187,7 @@ class LightNEE:
         ds = dr.zeros(mi.DirectionSample3f, dr.width(active))
         weight = mi.Color3f(0.0)
         traced = mi.Bool(False)
+        n_rays = mi.UInt32(0)
         if self.tris.count and p_tri > 0.0:
             n = shading_normal(si)
             u_s = dr.minimum(u_sel / p_tri, 0.99999994) if p_tri < 1.0 else u_sel
@@ -197,10 +203,11 @@ class LightNEE:
             cos_l = -dr.dot(nl, wi)
             ok &= (cos_l > 0.0) & (dist2 > 0.0) & (pdf_a > 0.0)
             pdf = p_tri * pmf * pdf_a * dist2 / cos_l
-            vis = ok & ~scene.ray_test(si.spawn_ray_to(pl), ok)
+            vis = ok & ~rays.occluded(scene, si.spawn_ray_to(pl), ok, stage=stage, lanes=lanes)
             Le = self.tris.gather_radiance(k, vis)
             weight = dr.select(vis, Le / pdf, 0.0)
             traced = ok
+            n_rays = mi.UInt32(ok)
             ds.p, ds.n, ds.d, ds.dist = mi.Point3f(pl), mi.Normal3f(nl), wi, dr.sqrt(dist2)
             ds.pdf = dr.select(ok, pdf, 0.0)
             if emitters:
@@ -214,7 +221,9 @@ class LightNEE:
                 dr.scatter(vis_b, dr.select(vis, mi.UInt32(1), mi.UInt32(0)), slot, rec)
         if self.others is not None and p_tri < 1.0:
             other = active & ~pick
-            ds_o, w_o, tr_o = self.others.sample_traced(scene, si, u2, other)
+            ds_o, w_o, tr_o, n_o = self.others.sample_traced(scene, si, u2, other, stage=stage, lanes=True)
+            n_rays = n_rays + n_o
+            count_lanes(stage, n_o, lanes)
             q = 1.0 - p_tri
             ds.p = dr.select(other, ds_o.p, ds.p)
             ds.n = dr.select(other, ds_o.n, ds.n)
@@ -226,6 +235,8 @@ class LightNEE:
                 ds.emitter = dr.select(other, ds_o.emitter, ds.emitter)
             weight = dr.select(other, w_o / q, weight)
             traced = dr.select(other, tr_o, traced)
+        if lanes:
+            return ds, mi.Color3f(weight), traced, n_rays
         return ds, mi.Color3f(weight), traced
 
     def pdf_hit(self, scene, prev_si, si, ds, active):
@@ -255,7 +266,7 @@ class LightNEE:
         then :meth:`pdf_hit`. 0 where the ray reaches no emitter."""
         active = mi.Bool(active)
         ref_si = mi.SurfaceInteraction3f(ref_si)
-        si = scene.ray_intersect(ref_si.spawn_ray(ds.d), ray_flags=mi.RayFlags.All, coherent=False, active=active)
+        si = rays.intersect(scene, ref_si.spawn_ray(ds.d), mi.RayFlags.All, False, active, stage="mis")
         ds_hit = mi.DirectionSample3f(scene, si, ref_si)
         hit = active & (si.emitter(scene, active) != None)   # noqa: E711
         return dr.select(hit, self.pdf_hit(scene, ref_si, si, ds_hit, hit), 0.0)
@@ -303,12 +314,14 @@ class TracedNEE:
         nothing)."""
         return cls(nee, make_sampler(n, seed, frame, stream), record)
 
-    def sample_traced(self, scene, si, u2, active, receiver=None):
+    def sample_traced(self, scene, si, u2, active, receiver=None, *, stage: str = "shadow", lanes: bool = False):
         depth = None
         if self.record and self.nee.entry.learns:
             self.nee.begin_walk(dr.width(u2))
             depth = 0
-        ds, w, traced = self.nee.sample_walk(scene, si, _Numbers(u2, self.numbers), active, depth, emitters=True)
+        out = self.nee.sample_walk(scene, si, _Numbers(u2, self.numbers), active, depth, emitters=True, stage=stage,
+                                   lanes=lanes)
+        ds, w = out[0], out[1]
         if receiver is not None:
             w = dr.select(dr.dot(receiver, ds.d) > 0.0, w, 0.0)
-        return ds, w, traced
+        return (ds, w) + tuple(out[2:])

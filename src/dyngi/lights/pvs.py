@@ -56,8 +56,9 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
+from ..rays import intersect, occluded
 from .base import register
-from .sll import _RAY_CHUNK, SLLSelector, _static_occluders
+from .sll import _RAY_CHUNK, RAY_STAGE, SLLSelector, _static_occluders
 
 
 _DIRECTIONS = np.concatenate([np.eye(3), -np.eye(3),
@@ -137,7 +138,7 @@ class PVSLightLists(SLLSelector):
         o = mi.Point3f(*[dr.gather(mi.Float, pts[k], idx // m) for k in range(3)])
         d = mi.Vector3f(*[dr.gather(mi.Float, dirs[k], idx % m) for k in range(3)])
         ray = mi.Ray3f(o, d)
-        si = self._occ.ray_intersect(ray)
+        si = intersect(self._occ, ray, stage=RAY_STAGE)
         back = (si.is_valid() & (dr.dot(si.n, ray.d) > 0.0)).numpy().reshape(n, m)
         votes = back.sum(1)
         return votes >= _INSIDE_VOTES
@@ -223,7 +224,7 @@ class PVSLightLists(SLLSelector):
                 dist = dr.norm(d)
                 ray = mi.Ray3f(o, d / dr.maximum(dist, 1e-12))
                 ray.maxt = dist
-                hit = self._occ.ray_test(ray, dist > 1e-6)
+                hit = occluded(self._occ, ray, dist > 1e-6, stage=RAY_STAGE)
                 ok = (~hit).numpy().reshape(p1 - p0, S).any(1)
                 V[a[p0:p1][ok], b[p0:p1][ok]] = True
             V |= V.T

@@ -64,6 +64,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
+from ..rays import occluded
 from .base import pmf_inputs, register
 from .emitter_table import INVALID
 from .importance import triangle_irradiance
@@ -71,6 +72,9 @@ from .importance import triangle_irradiance
 MAX_CONSIDERED = 32          # Sec. 7: "We configured this maximum to be 32"
 _ONE_MINUS = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 _RAY_CHUNK = 1 << 22         # shadow rays per precompute kernel (our choice: memory bound)
+RAY_STAGE = "lights"
+"""The name the visibility rays of the lists' construction are counted under (:mod:`dyngi.rays`; the
+techniques time a light sampler's per-frame work in a stage of this name)."""
 
 
 def _static_occluders(mi_scene, dynamic_shapes):
@@ -239,7 +243,7 @@ class SLLSelector:
             front = dr.dot(ny, -dvec) > 0.0              # the cell point is on the emitting side
             ray = mi.Ray3f(o, dvec / dr.maximum(dist, 1e-12))
             ray.maxt = dist * (1.0 - 1e-4)
-            hit = self._occ.ray_test(ray, front & (dist > 1e-6))
+            hit = occluded(self._occ, ray, front & (dist > 1e-6), stage=RAY_STAGE)
             ok = (front & ~hit).numpy().reshape(nl, T, C, S)
             vis[:, l0:l1] = ok.any(axis=(1, 3)).T
         return vis

@@ -29,9 +29,13 @@ diffuse lobe (black apart from NEE through it), our choice.
 
 Scenes without any such surface take the plain ``ray_test`` /
 ``ray_intersect`` path (:func:`scene_has_glass`), so they pay nothing.
+
+Every ray is traced through :mod:`dyngi.rays` and counted there (issue 40): the first ray and each
+continuation through a clear surface; a per-lane counter of the loop is added after it (:func:`count_lanes`).
 """
 from __future__ import annotations
 
+from .. import rays
 from ..backend import dr, mi
 
 MAX_GLASS_LAYERS = 4     # clear surfaces a shadow/probe ray passes at most (our choice: a double-glazed window)
@@ -67,6 +71,23 @@ def clear_transmittance(bsdf, si, active):
 _HAS_GLASS: dict = {}     # the most recent scene -> bool
 
 
+def count_lanes(stage: str, n, lanes: bool = False, schedule: bool = True) -> None:
+    """Add the per-lane ray counter ``n`` of a loop (after the loop) to the open ray ledgers
+    (:func:`dyngi.rays.add`), unless ``lanes``: the caller counts them (a caller inside a symbolic loop
+    of its own). The counter is read when a ledger's total is asked for (no reduction, no wait here);
+    ``schedule``: computed by the next kernel (with the loop's other outputs; for a counter the caller does
+    not evaluate itself: left unevaluated, reading it would trace the loop again)."""
+    if lanes:
+        return
+    if dr.flag(dr.JitFlag.SymbolicScope):
+        raise RuntimeError(f"rays ({stage}): a ray traced in a symbolic loop needs lanes=True and a per-lane "
+                           "counter added after the loop (dyngi.rays.add)")
+    n = mi.UInt32(n)
+    if schedule:
+        dr.schedule(n)
+    rays.add(stage, n)
+
+
 def scene_has_glass(mi_scene) -> bool:
     """Host check, cached for the latest scene: does any shape carry a pass-through BSDF?"""
     key = _HAS_GLASS.get("scene")
@@ -86,7 +107,8 @@ def scene_has_glass(mi_scene) -> bool:
 
 
 @dr.syntax
-def intersect_through_glass(scene, ray, active, thin_only: bool = False, layers: int = MAX_GLASS_LAYERS):
+def intersect_through_glass(scene, ray, active, thin_only: bool = False, layers: int = MAX_GLASS_LAYERS,
+                            stage: str = "trace"):
     """First opaque hit along ``ray``, passing up to ``layers`` clear surfaces.
 
     Returns ``(si, throughput, t, passes)``: the surface interaction of the
@@ -94,11 +116,13 @@ def intersect_through_glass(scene, ray, active, thin_only: bool = False, layers:
     surfaces were met, the last one with throughput 0), the product of the
     clear surfaces' transmittances on the way, the total distance from the
     original origin (``inf`` on a miss) and the number of continuation rays
-    per lane. A Dr.Jit symbolic loop.
+    per lane. A Dr.Jit symbolic loop; its rays are counted under ``stage``
+    (:mod:`dyngi.rays`).
     """
     active = mi.Bool(active)
     ray = mi.Ray3f(ray)
-    si = scene.ray_intersect(ray, mi.RayFlags.All, False, active)
+    si = rays.intersect(scene, ray, mi.RayFlags.All, False, active, stage=stage, lanes=True)
+    n_rays = mi.UInt32(active)
     throughput = mi.Color3f(1.0)
     t = mi.Float(0.0)
     depth = mi.UInt32(0)
@@ -112,21 +136,27 @@ def intersect_through_glass(scene, ray, active, thin_only: bool = False, layers:
         go = clear & ~blocked
         t[go] = t + si.t
         ray[go] = si.spawn_ray(ray.d)
-        si[go] = scene.ray_intersect(ray, mi.RayFlags.All, False, go)
+        si[go] = rays.intersect(scene, ray, mi.RayFlags.All, False, go, stage=stage, lanes=True)
+        n_rays[go] = n_rays + 1
         bsdf = si.bsdf(ray)
         clear = go & si.is_valid() & clear_mask(bsdf, thin_only)
+    count_lanes(stage, n_rays)
     t_out = dr.select(si.is_valid(), t + si.t, dr.inf)
     return si, throughput, t_out, depth
 
 
 @dr.syntax
-def shadow_transmittance(scene, ray, active, layers: int = MAX_GLASS_LAYERS):
+def shadow_transmittance(scene, ray, active, layers: int = MAX_GLASS_LAYERS, stage: str = "shadow",
+                         lanes: bool = False):     # (no keyword-only parameters: @dr.syntax drops their defaults)
     """Visibility along a shadow ray segment (up to ``ray.maxt``): 0 where an opaque surface (or more
     than ``layers`` clear ones) blocks it, else the product of the transmittances of the clear surfaces
-    passed. A Dr.Jit symbolic loop."""
+    passed. A Dr.Jit symbolic loop. Its rays are counted under ``stage`` (:mod:`dyngi.rays`); with
+    ``lanes`` (a caller inside a symbolic loop of its own) they are not, and the result is a pair
+    ``(visibility, rays traced per lane)`` for the caller's count."""
     active = mi.Bool(active)
     ray = mi.Ray3f(ray)
-    si = scene.ray_intersect(ray, mi.RayFlags.All, False, active)
+    si = rays.intersect(scene, ray, mi.RayFlags.All, False, active, stage=stage, lanes=True)
+    n_rays = mi.UInt32(active)
     throughput = mi.Color3f(1.0)
     depth = mi.UInt32(0)
     bsdf = si.bsdf(ray)
@@ -138,7 +168,10 @@ def shadow_transmittance(scene, ray, active, layers: int = MAX_GLASS_LAYERS):
         remaining = ray.maxt - si.t
         ray[go] = si.spawn_ray(ray.d)
         ray.maxt[go] = remaining
-        si[go] = scene.ray_intersect(ray, mi.RayFlags.All, False, go)
+        si[go] = rays.intersect(scene, ray, mi.RayFlags.All, False, go, stage=stage, lanes=True)
+        n_rays[go] = n_rays + 1
         bsdf = si.bsdf(ray)
         clear = go & si.is_valid() & clear_mask(bsdf)
-    return dr.select(active & ~si.is_valid(), throughput, 0.0)
+    vis = dr.select(active & ~si.is_valid(), throughput, 0.0)
+    count_lanes(stage, n_rays, lanes)
+    return (vis, n_rays) if lanes else vis

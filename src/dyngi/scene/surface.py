@@ -11,6 +11,7 @@ the VPLs, the light samplers and the path walk share (issue 37; formerly ``probe
 from __future__ import annotations
 
 from ..backend import dr, mi
+from ..rays import intersect
 from ..sampling.diffuse import diffuse_albedo
 
 
@@ -35,9 +36,10 @@ def shading_normal(si):
     return mi.Vector3f(dr.select(mi.Frame3f.cos_theta(si.wi) >= 0.0, si.sh_frame.n, -si.sh_frame.n))
 
 
-def diffuse_surface(mscene, ray, active):
-    """(si, front mask, shading normal facing the ray, diffuse albedo) of the first hit."""
-    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
+def diffuse_surface(mscene, ray, active, *, stage: str = "trace"):
+    """(si, front mask, shading normal facing the ray, diffuse albedo) of the first hit (the ray counted under
+    ``stage``, :mod:`dyngi.rays`)."""
+    si = intersect(mscene, ray, mi.RayFlags.All, False, active, stage=stage)
     hit = si.is_valid() & active
     bsdf = si.bsdf(ray)
     front, n = shading_side(si, ray, bsdf, hit)

@@ -94,6 +94,7 @@ import numpy as np
 
 from .. import directions as direction_samplers
 from .. import lights as light_samplers
+from .. import rays as ray_ledger
 from ..backend import dr, mi
 from ..color import luminance
 from ..directions.base import Vertex
@@ -212,7 +213,8 @@ class NeePTWalk:
 
     # -- the light strategy ----------------------------------------------------------------------
     def estimate(self, scene, v, sampler, active, depth, dir_pdf):
-        """NEE at a vertex: (radiance estimate without beta, rays traced); class docstring."""
+        """NEE at a vertex: (radiance estimate without beta, rays traced per lane: the walk counts them,
+        ``lanes=True``, :mod:`dyngi.rays`); class docstring."""
         u1, u2, u_o = sampler.next_1d(), sampler.next_2d(), sampler.next_2d()
         active = mi.Bool(active) & v.active
         t = self.t
@@ -240,14 +242,15 @@ class NeePTWalk:
                 ok &= cos_r > 0.0
             ok &= dr.max(f) > 0.0
             pdf_b = dir_pdf(wi, ok)
-            vis = ok & ~scene.ray_test(si.spawn_ray_to(pl), ok)
+            vis = ok & ~ray_ledger.occluded(scene, si.spawn_ray_to(pl), ok, stage="trace", lanes=True)
             rays += mi.UInt32(ok)
             Le = tris.gather_radiance(k, vis)
             w = _balance(pdf_l, pdf_b)
             L += dr.select(vis, f * Le * (w / pdf_l), 0.0)
             sel.record(p, n, k, vis, active & (k != INVALID), **self._lk(self.vx[depth]["leaf"]))
         if t.others is not None and t.others.count:
-            ds, em_w, traced = t.others.sample_traced(scene, si, u_o, active, receiver=None)
+            ds, em_w, traced, n_o = t.others.sample_traced(scene, si, u_o, active, receiver=None, stage="trace",
+                                                           lanes=True)
             if real_bsdf is not None:
                 f, _ = real_bsdf.eval_pdf(ctx, si, si.to_local(ds.d), traced)
                 f = mi.Color3f(f)
@@ -256,7 +259,7 @@ class NeePTWalk:
             pdf_b = dir_pdf(ds.d, traced)
             w = dr.select(ds.delta, 1.0, _balance(ds.pdf, pdf_b))
             L += dr.select(traced, f * em_w * w, 0.0)
-            rays += mi.UInt32(traced)
+            rays += n_o
         self.vx[depth].update(nee_on=active, L_nee=L)
         return L, rays
 
@@ -428,12 +431,16 @@ class NeePT(Technique):
         # -- the one path walk over Sec. 7's three vertices, unrolled (each vertex its own BSDF and records) --
         nw = NeePTWalk(self)
         r = walk(self.scene.mi_scene, sampler, ray, mi.Bool(True), MAX_DEPTH, -1, lights=nw, directions=nw,
-                 vertex=nw.vertex, power_heuristic=False, split=True, unroll=True, stop_at_zero=False)
+                 vertex=nw.vertex, power_heuristic=False, split=True, unroll=True, stop_at_zero=False, lanes=True)
         L = dr.select(dr.isfinite(luminance(r.L)), r.L, 0.0)
         L_ind = dr.select(dr.isfinite(luminance(r.L_ind)), r.L_ind, 0.0)
         pending = list(getattr(self.selector, "pending", lambda: [])())
+        # the rays' sum is a kernel of its own, which traces the paths a second time: evaluating the per-lane
+        # counts with the image in one kernel made Dr.Jit 1.5's LLVM backend abort ("invalid redefinition of
+        # function")
         rays_total = dr.sum(r.n_rays)
         dr.eval(L, L_ind, rays_total, *pending)
+        ray_ledger.add("trace", rays_total)     # the walk's rays (lanes=True: counted here, dyngi.rays)
         if spp > 1:
             inv = dr.opaque(mi.Float, 1.0 / spp)
             L = dr.block_reduce(dr.ReduceOp.Add, L, spp) * inv

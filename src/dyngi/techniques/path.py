@@ -51,6 +51,7 @@ import math
 
 from .. import directions as direction_samplers
 from .. import lights as light_samplers
+from .. import rays as ray_ledger
 from ..directions.walk import WalkDirections
 from ..backend import dr, mi
 from ..lights.nee import LightNEE
@@ -110,7 +111,7 @@ class PathTechnique(Technique):
         recording)."""
         p = self.params
         return render_paths_split(mi_scene, camera, res, spp, seed, 0, p["max_depth"], p["rr_depth"], None,
-                                  p["mis"] == "power", p["indirect"], None)
+                                  p["mis"] == "power", p["indirect"], None, lanes=True)   # counted by step()
 
     def frame_spp(self, frame: Frame) -> int:
         """spp for this frame: the parameter, or what fits the frame's ray/time budget."""
@@ -144,7 +145,7 @@ class PathTechnique(Technique):
                 pilot = render_paths_split(self.scene, frame.camera, frame.res, 1,
                                            mix_seed(frame.seed, 1, _PILOT_STREAM), frame.index, p["max_depth"],
                                            p["rr_depth"], self.lights, p["mis"] == "power", split,
-                                           self.directions)
+                                           self.directions, stage="pilot")
                 dr.eval(*pilot)
             t.add_rays("pilot", int(pilot[2][0]))
             self._rays_per_sample = t.rays["pilot"] / npix
@@ -159,10 +160,11 @@ class PathTechnique(Technique):
                 seed = dr.opaque(mi.UInt32, mix_seed(frame.seed, frame.index, 0))
                 L, L_ind, rays = self._frozen(self.scene.mi_scene, seed, frame.camera, tuple(frame.res), spp,
                                                 self._epoch)
+                ray_ledger.add("trace", rays)    # a replayed frame runs no Python: its rays are counted here
             elif spp > 0:
                 L, L_ind, rays = render_paths_split(self.scene, frame.camera, frame.res, spp, frame.seed,
                                                     frame.index, p["max_depth"], p["rr_depth"], self.lights,
-                                                    p["mis"] == "power", split, self.directions)
+                                                    p["mis"] == "power", split, self.directions, stage="trace")
                 if pilot is not None:   # sample-weighted mean of pilot and trace
                     wp = dr.opaque(mi.Float, 1.0 / (spp + 1))
                     L = dr.fma(pilot[0] - L, wp, L)

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..backend import dr, mi
+from ..rays import intersect
 
 DEPTH_TOL = 0.1
 """Relative depth tolerance of the disocclusion / neighbour test (Bitterli et al. 2020, Sec. 6)."""
@@ -74,7 +75,7 @@ def render_gbuffer(scene, camera, res, pixel_jitter, time: float = 0.0, material
     mscene = scene.mi_scene if hasattr(scene, "mi_scene") else scene
     idx = dr.arange(mi.UInt32, w * h)
     ray = camera.sample_rays(res, idx, pixel_jitter)
-    si = mscene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
+    si = intersect(mscene, ray, mi.RayFlags.All, True, stage="gbuffer")
     valid = si.is_valid()
     bsdf = si.bsdf(ray)
     if material:

@@ -58,6 +58,14 @@ roulette (and no random number drawn for it); ``nee=False``: no NEE at all (no l
 
 A path that can no longer contribute (its next vertex counts no emission and is the last) stops early.
 
+Rays (issue 40): every ray of the walk (the camera ray or none, each bounce, each NEE shadow ray, the
+continuations of a shadow ray through glass) is traced through :mod:`dyngi.rays` with ``lanes=True``
+and counted per lane in ``n_rays`` (a light strategy's ``sample_walk`` / ``sample_traced`` with
+``lanes=True`` and ``estimate`` return their rays per lane); after the loop the walk adds ``n_rays`` to the
+open ray ledgers under its ``stage`` (lazily: the per-lane counter, read when the ledger's total is asked
+for), unless the caller passes ``lanes=True`` and counts them itself (a walk inside a symbolic loop or a
+frozen function).
+
 Outputs, from the same terms: ``L`` (everything counted), ``L_ind`` (the *indirect* part: emission at
 vertices >= 2, NEE at vertices >= 1, terminate radiance at vertices >= 1, i.e. light that reflected at
 least once before vertex 0 -- the papers' "indirect", as the indirect reference), ``L_near`` (the
@@ -68,10 +76,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from .. import rays
 from ..backend import dr, mi
 from ..errors import DyngiError
 from ..lights.emitter_sampling import EmitterSampling, sample_traced
 from ..sampling.rng import make_sampler
+from ..scene.passthrough import count_lanes
 from .mis import mis_weight
 
 
@@ -132,12 +142,13 @@ def _light_pdf(lights, scene, prev_si, si, ds, active):
     return lights.pdf(scene, prev_si, ds, active)
 
 
-def _light_sample(lights, scene, si, sampler, active, depth):
-    """One NEE sample: (ds, weight, lanes that cast a shadow ray). A light sampler draws its own numbers
-    (a 2D point and a 1D light choice); a strategy one 2D number (the default's stream is unchanged)."""
+def _light_sample(lights, scene, si, sampler, active, depth, stage):
+    """One NEE sample: (ds, weight, lanes whose sample counts, shadow rays traced per lane). A light sampler
+    draws its own numbers (a 2D point and a 1D light choice); a strategy one 2D number (the default's
+    stream is unchanged). The rays are the walk's to count (``lanes=True``)."""
     if getattr(lights, "walk_aware", False):
-        return lights.sample_walk(scene, si, sampler, active, depth)
-    return sample_traced(lights, scene, si, sampler.next_2d(), active)
+        return lights.sample_walk(scene, si, sampler, active, depth, stage=stage, lanes=True)
+    return sample_traced(lights, scene, si, sampler.next_2d(), active, stage=stage, lanes=True)
 
 
 def _dir_vertex(directions, si, bsdf, active):
@@ -206,14 +217,15 @@ def _shade(hook, si, ray, bsdf, depth, active, prev_pdf, prev_delta, sampler, st
 def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None, power_heuristic: bool = True,
          si=None, emission=None, nee=None, terminate=None, total: bool = True, split: bool = False,
          near: bool = False, directions=None, shade=None, state=None, mis: bool = True, vertex=None,
-         unroll: bool = False, stop_at_zero: bool = True) -> PathResult:
+         unroll: bool = False, stop_at_zero: bool = True, stage: str = "trace", lanes: bool = False) -> PathResult:
     """Trace one path per lane (module docstring); ``si``: start at these surface interactions
     (``ray``: the rays that reached them), else intersect ``ray`` first. ``total``/``split``/``near``:
     which of ``L``/``L_ind``/``L_near`` to sum. ``directions``: a direction strategy
     (:class:`dyngi.directions.walk.WalkDirections`) instead of the BSDF's own sampling. ``shade`` and
     ``state``: the per-vertex shade hook and its initial state; ``mis``: MIS between NEE and emission;
     ``vertex``: the vertex hook; ``unroll``: trace the loop in Python (``max_depth`` >= 1 vertices);
-    ``stop_at_zero``: a path whose throughput is 0 ends."""
+    ``stop_at_zero``: a path whose throughput is 0 ends. ``stage``: the name its rays are counted under
+    (:mod:`dyngi.rays`); ``lanes``: the caller counts ``n_rays`` itself (module docstring)."""
     lights = lights if lights is not None else EmitterSampling()
     do_nee = nee is not False
     if unroll and max_depth < 1:
@@ -230,7 +242,7 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
     ray = mi.Ray3f(ray)
     # -- vertex 0: the camera ray's first hit, or the given surface --
     if si is None:
-        si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True, active=active)
+        si = rays.intersect(scene, ray, mi.RayFlags.All, True, active, stage=stage, lanes=True)
         n_rays = mi.UInt32(active)
     else:
         si = mi.SurfaceInteraction3f(si)
@@ -300,8 +312,9 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
                                              _pdf_fn(directions, vtx, bsdf, ctx, si))
                 n_rays += r_em
             else:
-                ds_em, em_weight, active_em = _light_sample(lights, scene, si, sampler, active_em, depth)
-                n_rays += mi.UInt32(active_em)
+                ds_em, em_weight, active_em, r_em = _light_sample(lights, scene, si, sampler, active_em, depth,
+                                                                  stage)
+                n_rays += r_em
                 bsdf_val, bsdf_pdf = _f_pdf(vtx, bsdf, ctx, si, ds_em.d, active_em)
                 w_em = mi.Float(1.0)
                 if mis:
@@ -343,60 +356,70 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
             alive = (beta_max != 0.0) if stop_at_zero else mi.Bool(True)
             active = active_next & useful & survive & alive & (s_pdf > 0.0)
 
-            si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=False, active=active)
+            si = rays.intersect(scene, ray, mi.RayFlags.All, False, active, stage=stage, lanes=True)
             n_rays += mi.UInt32(active)
             bounces += mi.UInt32(active)
 
     if directions is not None:
         directions.end_walk(L)
+    count_lanes(stage, n_rays, lanes, schedule=False)     # the callers evaluate n_rays with L (their self-report)
     return PathResult(L if total else None, L_ind if split else None, L_near if near else None, n_rays,
                       first_valid, bounces, state)
 
 
 def trace_paths_split(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None,
-                      power_heuristic: bool = True, split: bool = True, directions=None):
+                      power_heuristic: bool = True, split: bool = True, directions=None, *, stage: str = "trace",
+                      lanes: bool = False):
     """Camera-ray paths; return (radiance, indirect radiance, rays per lane, first-hit validity).
 
     The indirect part (with ``split``; else it is 0) sums the same terms as the full radiance except
     the emission seen at the first vertex, the emission reached by its BSDF-sampled ray and its NEE
     sample: light that reflected at least once before the first vertex (vertices >= 3). Both come from
     the same paths, so ``full - indirect`` is each sample's emission + direct light, and
-    ``indirect <= full`` per sample."""
+    ``indirect <= full`` per sample. ``stage``/``lanes``: as :func:`walk`'s (its rays, counted)."""
     r = walk(scene, sampler, ray, active, max_depth, rr_depth, lights, power_heuristic, split=split,
-             directions=directions)
+             directions=directions, stage=stage, lanes=lanes)
     L_ind = r.L_ind if split else mi.Spectrum(0.0)
     return r.L, L_ind, r.n_rays, r.first_valid
 
 
 def trace_paths(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None,
-                power_heuristic: bool = True, indirect_only: bool = False, directions=None):
+                power_heuristic: bool = True, indirect_only: bool = False, directions=None, *, stage: str = "trace",
+                lanes: bool = False):
     """Camera-ray paths; return (radiance, rays traced per lane, first-hit validity).
 
     ``indirect_only`` keeps only the indirect part (:func:`trace_paths_split`): the "indirect" image
     the papers compare (same definition as the indirect reference: depth-D minus depth-2). Nothing is
-    clamped: every term dropped is a non-negative sample contribution."""
+    clamped: every term dropped is a non-negative sample contribution. ``stage``/``lanes``: as :func:`walk`'s."""
     L, L_ind, n_rays, first_valid = trace_paths_split(scene, sampler, ray, active, max_depth, rr_depth, lights,
-                                                      power_heuristic, split=indirect_only, directions=directions)
+                                                      power_heuristic, split=indirect_only, directions=directions,
+                                                      stage=stage, lanes=lanes)
     return (L_ind if indirect_only else L), n_rays, first_valid
 
 
 def render_paths(scene, camera, res, spp: int, seed: int, frame_index: int, max_depth: int,
-                 rr_depth: int, lights=None, power_heuristic=True, indirect_only=False, directions=None):
+                 rr_depth: int, lights=None, power_heuristic=True, indirect_only=False, directions=None, *,
+                 stage: str = "trace", lanes: bool = False):
     """Render ``spp`` paths per pixel; return (mean colour per pixel, total rays as a Dr.Jit UInt32 sum).
 
-    ``indirect_only``: the indirect part only (see :func:`trace_paths`)."""
-    L, L_ind, rays = render_paths_split(scene, camera, res, spp, seed, frame_index, max_depth, rr_depth, lights,
-                                        power_heuristic, split=indirect_only, directions=directions)
-    return (L_ind if indirect_only else L), rays
+    ``indirect_only``: the indirect part only (see :func:`trace_paths`). ``stage``/``lanes``: as
+    :func:`render_paths_split`'s."""
+    L, L_ind, n = render_paths_split(scene, camera, res, spp, seed, frame_index, max_depth, rr_depth, lights,
+                                     power_heuristic, split=indirect_only, directions=directions, stage=stage,
+                                     lanes=lanes)
+    return (L_ind if indirect_only else L), n
 
 
 def render_paths_split(scene, camera, res, spp: int, seed: int, frame_index: int, max_depth: int,
-                       rr_depth: int, lights=None, power_heuristic=True, split: bool = True, directions=None):
+                       rr_depth: int, lights=None, power_heuristic=True, split: bool = True, directions=None, *,
+                       stage: str = "trace", lanes: bool = False):
     """Render ``spp`` paths per pixel; return (mean colour, mean indirect colour, total rays as a UInt32 sum).
 
     ``seed``: a Python int mixed with ``frame_index`` (:func:`~dyngi.sampling.rng.make_sampler`), or a
     ``mi.UInt32`` seed already mixed (then ``frame_index`` is not read). The indirect image comes from the
-    same paths (:func:`trace_paths_split`); without ``split`` it is 0 and costs nothing. ``scene``: a dyngi Scene or a Mitsuba scene."""
+    same paths (:func:`trace_paths_split`); without ``split`` it is 0 and costs nothing. ``scene``: a dyngi Scene or a Mitsuba scene.
+    The rays are added to the open ray ledgers under ``stage`` (:mod:`dyngi.rays`) as the returned sum,
+    unless ``lanes`` (a frozen function's body: its caller adds the returned sum)."""
     w, h = res
     n = w * h * spp
     if isinstance(seed, mi.UInt32):     # an already mixed Dr.Jit seed (a frozen frame's input)
@@ -409,7 +432,7 @@ def render_paths_split(scene, camera, res, spp: int, seed: int, frame_index: int
     ray = camera.sample_rays(res, pix, sampler.next_2d())
     L, L_ind, n_rays, _ = trace_paths_split(scene.mi_scene if hasattr(scene, "mi_scene") else scene, sampler,
                                             ray, mi.Bool(True), max_depth, rr_depth, lights, power_heuristic, split,
-                                            directions)
+                                            directions, stage=stage, lanes=True)
     if split:
         dr.eval(L, L_ind, n_rays)  # one kernel for the whole path loop; outputs evaluated together
     else:
@@ -419,4 +442,7 @@ def render_paths_split(scene, camera, res, spp: int, seed: int, frame_index: int
         L = dr.block_reduce(dr.ReduceOp.Add, L, spp) * inv
         if split:
             L_ind = dr.block_reduce(dr.ReduceOp.Add, L_ind, spp) * inv
-    return L, L_ind, dr.sum(n_rays)
+    total = dr.sum(n_rays)
+    if not lanes:
+        rays.add(stage, total)
+    return L, L_ind, total

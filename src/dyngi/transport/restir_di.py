@@ -177,16 +177,18 @@ def _after_restir_nee(depth):
     return depth >= 1
 
 
-def continue_paths(scene, sampler, ray, si, active, max_depth: int, rr_depth: int, lights, directions=None):
+def continue_paths(scene, sampler, ray, si, active, max_depth: int, rr_depth: int, lights, directions=None, *,
+                   stage: str = "path"):
     """Path tracing from the primary vertex ``si`` on (BSDF + NEE with power-heuristic MIS, RR): the
     path walk (:func:`dyngi.transport.path_walk.walk`) from a given surface, with ReSTIR DI's share left
     out. Returns (light through a delta lobe of the primary vertex straight from an emitter [vertex 2],
     light from vertices >= 3 [the indirect part], rays traced per lane). The primary vertex's own
     emission and its direct light through smooth lobes are ReSTIR's (not counted here). ``directions``: a
-    direction strategy of the walk (:class:`dyngi.directions.walk.WalkDirections`), else the BSDF's."""
+    direction strategy of the walk (:class:`dyngi.directions.walk.WalkDirections`), else the BSDF's. Its rays
+    are counted under ``stage`` (:mod:`dyngi.rays`)."""
     r = walk(scene, sampler, ray, active, max_depth, rr_depth, lights, True, si=si,
              emission=_after_restir_emission, nee=_after_restir_nee, total=directions is not None, split=True,
-             near=True, directions=directions)      # a learning strategy reads the total (its record)
+             near=True, directions=directions, stage=stage)      # a learning strategy reads the total (its record)
     return r.L_near, r.L_ind, r.n_rays
 
 
@@ -370,7 +372,7 @@ class ReSTIRDI:
         (BSDF x Lg x W where visible, lanes that traced a shadow ray, lanes that found it occluded)."""
         si = gb.si
         ev = self.cand.evaluate(gb.pos, sample[0], sample[1], time, active)
-        vis = self.cand.visible(si, ev, ev.valid)
+        vis = self.cand.visible(si, ev, ev.valid, stage="shadow")
         f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ev.wi), vis)
         return dr.select(vis, f * ev.Lg * W, 0.0), ev.valid, ev.valid & ~vis
 
@@ -378,7 +380,7 @@ class ReSTIRDI:
         """Bitterli Alg. 5's visibility reuse: one shadow ray from the primary vertex to each ``active``
         lane's emitter sample ``sample`` = (k, payload); returns (visible, lanes that traced a ray)."""
         ev = self.cand.evaluate(gb.pos, sample[0], sample[1], time, active)
-        return self.cand.visible(gb.si, ev, ev.valid), ev.valid
+        return self.cand.visible(gb.si, ev, ev.valid, stage="candidates"), ev.valid
 
     @staticmethod
     def store_visibility(r: Reservoir, occluded) -> None:
