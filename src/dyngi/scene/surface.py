@@ -36,10 +36,11 @@ def shading_normal(si):
     return mi.Vector3f(dr.select(mi.Frame3f.cos_theta(si.wi) >= 0.0, si.sh_frame.n, -si.sh_frame.n))
 
 
-def diffuse_surface(mscene, ray, active, *, stage: str = "trace"):
+def diffuse_surface(mscene, ray, active, *, stage: str = "trace", lanes: bool = False):
     """(si, front mask, shading normal facing the ray, diffuse albedo) of the first hit (the ray counted under
-    ``stage``, :mod:`dyngi.rays`)."""
-    si = intersect(mscene, ray, mi.RayFlags.All, False, active, stage=stage)
+    ``stage``, :mod:`dyngi.rays`; ``lanes``: not counted here, the caller inside a symbolic loop counts it per
+    lane and adds the count after its loop)."""
+    si = intersect(mscene, ray, mi.RayFlags.All, False, active, stage=stage, lanes=lanes)
     hit = si.is_valid() & active
     bsdf = si.bsdf(ray)
     front, n = shading_side(si, ray, bsdf, hit)
