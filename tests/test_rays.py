@@ -24,18 +24,7 @@ OTHER_AREAS = ("lights/", "directions/", "transport/", "scene/", "techniques/nee
 """The areas converted later (issue 37 part A's layout work owns them while this lands); only their files may
 stand in :data:`NOT_YET`."""
 
-NOT_YET = {
-    "lights/candidates.py": "ReSTIR DI's candidate shadow rays (ray_test)",
-    "lights/emitter_sampling.py": "NEE: sample_emitter_direction with visibility on, and its ray_test",
-    "lights/nee.py": "LightNEE's shadow rays and BSDF-sampled light hits",
-    "lights/pvs.py": "the potentially-visible-set rays of the light samplers",
-    "lights/sll.py": "SLL's visibility rays",
-    "scene/passthrough.py": "rays through clear surfaces (intersect_through_glass)",
-    "scene/surface.py": "diffuse_surface: VPL candidates, photons, the clamped reference's primary hits",
-    "transport/gbuffer.py": "the G-buffer's camera rays",
-    "transport/path_walk.py": "the path walk's rays (counted per lane in its symbolic loop)",
-    "techniques/neept.py": "nee-pt's shadow rays",
-}
+NOT_YET: dict = {}
 """Files with a Mitsuba ray call not yet through :mod:`dyngi.rays` (path under ``src/dyngi`` -> what traces
 there). Exactly the files that still have such calls: an entry whose file is clean fails too (remove it)."""
 
