@@ -95,7 +95,11 @@ LEAF_BIT = 0x80000000
 MAX_DEPTH_LIMIT = 16          # 3 * 16 coordinate bits + depth fit the int64 keys below
 PAPER_SPLIT, PAPER_COLLAPSE = 4096, 2048          # Sec. 7, at 1080p
 PAPER_VERTICES = 2 * 1920 * 1080                   # samples placed per frame at 1080p (primary + secondary hit)
-MIN_SPLIT, MIN_COLLAPSE = 512, 256                 # issue 17 item 2: floor per leaf
+MIN_SPLIT, MIN_COLLAPSE = 512, 256                 # issue 17 item 2: floor per leaf (ours)
+"""Floors of the scaled thresholds (ours, not the paper's: the paper splits at 4096 and collapses at 2048 samples
+per leaf, Sec. 7). They enter the samplers through the ``leaf_samples`` parameter of nee-pt, path and restir-pt
+(``Param(ours=True, paper=4096)``: 0, the default, scales the paper's thresholds and floors them here;
+4096 sets the paper's)."""
 _ONE_MINUS = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 ADAPT_CHOICES = ("device", "host")
 NODE_BLOCKS = 511                                  # device pool: 1 + 8 * 511 node slots (our choice)
@@ -139,7 +143,8 @@ def make_octree(bounds, vertices_per_frame: int, leaf_samples: int = 0) -> "Adap
     """The one construction of the adaptive octree (the VLC's, the CDQ's, nee-pt's shared one): over
     ``bounds`` (:func:`octree_bounds`) with the thresholds of :func:`scaled_thresholds` for
     ``vertices_per_frame`` placed vertices (at least 1); ``leaf_samples > 0`` raises the split threshold to
-    that many samples per leaf and the collapse threshold to half of it (nee-pt's ablation knob)."""
+    that many samples per leaf and the collapse threshold to half of it (the ``leaf_samples`` parameter of
+    nee-pt, path and restir-pt; 4096: the paper's 4096 / 2048 at our resolutions)."""
     split, collapse = scaled_thresholds(max(int(vertices_per_frame), 1))
     if leaf_samples > 0:
         split, collapse = max(split, int(leaf_samples)), max(collapse, int(leaf_samples) // 2)

@@ -27,13 +27,17 @@ RECORD_VERTICES = 3
 class WalkDirections:
     """The walk's direction strategy for direction sampler ``kind`` (module docstring)."""
 
-    def __init__(self, scene, kind: str, bits: int = 128, stability: float = 0.1, memory: float = 0.0):
+    def __init__(self, scene, kind: str, bits: int = 128, stability: float = 0.1, memory: float = 0.0,
+                 leaf_samples: int = 0):
+        """``leaf_samples``: the octree's split threshold per leaf (collapse: half; 0: the paper's scaled and
+        floored, :func:`~dyngi.directions.octree.make_octree`)."""
         if kind not in names():
             raise DyngiError(f"unknown direction sampler '{kind}'; valid values: {', '.join(names())}")
         self.kind = kind
         self._ms = scene.mi_scene if hasattr(scene, "mi_scene") else scene
         self.bounds = octree_bounds(scene)
         self.cdq_opts = dict(bits=bits, stability=stability, memory=memory)
+        self.leaf_samples = int(leaf_samples)
         self.octree = self.cdq = None
         self.sampler = make(kind) if kind != "cdq" else None
         self._walks: list = []
@@ -42,7 +46,7 @@ class WalkDirections:
     def begin_frame(self, scene, frame, vertices_per_frame: int = 0) -> None:
         if self.kind == "cdq" and self.cdq is None:
             from .cdq import CDQDirections     # optional module (FUNCTION_IMPORTS_WHY)
-            self.octree = make_octree(self.bounds, vertices_per_frame)
+            self.octree = make_octree(self.bounds, vertices_per_frame, self.leaf_samples)
             self.cdq = CDQDirections(self.octree, **self.cdq_opts)
             self.sampler = make("cdq", guide=self.cdq)
         if self.cdq is not None:

@@ -71,8 +71,12 @@ class LightNEE:
 
     walk_aware = True     # the walk calls sample_walk / pdf_hit / begin_walk
 
-    def __init__(self, scene, kind: str, **opts):
+    def __init__(self, scene, kind: str, leaf_samples: int = 0, **opts):
+        """``leaf_samples``: the octree's split threshold per leaf of an octree-based sampler (collapse: half;
+        0: the paper's scaled and floored, :func:`~dyngi.directions.octree.make_octree`); ``opts``: the light
+        sampler's options."""
         ms = scene.mi_scene if hasattr(scene, "mi_scene") else scene
+        self.leaf_samples = int(leaf_samples)
         self.kind = kind
         self.entry = entry(kind)
         self.name = f"lights={kind}"
@@ -129,7 +133,7 @@ class LightNEE:
     def begin_frame(self, scene, frame, vertices_per_frame: int = 0) -> None:
         """Refresh the table of moving lights, build the octree (first frame), call the sampler's hook."""
         if self.entry.needs_octree and self.sampler is None:
-            self.octree = make_octree(self.bounds, vertices_per_frame)
+            self.octree = make_octree(self.bounds, vertices_per_frame, self.leaf_samples)
             self.sampler = make(self.kind, self.tris, mi_scene=self._ms, bounds=self.bounds, octree=self.octree,
                                 **{k: v for k, v in self._opts.items() if k != "octree"})
         if self._lights_move and frame.index > 0:

@@ -359,12 +359,16 @@ class NeePT(Technique):
         "cdq_memory": Param(0.0, "CDQ statistics memory per frame (0 = paper: last frame only)", min=0.0, max=0.99),
         "explorer": Param("global", "VLC exploration strategy: the paper's global alias table, or a light tree "
                           "(our extension)", choices=("global", "lighttree")),
-        "explore_weights": Param("0.6,0.2,0.2", "VLC exploration blend 'energy,change,camera-distance' (Sec. 4.3)"),
+        "explore_weights": Param("0.6,0.2,0.2", "VLC exploration blend 'energy,change,camera-distance' (Sec. 4.3; "
+                                 "ours: the paper blends the three heuristics with 'configurable weights' and gives "
+                                 "none)", ours=True),
         "memory": Param(1, "VLC: frames a visible light stays in its leaf's cache (1: the paper's last frame only)",
                         min=1, max=64),
         "record_hits": Param(False, "VLC: also learn the lights that indirect rays hit (our extension)"),
-        "leaf_samples": Param(0, "octree split threshold per leaf (collapse: half); 0 = the paper's 4096 scaled "
-                              "to the resolution, floored at 512", min=0, max=1 << 20),
+        "leaf_samples": Param(0, "octree split threshold per leaf (collapse: half); 0 = ours: the paper's 4096 / "
+                              "2048 at 1080p (Sec. 7) scaled to the placed vertices per frame and floored at 512 / "
+                              "256 (directions.octree.MIN_SPLIT / MIN_COLLAPSE: fewer samples make a meaningless "
+                              "VLC); 4096 = the paper's", min=0, max=1 << 20, ours=True, paper=4096),
         "progressive": Param(False, "accumulate over frames while the scene is static"),
     }
 

@@ -89,16 +89,19 @@ class PathTechnique(Technique):
         "directions": Param("bsdf", "indirect directions (dyngi.directions): the BSDF's own sampling, or 'cdq' "
                             "(CDQ/BSDF one-sample MIS mixture, learned per octree leaf)",
                             choices=direction_samplers.names()),
+        "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq (collapse: half); 0 = ours: the VLC paper's 4096 / 2048 at 1080p (Sec. 7) scaled to the placed vertices per frame and floored at 512 / 256 (directions.octree.MIN_SPLIT / MIN_COLLAPSE: fewer samples make a meaningless cache); 4096 = the paper's", min=0, max=1 << 20,
+                              ours=True, paper=4096),
         "freeze": Param(False, "replay static frames' trace with dr.freeze (lights=scene, directions=bsdf, no budget)"),
     }
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
         kind = self.params["lights"]
-        self.lights = EmitterSampling() if kind == "scene" else LightNEE(scene, kind)
+        leaf = self.params["leaf_samples"]
+        self.lights = EmitterSampling() if kind == "scene" else LightNEE(scene, kind, leaf_samples=leaf)
         # the BSDF's own sampling is the walk's default (None): bit-identical to before
-        self.directions = None if self.params["directions"] == "bsdf" else WalkDirections(scene,
-                                                                                          self.params["directions"])
+        self.directions = None if self.params["directions"] == "bsdf" else WalkDirections(
+            scene, self.params["directions"], leaf_samples=self.params["leaf_samples"])
         self.accum = ProgressiveMean()   # running mean, and its indirect part (with the 'indirect' parameter)
         self._rays_per_sample = None   # measured on the previous frame
         self._ms_per_sample = None

@@ -77,7 +77,7 @@ from ..backend import mi
 from ..directions.walk import WalkDirections
 from ..errors import DyngiError
 from ..transport.accumulate import ProgressiveMean
-from ..transport.restir_di import PARAM_SPECS, ReSTIRDI
+from ..transport.restir_di import MIN_RADIUS_PARAM, PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
 
 @register
@@ -90,6 +90,12 @@ class ReSTIRPTTechnique(Technique):
     HAS_INDIRECT = True
     PARAMS = {
         **{k: Param(**v) for k, v in PARAM_SPECS.items()},
+        "visibility_reuse": Param(**{**PARAM_SPECS["visibility_reuse"], "ours": True, "paper": "candidate",
+                                     "doc": PARAM_SPECS["visibility_reuse"]["doc"] + " (ours: Bitterli et al.'s "
+                                     "ReSTIR reuses the candidate's visibility, Alg. 5)"}),
+        "min_radius_px": Param(**MIN_RADIUS_PARAM),
+        "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq (collapse: half); 0 = ours: the VLC paper's 4096 / 2048 at 1080p (Sec. 7) scaled to the placed vertices per frame and floored at 512 / 256 (directions.octree.MIN_SPLIT / MIN_COLLAPSE: fewer samples make a meaningless cache); 4096 = the paper's", min=0, max=1 << 20,
+                              ours=True, paper=4096),
         "max_depth": Param(12, "maximum path depth (-1: unbounded; 1 emission, 2 direct light)", min=-1),
         "rr_depth": Param(5, "Russian roulette start depth", min=1),
         "progressive": Param(True, "accumulate over frames while the scene is static"),
@@ -103,11 +109,12 @@ class ReSTIRPTTechnique(Technique):
         if self.params["max_depth"] == 0:
             raise DyngiError("parameter 'max_depth' = 0 renders nothing; use -1 (unbounded) or >= 1")
         # the light sampler of the candidates and the rest of the path (the component's ``lights``)
-        self.restir = ReSTIRDI.from_params(scene, self.params)
+        self.restir = ReSTIRDI.from_params(scene, self.params, min_radius_px=self.params["min_radius_px"],
+                                           leaf_samples=self.params["leaf_samples"])
         self.lights = self.restir.lights
         # the BSDF's own sampling is the walk's default (None): bit-identical to before
-        self.directions = None if self.params["directions"] == "bsdf" else WalkDirections(scene,
-                                                                                          self.params["directions"])
+        self.directions = None if self.params["directions"] == "bsdf" else WalkDirections(
+            scene, self.params["directions"], leaf_samples=self.params["leaf_samples"])
         self.accum = ProgressiveMean()
 
     def step(self, frame: Frame) -> FrameResult:

@@ -60,13 +60,20 @@ REFERENCE_WIDTH = 1920
 """``radius`` is given in pixels of an image this wide (Bitterli et al. Sec. 6: 30 px at 1920x1080)."""
 MIN_RADIUS_PX = 2.0
 """Smallest spatial radius in pixels after the width scaling (our choice: below ~1.5 px most neighbours
-round to the pixel itself, which spatial reuse skips)."""
+round to the pixel itself, which spatial reuse skips). The default of the ``min_radius_px`` option of
+:class:`ReSTIRDI` and of restir-pt's parameter (:data:`MIN_RADIUS_PARAM`)."""
+MIN_RADIUS_PARAM = dict(default=MIN_RADIUS_PX, doc="smallest spatial reuse radius in pixels after the width "
+                        "scaling (ours: at our resolutions Bitterli's 30 px at 1920 px shrinks below ~1.5 px, where "
+                        "most neighbours round to the pixel itself, which spatial reuse skips; Bitterli et al. "
+                        "give no floor)", min=0.0, max=1e4, ours=True)
+"""restir-pt's ``min_radius_px`` parameter (``Param`` keyword arguments; issue 40: a choice of ours, no paper
+value)."""
 
 
-def radius_px(radius: float, width: int) -> float:
-    """The spatial radius in pixels at image ``width``: ``radius`` x ``width / 1920``, at least
-    :data:`MIN_RADIUS_PX` (our choice of scaling: the same fraction of the image at every resolution)."""
-    return max(float(radius) * width / REFERENCE_WIDTH, MIN_RADIUS_PX)
+def radius_px(radius: float, width: int, min_px: float = MIN_RADIUS_PX) -> float:
+    """The spatial radius in pixels at image ``width``: ``radius`` x ``width / 1920``, at least ``min_px``
+    (:data:`MIN_RADIUS_PX`; our choice of scaling: the same fraction of the image at every resolution)."""
+    return max(float(radius) * width / REFERENCE_WIDTH, float(min_px))
 
 
 PARAM_SPECS = {
@@ -217,7 +224,7 @@ class ReSTIRDI:
 
     def __init__(self, scene, candidates: int = 32, temporal: bool = True, m_cap: float = 20.0, spatial: int = 3,
                  radius: float = 30.0, combine: str = "mis", target_fn=target, cand=None, lights: str = "scene",
-                 visibility_reuse: str = "none"):
+                 visibility_reuse: str = "none", min_radius_px: float = MIN_RADIUS_PX, leaf_samples: int = 0):
         if visibility_reuse not in VISIBILITY_REUSE:
             raise unknown_choice("visibility_reuse", visibility_reuse, VISIBILITY_REUSE)
         self.visibility_reuse = visibility_reuse
@@ -226,7 +233,7 @@ class ReSTIRDI:
         if lights == "scene":
             self.lights = EmitterSampling()
         else:    # a light sampler (a learning one sees the candidates' and the path's samples)
-            self.lights = LightNEE(scene, lights)
+            self.lights = LightNEE(scene, lights, leaf_samples=leaf_samples)
             if cand is None:
                 cand = LightCandidates(self.lights, scene.mi_scene)
         self.target_fn = target_fn
@@ -235,6 +242,7 @@ class ReSTIRDI:
         self.m_cap = float(m_cap)
         self.spatial = int(spatial)
         self.radius = float(radius)
+        self.min_radius_px = float(min_radius_px)
         self.combine = combine
         # the candidates' source: Mitsuba's emitters (default) or a light sampler's (dyngi.lights.candidates)
         self.cand = cand if cand is not None else EmitterCandidates(scene.mi_scene)
@@ -364,7 +372,8 @@ class ReSTIRDI:
     def spatial_reuse(self, gb, r, active, sampler, eval_here, gather_domain, eval_there) -> Reservoir:
         """Spatial reuse (:func:`spatial_reuse`) with this component's count, radius (scaled with the image
         width, :func:`radius_px`) and combination."""
-        return spatial_reuse(gb, r, active, sampler, radius_px(self.radius, gb.res[0]), self.spatial, self.combine,
+        return spatial_reuse(gb, r, active, sampler, radius_px(self.radius, gb.res[0], self.min_radius_px),
+                             self.spatial, self.combine,
                              eval_here, gather_domain, eval_there)
 
     def shade(self, gb, bsdf, sample, W, active, time):
