@@ -283,7 +283,8 @@ class DeviceISDDGIPlanner:
         gp = rprobe * N_SETS + dset
         check = paired & dr.gather(mi.Bool, self.open_ref, gp)
         fkey = _op(mi.UInt32, mix_seed(seed, frame, 0x1DD61))
-        key = dr.select(check, dr.gather(mi.UInt32, self.ref_key, gp), fkey)
+        rep = check if self.host.repeat_checks else dr.full(mi.Bool, False, R)   # paired-visit repeats (ours)
+        key = dr.select(rep, dr.gather(mi.UInt32, self.ref_key, gp), fkey)
         hsh = _hash_u32_dr(rprobe * (N_SETS * RAYS_LIMIT) + dset * RAYS_LIMIT + ray_k + key)
         hsh = _hash_u32_dr(hsh ^ key)
         npair = dr.gather(mi.UInt32, capped, ray_pair)
@@ -326,7 +327,8 @@ class DeviceISDDGIPlanner:
         dset = K * c + ((_op(mi.UInt32, int(frame) & 0xFFFFFFFF) + sh + perm) & (K - 1))
         gp = rprobe * N_SETS + dset
         check = dr.gather(mi.Bool, self.open_ref, gp)
-        key = dr.select(check, dr.gather(mi.UInt32, self.ref_key, gp), _op(mi.UInt32, mix_seed(seed, frame, 0x1DD61)))
+        rep = check if self.host.repeat_checks else dr.full(mi.Bool, False, R)   # paired-visit repeats (ours)
+        key = dr.select(rep, dr.gather(mi.UInt32, self.ref_key, gp), _op(mi.UInt32, mix_seed(seed, frame, 0x1DD61)))
         hsh = _hash_u32_dr(_hash_u32_dr(rprobe * (N_SETS * RAYS_LIMIT) + dset * RAYS_LIMIT + key) ^ key)
         dr.eval(dset, gp, check, key, hsh)
         direction, weight, shade_key = rays_from_hash(hsh, dset, mi.UInt32(1), self._omega)

@@ -364,14 +364,16 @@ class LinearMeanHysteresis(HysteresisAccumulator):
 class SetBlend(HysteresisBlend):
     """The probe pipeline's blend for IS-DDGI: DDGI's hysteresis and encoding (as
     :class:`~dyngi.probes.blend.HysteresisBlend`) with the per-set estimator of the supplement's
-    Algorithm 3 (:func:`integrate_sets_dr`) in place of the texel-kernel one, and the running mean linear
-    (:class:`LinearMeanHysteresis`: no low bias from few rays per texel)."""
+    Algorithm 3 (:func:`integrate_sets_dr`) in place of the texel-kernel one, and with ``linear_mean`` (the
+    technique's parameter, ours) the running mean linear (:class:`LinearMeanHysteresis`: no low bias from few
+    rays per texel); without it DDGI's own hysteresis blend (gamma space), the supplement's."""
 
-    def __init__(self, *args, **kwargs):
+    def __init__(self, *args, linear_mean: bool = True, **kwargs):
         super().__init__(*args, **kwargs)
         a = self.accumulator
-        self.accumulator = LinearMeanHysteresis(a.hysteresis, a.irradiance_gamma, a.change_threshold,
-                                                a.brightness_threshold)
+        if linear_mean:     # ours (the technique's linear_mean); False: DDGI's gamma-space blend, as the supplement
+            self.accumulator = LinearMeanHysteresis(a.hysteresis, a.irradiance_gamma, a.change_threshold,
+                                                    a.brightness_threshold)
 
     def new_estimates(self, volume, results):
         """(irradiance, distance) :class:`~dyngi.probes.estimator.TexelEstimate` of a ragged IS-DDGI plan."""

@@ -254,6 +254,7 @@ class ISDDGIPlanner:
         self.omega = set_solid_angles()
         self.state = ISDDGIState.new(n_probes, self.x_init, self.hold_frames)
         self.force_uniform: int | None = None     # e.g. 256 during the warm-up: every set, no importance
+        self.repeat_checks = True      # paired-visit repeats (ours; the technique sets its paired_repeats)
 
     # -- planning -------------------------------------------------------------------
     def plan(self, frame: int, seed: int, probe_ids, previous=None, importance: np.ndarray | None = None,
@@ -378,7 +379,8 @@ class ISDDGIPlanner:
             gp, gj = pid[slot[pr]], dset[pr]
             c = self.state.open_ref[gp, gj]
             check[pr] = c
-            key[pr[c]] = self.state.ref_key[gp[c], gj[c]]
+            if self.repeat_checks:    # ours: the check repeats its reference; else a fresh, independent sample
+                key[pr[c]] = self.state.ref_key[gp[c], gj[c]]
         h = ray_hash(pid[slot], dset, k, key.astype(np.uint64))
         # rays per pair: the run length of its key
         if R:

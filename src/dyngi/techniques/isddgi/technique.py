@@ -110,29 +110,57 @@ class ISDDGITechnique(_ProbeTechniqueBase):
     PARAMS = {
         **COMMON_PARAMS,
         "x_init": _pow2("x_init", 32, "initial uniform rays per probe (power of two <= 256)"),
-        "x_min": _pow2("x_min", 8, "fewest uniform rays per probe"),
+        "x_min": Param(32, "fewest uniform rays per probe, i.e. a static probe's (the adaptive rule halves x_i "
+                       "down to it). 32 = x_init: a static probe keeps the supplement's 32 uniform rays (Fig. 1's "
+                       "example; the supplement gives no floor). Ours: 8, the former default (static probes at 8 "
+                       "rays, half of them paired-visit repeats)", choices=tuple(1 << k for k in range(9)),
+                       ours=True, paper=32),
         "x_max": _pow2("x_max", 32, "most uniform rays per probe"),
-        "hold_frames": Param(16, "frames a probe keeps its uniform ray count (ours)", min=1, max=255),
-        "importance_rays": Param(16.0, "importance rays per frame per active probe (ours)", min=0.0, max=1024.0),
+        "hold_frames": Param(16, "frames a probe keeps its uniform ray count (ours: the supplement keeps such a "
+                             "counter, gives no value)", min=1, max=255, ours=True),
+        "importance_rays": Param(16.0, "importance rays per frame per active probe (ours: the supplement gives no "
+                                 "count)", min=0.0, max=1024.0, ours=True),
+        "paired_repeats": Param(True, "a check visit of the change measure repeats its reference ray exactly "
+                                "(same jitter, NEE sample and hit lookup: a clean change signal, but every uniform "
+                                "sample then enters the estimate twice). Ours (default: the change measure needs it; "
+                                "with fresh samples NEE noise over many lights reads as change, measured: on "
+                                "corridor-rooms after its light switch 9 % of the importance rays in the switched "
+                                "room against > 70 %); false: every ray an independent sample, as the supplement "
+                                "integrates all of a frame's rays (its change measure is the main paper's, not "
+                                "available)", ours=True, paper=False),
+        "linear_mean": Param(True, "the hysteresis blend keeps a linear running mean (the perceptual gamma space "
+                             "only for the change threshold: no low bias from few rays per texel). Ours; false: "
+                             "DDGI's gamma-space blend, the supplement's (it says nothing else)", ours=True,
+                             paper=False),
         "variant": Param("multi-rays", "Table 1: 'multi-rays' (<= 4 rays per set) or 'one-ray'", choices=VARIANTS),
-        "eps": Param(0.1, "defensive uniform share of the allocation pdf (ours)", min=0.0, max=1.0),
-        "dynamic_threshold": Param(0.8, "change above which a ray counts as dynamic (ours)", min=0.0, max=0.99),
-        "decay": Param(0.9, "per-frame decay of the smoothed change (ours)", min=0.0, max=1.0),
-        "warmup": Param(8, "extra updates on frame 0 (one ray per set, no hysteresis)", min=0, max=256),
+        "eps": Param(0.1, "defensive uniform share of the allocation pdf (ours: no value in the supplement)",
+                     min=0.0, max=1.0, ours=True),
+        "dynamic_threshold": Param(0.8, "change above which a ray counts as dynamic (ours: the change measure is "
+                                   "ours)", min=0.0, max=0.99, ours=True),
+        "decay": Param(0.9, "per-frame decay of the smoothed change (ours)", min=0.0, max=1.0, ours=True),
+        "warmup": Param(8, "extra updates on frame 0 (one ray per set, no hysteresis; ours, as ddgi's: the "
+                        "supplement describes none; charged to frame 0)", min=0, max=256, ours=True),
         **params_from({k: DDGI_SPECS[k] for k in ("hysteresis", "distance_power", "irradiance_gamma",
                                                   "change_threshold")}),     # as ddgi's
         "hit_lookup": Param("stochastic", "how probe-ray hits read the previous probes", choices=HIT_LOOKUPS),
-        "relocate": Param(True, "move probes out of geometry (Majercik et al. 2021)"),
+        "relocate": Param(True, "move probes out of geometry (Majercik et al. 2021; ours: the supplement has "
+                          "Algorithm 2's states only, relocation is ddgi's, every reclassify_interval frames)",
+                          ours=True),
         "classify": Param(True, "probe states by Algorithm 2"),
         "irradiance_texels": Param(8, "irradiance texels per side incl. the border: 8 as ddgi (default; ours, see "
-                                   "the estimator), 18 one per direction set", choices=(8, 18)),
+                                   "the estimator), 18 one per direction set (Algorithm 3's irradiance_tex read "
+                                   "literally)", choices=(8, 18), ours=True, paper=18),
         "distance_texels": Param(16, "distance texels per side incl. the border: 16 as ddgi (default; ours, see "
-                                 "the estimator), 18 one per direction set", choices=(16, 18)),
+                                 "the estimator), 18 one per direction set (Algorithm 3's visibility_tex read "
+                                 "literally)", choices=(16, 18), ours=True, paper=18),
         "near_surface": Param(True, "Algorithm 2 and DDGI's near-surface test: a probe with no front-face hit in "
-                              "its cell neighbourhood for a rotation of its uniform rays is OFF (ours)"),
-        "backface_threshold": Param(BACKFACE_THRESHOLD, "back-face ratio at or above which a probe is OFF (ours)",
-                                    min=0.0, max=1.0),
-        "reclassify_interval": Param(8, "frames between updates of inactive probes (ours)", min=1),
+                              "its cell neighbourhood for a rotation of its uniform rays is OFF (ours; false: "
+                              "Algorithm 2 alone, the supplement's)", ours=True, paper=False),
+        "backface_threshold": Param(BACKFACE_THRESHOLD, "back-face ratio at or above which a probe is OFF (ours: "
+                                    "Algorithm 2's BACKFACE_THRESHOLD has no value in the supplement)",
+                                    min=0.0, max=1.0, ours=True),
+        "reclassify_interval": Param(8, "frames between updates of inactive probes (ours: the supplement does not "
+                                     "say when an OFF probe traces again)", min=1, ours=True),
         "impl": Param("device", "where the allocation, change measure and probe states run: 'device' (Dr.Jit "
                       "kernels, the default) or 'host' (NumPy, the former CPU path)", choices=IMPLS),
     }
@@ -147,8 +175,10 @@ class ISDDGITechnique(_ProbeTechniqueBase):
                            p["decay"], self.volume.max_distance)
         self._mean_x = float(p["x_init"])
         self.shader = KeyedHitShader(p["direct"], lights=self.light_nee, lookup=p["hit_lookup"])
+        (self.planner.host if p["impl"] == "device" else self.planner).repeat_checks = bool(p["paired_repeats"])
         self.blender = SetBlend(p["hysteresis"], p["distance_power"], p["irradiance_gamma"],
-                                p["change_threshold"], float("inf"), "fp32", "scatter")
+                                p["change_threshold"], float("inf"), "fp32", "scatter",
+                                linear_mean=p["linear_mean"])
         self.relocator = ProbeStates(relocate=True, classify=False) if p["relocate"] else None
         # plan, trace and merge through the pipeline; integration (Algorithm 3) and states (Algorithm 2)
         # are this technique's update step
