@@ -169,3 +169,17 @@ def test_a_scale_below_the_claims_need_is_undecided_whatever_the_intervals(fake)
     assert r.verdict.word == "undecided" and r.verdict.rows["default"].meets
     assert "frames 3 < 30" in r.verdict.conditions[0]
     assert C.run_claim(small.at_scale(frames=30), _measure(fake)).verdict.word == "reproduced"
+
+
+def test_settings_of_ours_shared_with_the_baseline_stay_equal_in_every_row(backend):
+    """adgi vs qddgi share the probe substrate's marked settings (hit lobes, the two-sided rule): no row
+    changes them for the technique alone, and the verdict names them."""
+    claim = C.Claim("k", "p", "q", "w", "adgi", "qddgi", "m", "equal-frames", C.Criterion("below", 1.0), (0, 1, 2),
+                    {}, {})
+    shared = C.shared_marks(claim)
+    assert {"hit_lobes", "two_sided"} <= set(shared), shared
+    rows = C.claim_rows(claim)
+    assert not any(f"{k}=" in r.spec for r in rows for k in shared), [r.spec for r in rows]
+    assert any(r.role == "paper-literal" for r in rows)            # adgi's own marks still make rows
+    v = C.decide(claim, {r.label: [0.5, 0.6, 0.55] for r in rows if r.role != "baseline"}, rows=rows)
+    assert v.word == "reproduced" and any("shared with the baseline" in c for c in v.conditions), v

@@ -217,6 +217,18 @@ def marked_params(spec_text: str) -> dict:
     return {k: p for k, p in cls.PARAMS.items() if p.ours}
 
 
+def shared_marks(claim: "Claim") -> list:
+    """Settings of ours that the technique and the baseline both have (the probe techniques' shared
+    substrate: hit lobes, the two-sided rule, relocation). They stay at the same value in every row on both
+    sides (a paper-literal row that changed them for the technique only would compare unlike baselines);
+    the verdict's conditions name them."""
+    bname = parse_spec(claim.baseline).name
+    if bname == parse_spec(claim.technique).name:      # a technique against its own other settings
+        return []
+    base = get_technique(bname).PARAMS
+    return [k for k, p in marked_params(claim.technique).items() if k in base and base[k].ours]
+
+
 def claim_rows(claim: Claim, quick: bool = False) -> list[Row]:
     """The rows of ``claim`` (module docstring): default, paper-literal (when it differs from the default),
     one ablation per marked setting whose paper value differs from the default row's, the baseline.
@@ -224,11 +236,12 @@ def claim_rows(claim: Claim, quick: bool = False) -> list[Row]:
     spec = parse_spec(claim.technique)
     cls = get_technique(spec.name)
     resolved = resolve_params(cls, spec.params)
+    shared = set(shared_marks(claim))
     rows = [Row("default", "default", claim.technique)]
     if not quick:
         lit = {}
         for k, p in cls.PARAMS.items():
-            if p.has_paper_value and p.parse(k, p.paper) != resolved[k]:
+            if k not in shared and p.has_paper_value and p.parse(k, p.paper) != resolved[k]:
                 lit[k] = p.parse(k, p.paper)
         if lit:
             rows.append(Row("paper-literal", "paper-literal", _spec_text(spec.name, {**spec.params, **lit}),
@@ -296,9 +309,12 @@ def decide(claim: Claim, ratios: dict, quick: bool = False, rows: list | None = 
         gaps.append("rows not run: " + ", ".join(missing))
     default = judged["default"]
     literal = judged.get("paper-literal", default)
-    no_value = [k for k, p in marked_params(claim.technique).items() if not p.has_paper_value]
+    shared = shared_marks(claim)
+    no_value = [k for k, p in marked_params(claim.technique).items() if not p.has_paper_value and k not in shared]
     if no_value:
         conds.append("settings of ours without a paper value (at our default in every row): " + ", ".join(no_value))
+    if shared:
+        conds.append("settings of ours shared with the baseline (the same in both, every row): " + ", ".join(shared))
     if "paper-literal" not in judged and not missing:
         conds.append("the default row is the paper-literal row (no marked setting with a paper value differs)")
     if gaps:

@@ -22,9 +22,10 @@ from .trace import (DEFAULT_DIRECT, DEFAULT_HIT_LOBES, DEFAULT_TWO_SIDED, DIRECT
 
 
 def spec(default, doc: str = "", choices: tuple | None = None, min: float | None = None,
-         max: float | None = None) -> dict:
-    """One parameter as data: the keyword arguments of the technique layer's ``Param``."""
-    return {"default": default, "doc": doc, "choices": choices, "min": min, "max": max}
+         max: float | None = None, **marks) -> dict:
+    """One parameter as data: the keyword arguments of the technique layer's ``Param`` (``marks``: its
+    ``ours=`` / ``paper=``, issue 40)."""
+    return {"default": default, "doc": doc, "choices": choices, "min": min, "max": max, **marks}
 
 
 def parse_probe_counts(text: str, scene) -> tuple:
@@ -60,13 +61,14 @@ COMMON_SPECS = {
                        "the distance moments, relocation and classification: 'enclosed' a back face iff the "
                        "probe is enclosed by something thinner than a cell along that line (a slab, a thick "
                        "wall), else a front face; 'front' always a front face; 'back' always a back face "
-                       "(dyngi.probes.trace, 'The two-sided rule')", choices=TWO_SIDED_RULES),
+                       "(dyngi.probes.trace, 'The two-sided rule'; ours: the papers treat every back face as a "
+                       "back face, i.e. 'back')", choices=TWO_SIDED_RULES, ours=True, paper="back"),
     "hit_lobes": spec(DEFAULT_HIT_LOBES, "which lobes a probe-ray hit reflects as diffuse light: 'layered' (ours) "
                       "the diffuse lobe plus a coated BSDF's (plastic, roughplastic, principled) rough glossy "
                       "reflection albedo, one BSDF sample per ray; 'diffuse' the diffuse lobe only (DDGI, "
                       "Majercik et al. 2019, Sec. 3.1). The DDGI+ volume's Eq. 5 hits (mode 'plus') "
                       "read the diffuse lobe and Eq. 6's glossy term instead (dyngi.probes.trace, 'the hit-lobe "
-                      "rule')", choices=HIT_LOBES),
+                      "rule')", choices=HIT_LOBES, ours=True, paper="diffuse"),
     "glossy": spec(False, "add the glossy probe lookup (DDGI Resampling Eq. 6: one glossy-lobe BSDF sample, "
                     "the probe irradiance along it / pi) at the primary hit; False: diffuse indirect only, "
                     "as DDGI (dyngi.probes.primary)"),
@@ -106,7 +108,8 @@ DDGI_SPECS = {
                         choices=HIT_LOOKUPS),
     "update_offscreen": spec(True, "update probes outside the (extended) camera frustum"),
     "relocate": spec(True, "move probes out of geometry (ours: never through a surface, and a probe inside "
-                     "geometry leaves through a face on the grid's side; dyngi.probes.states)"),
+                     "geometry leaves through a face on the grid's side; dyngi.probes.states; the rule is ours, "
+                     "relocation itself Majercik et al. 2021)", ours=True),
     "classify": spec(True, "deactivate probes inside geometry or far from any surface"),
     "reclassify_interval": spec(8, "frames between re-tests of inactive probes (0: never)", min=0),
 }
