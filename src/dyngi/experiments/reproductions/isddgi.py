@@ -59,8 +59,9 @@ QUOTE = ("IS-DDGI achieves \"similar visual quality to DDGI with a speedup of 1.
 SCALE_PAPER = {"rays per probe (ddgi)": "256", "resolution": "not in the supplement", "frames": "not in the supplement",
                "probes": "not in the supplement", "GPU": "not in the supplement (RTX class)"}
 NEEDS = {"frames": 30}
-"""The least run that can decide an IS-DDGI claim: 30 frames hold a full rotation of the uniform rays at
-``x_min = 8`` (256 / 8 = 32 frames, less the warm-up's) and every relocation / re-test frame (each 8th)."""
+"""The least run that can decide an IS-DDGI claim: 30 frames hold the adaptive uniform ray count's hold
+(``hold_frames`` 16) and whole rotations of the uniform rays after it (256 / ``x_min`` = 8 frames at the
+default 32), and several relocation / re-test frames (each 8th)."""
 
 
 def _scale_ours(scene_name: str, cfg: dict, frames: int) -> dict:
