@@ -283,8 +283,22 @@ def cmd_reproduce(args) -> int:
     else:
         out, bad = _cluster_run(args, lambda: run_experiment(args.name, out, quick=args.quick, quiet=args.quiet,
                                                              smoke=args.smoke))
+    _print_verdicts(out)
     print(f"wrote reproduction '{args.name}' to {out} (open {os.path.join(out, 'report.html')})")
     return max(_report_failures(out), bad)
+
+
+def _print_verdicts(out: str) -> None:
+    """One line per claim of ``out/summary.json``: its key, where in the paper, the computed verdict word and
+    its conditions (dyngi.experiments.claims; nothing prints a verdict that was not computed)."""
+    try:
+        with open(os.path.join(out, "summary.json")) as f:
+            claims = json.load(f).get("claims", [])
+    except (OSError, ValueError):
+        return
+    for c in claims:
+        why = f" ({'; '.join(c['conditions'])})" if c.get("conditions") else ""
+        print(f"  {c['claim']} ({c['where']}): {c['verdict']}{why}")
 
 
 def _smcir_parts(args, out) -> int:

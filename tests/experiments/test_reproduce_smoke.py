@@ -3,6 +3,7 @@ exits 0 and writes the top-level ``report.html`` its last line names, which open
 (a non-blank screenshot, its figures loaded). The smoke size (``reproduce.SMOKE``) takes the ``--quick``
 code path at a tiny configuration (~10-45 s each on the shared 2-core box, references included)."""
 import io
+import json
 import os
 import subprocess
 import sys
@@ -61,6 +62,10 @@ def test_reproduction_smoke_run_and_report(name, tmp_path, cache):
     report = out / "report.html"
     assert f"(open {report})" in r.stdout.strip().splitlines()[-1]
     assert report.exists() and (out / "summary.json").exists()
+    claims = json.load(open(out / "summary.json")).get("claims", [])
+    if name != "ddgi":       # every paper reproduction decides its claims; a smoke run never decides
+        assert claims and all(c["verdict"] == "undecided (quick)" for c in claims), claims
+        assert all(f"{c['claim']} ({c['where']}): undecided (quick)" in r.stdout for c in claims), r.stdout[-2000:]
     if find_chromium() is None:
         if os.environ.get("CI"):
             pytest.fail("CI must run the browser tests: Debian's chromium is not installed")
