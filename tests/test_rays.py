@@ -5,8 +5,12 @@
   (or ``sample_emitter_direction`` with visibility on, whose shadow rays no wrapper sees) outside ``rays.py``;
 * the ledger counts exactly the active lanes, nothing while none is open, and refuses an uncounted ray in a
   symbolic loop;
-* each technique's counted rays are positive on every frame and at least what it reports about itself
-  (:data:`PENDING`: the techniques whose rays still pass outside the wrappers, :data:`NOT_YET`)."""
+* each technique's counted rays are positive on every frame, agree stage by stage with what it reports about
+  itself, and cover its report (less the stages it over-reports, :data:`OVER_REPORTED`).
+
+Counted but not reported (issue 40's defect, a report that spends less than it traces; the coverage check
+allows them): the probe relocation's safe-move rays (stage ``relocation``, every probe technique), SMC-IR's
+warm-up iterations before frame 0, MIR's re-intersection of each path's first ray (y's emission subtracted)."""
 from __future__ import annotations
 
 import ast
@@ -244,44 +248,42 @@ SPECS = {
 }
 RES, FRAMES = (16, 12), 3
 
-_NEE = "NEE shadow rays (lights/emitter_sampling.py, lights/nee.py)"
-_PROBE = f"the probes' and the primary pass's {_NEE} ('shade probes', part of 'primary')"
-_VPL = (f"the direct light's {_NEE} (part of 'shading'), camera and surface hits through scene/surface.py "
-        "(diffuse_surface)")
-PENDING = {
-    "ddgi": _PROBE,
-    "qddgi": _PROBE,
-    "isddgi": _PROBE,
-    "adgi": _PROBE,
-    "probes-reference": _PROBE,
-    "ddgi-resampling": ("the G-buffer (transport/gbuffer.py), ReSTIR DI's candidates and shadow rays "
-                        "(transport/restir_di.py, lights/candidates.py), the glossy walk (transport/path_walk.py), "
-                        f"the probes' {_NEE}"),
-    "mir": f"the path walk (transport/path_walk.py); {_VPL}",
-    "smcir": f"the radiosity walk (transport/path_walk.py); {_VPL}",
-    "smcir-host": f"the radiosity walk (transport/path_walk.py); {_VPL}",
-    "tcas": f"the Metropolis chains' and view samples' hits (scene/surface.py); {_VPL}",
-    "ir": f"the photons' hits (scene/surface.py); {_VPL}",
+OVER_REPORTED = {
+    "smcir": (("visibility",), "Algorithm 1's validation reports a ray for every used VPL and every validation pair, "
+                               "while only the lanes in the camera frustum and facing each other trace one"),
+    "smcir-host": (("visibility",), "as smcir (the host form reports the pairs it was given)"),
+    "ir": (("photons",), "a photon per lane and bounce, while a photon whose emission sample has no weight "
+                         "traces no ray"),
 }
-"""Techniques whose self-reported rays still exceed the counted ones because some of their rays pass outside
-:mod:`dyngi.rays` (:data:`NOT_YET`): their counted >= reported check is a strict xfail, so converting those
-areas makes it pass and asks for the entry's removal."""
-
+"""Stages a technique reports more rays for than it traces (technique -> (its stage names, why)): the counted
+rays must cover the rest of its report."""
 
 def not_traced(name: str, stats: dict) -> int:
-    """Rays ``name`` reports that it does not trace (none known yet; SMC-IR's ``visibility`` stage reports
-    a ray for every used VPL and candidate pair while only the pairs in the frustum and facing each other
-    trace one: it is over-reported, which this check allows anyway)."""
-    return 0
+    """Rays ``name`` reports but does not trace, bounded by the stages of :data:`OVER_REPORTED`."""
+    stages = OVER_REPORTED.get(name, ((), ""))[0]
+    return sum(int(stats["rays"].get(k, 0)) for k in stages)
 
 
+_PROBES = [(("trace probes",), ("trace probes",)), (("distances",), ("states",)),
+           (("shade probes",), ("shade probes",)), (("primary",), ("primary",))]
+_VPL_SHADING = (("shading", "primary"), ("shading",))     # the VPL techniques report the primary pass in 'shading'
 STAGE_EQUAL = {
-    # converted stages that must count what the technique reports, frame >= 1 ((ledger stages, own stages))
-    "ddgi": [(("trace probes",), ("trace probes",)), (("distances",), ("states",))],
-    "qddgi": [(("trace probes",), ("trace probes",)), (("distances",), ("states",))],
-    "isddgi": [(("trace probes",), ("trace probes",))],
-    "probes-reference": [(("trace probes",), ("trace probes",)), (("distances",), ("states",))],
-    "ddgi-resampling": [(("bsdf sample",), ("bsdf sample",))],
+    # (counted stages, the technique's own stages) that must agree on every frame after the first (frame 0's
+    # warm-up is reported under its own name)
+    "ddgi": _PROBES,
+    "qddgi": _PROBES,
+    "isddgi": [(("trace probes",), ("trace probes",)), (("shade probes",), ("shade probes",)),
+               (("primary",), ("primary",))],
+    "adgi": [(("trace probes", "shade probes", "distances"), ("P", "S", "D")), (("primary",), ("primary",))],
+    "probes-reference": _PROBES,
+    "ddgi-resampling": [(("trace probes",), ("trace probes",)), (("distances",), ("states",)),
+                        (("gbuffer",), ("gbuffer",)), (("bsdf sample",), ("bsdf sample",)),
+                        (("candidates",), ("candidates",)), (("shadow",), ("shadow",))],
+    "mir": [_VPL_SHADING],
+    "smcir": [(("candidates",), ("candidates",)), (("radiosity",), ("radiosity",)), _VPL_SHADING],
+    "smcir-host": [(("candidates",), ("candidates",)), (("radiosity",), ("radiosity",)), _VPL_SHADING],
+    "tcas": [(("view_samples",), ("view_samples",)), (("metropolis",), ("metropolis",)), _VPL_SHADING],
+    "ir": [_VPL_SHADING],
 }
 
 
@@ -322,7 +324,6 @@ def test_every_frame_counts_rays(runs, name):
     for i, (s, st) in enumerate(zip(stats, stages)):
         assert s["counted_rays"] > 0, (name, i, s)
         assert s["counted_rays"] == sum(st.values()), (name, i)
-        assert st.get("primary", RES[0] * RES[1]) == RES[0] * RES[1], (name, i, st)    # one camera ray a pixel
 
 
 @pytest.mark.parametrize("name", list(STAGE_EQUAL))
@@ -335,8 +336,7 @@ def test_converted_stages_count_what_the_technique_reports(runs, name):
             assert got == want, (name, i, ours, got, theirs, want)
 
 
-@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=PENDING[n], strict=True))
-                                  if n in PENDING else n for n in SPECS])
+@pytest.mark.parametrize("name", list(SPECS))
 def test_counted_rays_cover_the_reported_ones(runs, name):
     stats, _ = runs(name)
     for i, s in enumerate(stats):

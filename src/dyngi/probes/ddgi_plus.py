@@ -207,7 +207,7 @@ class PlusHitShader:
         # -- NEE for delta lights and the sun (full BSDF: diffuse and glossy lobes) --
         shadow = mi.Bool(False)
         if rt.nee.count:
-            ds, w, shadow = sample_traced(rt.nee, scene, si, sampler.next_2d(), front)
+            ds, w, shadow = sample_traced(rt.nee, scene, si, sampler.next_2d(), front, stage="shade probes")
             f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ds.d), front & shadow)
             L += dr.select(front & shadow, mi.Color3f(f) * w, 0.0)
         # -- L_DDGI+ from the previous probes: diffuse + glossy (Eq. 6) --

@@ -91,7 +91,7 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     glass = scene_has_glass(mscene)
     passes = mi.UInt32(0)
     if glass:
-        si, throughput, _, passes = intersect_through_glass(mscene, ray, mi.Bool(True))
+        si, throughput, _, passes = intersect_through_glass(mscene, ray, mi.Bool(True), stage="primary")
     else:
         si = intersect(mscene, ray, mi.RayFlags.All, True, stage="primary")
     hit = si.is_valid()
@@ -107,7 +107,7 @@ def shade_primary(scene, camera, res, volume_query, seed: int, frame: int, direc
     k = max(int(direct_samples), 1)
     shadow_rays = mi.UInt32(0)
     for _ in range(k):
-        ds, wl, traced = sample_traced(lights, mscene, si, sampler.next_2d(), front)
+        ds, wl, traced = sample_traced(lights, mscene, si, sampler.next_2d(), front, stage="primary")
         shadow_rays += mi.UInt32(traced)
         if custom:
             wl = routing.nee_weight(ds, wl, front)

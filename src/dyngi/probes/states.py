@@ -267,7 +267,7 @@ def safe_moves(mscene, p0: np.ndarray, p1: np.ndarray, cross: np.ndarray, cleara
 
     def first_hit(r, active):
         if glass:
-            si, _, t, _ = intersect_through_glass(mscene, r, active)
+            si, _, t, _ = intersect_through_glass(mscene, r, active, stage="relocation")
             return si, dr.select(active & si.is_valid(), t, dr.inf)
         si = intersect(mscene, r, mi.RayFlags.Minimal, False, active, stage="relocation")
         return si, dr.select(active & si.is_valid(), si.t, dr.inf)

@@ -356,7 +356,7 @@ class DiffuseHitShader:
         lights = self.lights if self.lights is not None else routing.nee
         if getattr(lights, "walk_aware", False):     # a dyngi.lights sampler: its selection number from `sampler`
             lights = TracedNEE(lights, sampler, record=True)
-        ds, w, shadow = sample_traced(lights, scene, si, sampler.next_2d(), front, receiver=n)
+        ds, w, shadow = sample_traced(lights, scene, si, sampler.next_2d(), front, receiver=n, stage="shade probes")
         cos = dr.maximum(dr.dot(n, ds.d), 0.0)
         if self.lights is not None:   # a general strategy may pick light the probes carry
             w = routing.nee_weight(ds, w, front)
@@ -422,7 +422,7 @@ def trace_probe_rays(scene, volume, plan: RayPlan, shader: DiffuseHitShader, que
         ray = mi.Ray3f(origin, plan.direction)
         glass = scene_has_glass(mscene)
         if glass:   # clear surfaces pass the ray (attenuated); one kernel with the shading
-            si, throughput, t_hit, _ = intersect_through_glass(mscene, ray, active)
+            si, throughput, t_hit, _ = intersect_through_glass(mscene, ray, active, stage="trace probes")
         elif masked:
             pi = intersect_preliminary(mscene, ray, False, active, stage="trace probes")
             dr.eval(pi)
@@ -464,7 +464,7 @@ def trace_probe_distances(scene, volume, plan: RayPlan, stage: str = "distances"
     glass = scene_has_glass(mscene)
     masked = plan.valid is not None
     if glass:     # clear surfaces are no geometry for classification either
-        si, _, t_hit, _ = intersect_through_glass(mscene, ray, plan.valid if masked else mi.Bool(True))
+        si, _, t_hit, _ = intersect_through_glass(mscene, ray, plan.valid if masked else mi.Bool(True), stage=stage)
     elif masked:  # a masked plan: only its valid lanes trace
         si = intersect(mscene, ray, mi.RayFlags.Minimal, False, plan.valid, stage=stage)
         t_hit = si.t
@@ -511,7 +511,7 @@ def probe_hit_front(mscene, volume, ray, si, t_hit, hit, glass: bool = False):
     near = back2 & (t_hit < chord)
     opp = mi.Ray3f(ray.o, -ray.d)
     if glass:    # clear surfaces are no enclosure either
-        si2, _, t2, _ = intersect_through_glass(mscene, opp, near)
+        si2, _, t2, _ = intersect_through_glass(mscene, opp, near, stage="two-sided")
     else:
         opp.maxt = dr.select(near, chord - t_hit, 0.0)
         si2 = intersect(mscene, opp, mi.RayFlags.Minimal, False, near, stage="two-sided")

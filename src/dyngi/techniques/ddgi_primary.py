@@ -117,7 +117,7 @@ def glossy_recursion(scene, volume, lights, si, ray, front, sampler, depth_max: 
         return L, (v.depth >= depth_u) | ~fr, v.state
 
     r = walk(scene, sampler, ray, mi.Bool(front), depth_max + 2, -1, lights, si=si, emission=emission, nee=nee,
-             shade=shade, directions=LobeDirections(GLOSSY_LOBES), mis=False)
+             shade=shade, directions=LobeDirections(GLOSSY_LOBES), mis=False, stage="glossy")
     return mi.Color3f(r.L), r.n_rays
 
 

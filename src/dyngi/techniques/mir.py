@@ -57,7 +57,7 @@ def path_radiance_device(mscene, pos, nrm, sampler, active, max_depth: int, ligh
     eps = dr.opaque(mi.Float, RAY_OFFSET) * (1.0 + dr.max(dr.abs(pos)))
     ray = mi.Ray3f(pos + nrm * eps, -nrm)
     L, _, n_rays, _ = trace_paths_split(mscene, sampler, ray, active, int(max_depth), int(max_depth) + 1, lights,
-                                        True, split=False)
+                                        True, split=False, stage="paths")
     si = intersect(mscene, ray, mi.RayFlags.All, False, active, stage="paths")
     L = L - mi.Color3f(si.emitter(mscene).eval(si, active))
     L = dr.select(active & dr.isfinite(dr.max(L)), dr.maximum(L, 0.0), 0.0)
@@ -82,7 +82,8 @@ class MetropolisIR(VPLTechnique):
             return z, z, z, {"vpls_used": 0, "vpl_budget": I}
         n = int(p["resampling_rate"]) * I
         with t.stage("paths"):
-            cand = raw_candidates_device(self.scene, frame.camera, frame.res, n, frame.seed, frame.index, 0x31A)
+            cand = raw_candidates_device(self.scene, frame.camera, frame.res, n, frame.seed, frame.index, 0x31A,
+                                         stage="paths")
             ok = cand["ok"]
             sampler = make_sampler(n, frame.seed, frame.index, 0x31C)
             L, n_rays = path_radiance_device(self.scene.mi_scene, cand["pos"], cand["nrm"], sampler, ok,

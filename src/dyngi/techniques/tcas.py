@@ -34,6 +34,7 @@ import numpy as np
 from ..backend import dr, mi
 from ..color import luminance
 from ..sampling.rng import make_sampler, mix_seed
+from ..rays import add as add_rays
 from ..vpl.points import photon_first_hits_device, raw_candidates_device
 from .base import Frame, Param, StageTimer, register
 from .vpl_base import COMMON_PARAMS, EMISSION_LIGHTS, VPLTechnique
@@ -97,8 +98,10 @@ class TCAS(VPLTechnique):
     @dr.syntax
     def _chains(self, u, f, hits, rng, view, iterations):
         """``iterations`` MH steps of every chain in one symbolic loop (one kernel per frame); returns the
-        new states, targets, hits and the sums over independent proposals that estimate ``b``."""
+        new states, targets, hits, the sums over independent proposals that estimate ``b`` and the photon rays
+        traced per chain (:mod:`dyngi.rays`: counted per lane in the loop, added by the caller)."""
         b_sum = dr.zeros(mi.Float, dr.width(f))
+        n_rays = dr.zeros(mi.UInt32, dr.width(f))
         b_n = dr.zeros(mi.Float, dr.width(f))
         sigma = dr.opaque(mi.Float, PERTURB_SIGMA)
         it = mi.UInt32(0)
@@ -112,7 +115,8 @@ class TCAS(VPLTechnique):
             for i in range(5):       # static: the five primary-sample dimensions
                 small = u[i] + sigma * gauss[i]
                 prop.append(dr.select(indep, rng.next_float32(), small - dr.floor(small)))
-            h2 = photon_first_hits_device(self.scene, prop, self.lights)
+            h2 = photon_first_hits_device(self.scene, prop, self.lights, stage="metropolis", lanes=True)
+            n_rays += mi.UInt32(h2.pop("traced"))
             f2 = self._target(h2, view)
             b_sum += dr.select(indep, f2, 0.0)
             b_n += dr.select(indep, 1.0, 0.0)
@@ -122,7 +126,7 @@ class TCAS(VPLTechnique):
             f = dr.select(take, f2, f)
             hits = _pick(take, h2, hits)
             it += 1
-        return u, f, hits, dr.sum(b_sum), dr.sum(b_n)
+        return u, f, hits, dr.sum(b_sum), dr.sum(b_n), n_rays
 
     def update_vpls(self, frame: Frame, t: StageTimer):
         I, p = self.budget, self.params
@@ -131,7 +135,8 @@ class TCAS(VPLTechnique):
             return z, z, z, {"vpls_used": 0, "vpl_budget": I}
         with t.stage("view_samples"):
             nv = int(p["view_samples"])
-            c = raw_candidates_device(self.scene, frame.camera, frame.res, nv, frame.seed, 0, _S_VIEW)
+            c = raw_candidates_device(self.scene, frame.camera, frame.res, nv, frame.seed, 0, _S_VIEW,
+                                      stage="view_samples")
             view = {"x": mi.Point3f(c["mailbox"]), "n": mi.Vector3f(c["mailbox_n"]), "ok": c["okx"], "count": nv}
             dr.eval(view["x"], view["n"], view["ok"])
         t.add_rays("view_samples", nv + dr.count(c["okx"]))
@@ -140,14 +145,15 @@ class TCAS(VPLTechnique):
                 s0 = make_sampler(I, frame.seed, 0, _S_INIT)
                 self.u = [s0.next_1d() for _ in range(5)]
                 dr.eval(self.u)
-            hits = photon_first_hits_device(self.scene, self.u, self.lights)
+            hits = photon_first_hits_device(self.scene, self.u, self.lights, stage="metropolis")
             f = self._target(hits, view)
             dr.eval(hits, f)
             rng = mi.PCG32(size=I, initstate=mi.UInt64(dr.opaque(mi.UInt32, mix_seed(frame.seed, frame.index,
                                                                                      _S_ITER))))
-            self.u, f, hits, b_sum, b_n = self._chains(self.u, f, hits, rng, view,
-                                                       dr.opaque(mi.UInt32, int(p["iterations"])))
-            dr.eval(self.u, f, hits, b_sum, b_n)
+            self.u, f, hits, b_sum, b_n, n_rays = self._chains(self.u, f, hits, rng, view,
+                                                               dr.opaque(mi.UInt32, int(p["iterations"])))
+            dr.eval(self.u, f, hits, b_sum, b_n, n_rays)     # n_rays too: its sum would re-run the chains
+        add_rays("metropolis", dr.sum(n_rays))     # the chains' photon rays (counted per lane in the loop)
         t.add_rays("metropolis", I * (int(p["iterations"]) + 1))
         with t.stage("weights"):
             b = b_sum / dr.maximum(b_n, 1.0)

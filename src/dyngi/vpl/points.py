@@ -89,20 +89,22 @@ def _mscene(scene):
     return scene.mi_scene if hasattr(scene, "mi_scene") else scene
 
 
-def raw_candidates_device(scene, camera, res, n: int, seed: int, frame: int, stream: int = 0x51C):
+def raw_candidates_device(scene, camera, res, n: int, seed: int, frame: int, stream: int = 0x51C, *,
+                          stage: str = "candidates"):
     """:func:`raw_candidates` on the device, every lane kept (no compaction, no host round trip): a dict
     of Dr.Jit arrays over the ``n`` camera rays -- ``pos``, ``nrm``, ``albedo`` (at y), ``mailbox``,
-    ``mailbox_n``, ``mailbox_albedo`` (at x), ``ok`` (a valid candidate y) and ``okx`` (a valid x)."""
+    ``mailbox_n``, ``mailbox_albedo`` (at x), ``ok`` (a valid candidate y) and ``okx`` (a valid x). Its rays
+    are counted under ``stage`` (:mod:`dyngi.rays`)."""
     mscene = _mscene(scene)
     w, h = res
     sampler = make_sampler(n, seed, frame, stream)
     pix = mi.UInt32(dr.minimum(sampler.next_1d() * (w * h), w * h - 1))
     ray = camera.sample_rays(res, pix, sampler.next_2d())
-    si, okx, nx, alb_x = diffuse_surface(mscene, ray, mi.Bool(True))
+    si, okx, nx, alb_x = diffuse_surface(mscene, ray, mi.Bool(True), stage=stage)
     frame_x = mi.Frame3f(nx)
     d = frame_x.to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
     ray2 = si.spawn_ray(d)
-    si2, oky, ny, alb = diffuse_surface(mscene, ray2, okx)
+    si2, oky, ny, alb = diffuse_surface(mscene, ray2, okx, stage=stage)
     oky &= okx
     return {"pos": si2.p, "nrm": ny, "albedo": alb, "mailbox": si.p, "mailbox_n": nx, "mailbox_albedo": alb_x,
             "ok": oky, "okx": okx}
@@ -203,7 +205,7 @@ def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 
     cols = {k: [] for k in ("pos", "nrm", "albedo", "radiosity", "used")}
     rays = 0
     for _ in range(int(bounces)):    # a few static bounces, each one kernel over all photons
-        si, ok, n, alb = diffuse_surface(mscene, ray, alive)
+        si, ok, n, alb = diffuse_surface(mscene, ray, alive, stage="photons")
         ok &= alive
         L = dr.select(ok, beta * alb * dr.inv_pi, 0.0)
         dr.eval(si.p, n, alb, L, ok)
@@ -221,22 +223,27 @@ def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 
     return out, rays
 
 
-def photon_first_hits_device(scene, U, lights=None):
+def photon_first_hits_device(scene, U, lights=None, *, stage: str = "photons", lanes: bool = False):
     """Photons from primary samples ``U`` (five Dr.Jit Floats: emitter choice, 2D position, 2D direction;
     the light chosen by ``lights``, :func:`dyngi.vpl.emission.sample_photon_ray`) to their first hit, on
     the device: dict of ``pos``, ``nrm``, ``albedo``, ``radiosity`` (= w rho / pi,
     as :func:`trace_photons`'s first bounce; 0 where invalid) and ``ok`` (a front-facing diffuse hit
-    with a finite, positive radiosity)."""
+    with a finite, positive radiosity). Its rays are counted under ``stage`` (:mod:`dyngi.rays`); with
+    ``lanes`` (a caller inside a symbolic loop) they are not, and the dict also holds ``traced``: the lanes
+    that traced a ray, for the caller's per-lane counter."""
     mscene = _mscene(scene)
     ray, beta = sample_photon_ray(mscene, lights, U[0], mi.Point2f(U[1], U[2]), mi.Point2f(U[3], U[4]))
     alive = dr.isfinite(dr.max(beta)) & (dr.max(beta) > 0.0)
-    si, ok, n, alb = diffuse_surface(mscene, ray, alive)
+    si, ok, n, alb = diffuse_surface(mscene, ray, alive, stage=stage, lanes=lanes)
     ok &= alive
     L = dr.select(ok, beta * alb * dr.inv_pi, 0.0)
     L = dr.select(dr.isfinite(dr.max(L)), L, 0.0)
     ok &= dr.max(L) > 0.0
-    return {"pos": mi.Point3f(si.p), "nrm": mi.Vector3f(n), "albedo": mi.Color3f(alb), "radiosity": mi.Color3f(L),
-            "ok": ok}
+    out = {"pos": mi.Point3f(si.p), "nrm": mi.Vector3f(n), "albedo": mi.Color3f(alb), "radiosity": mi.Color3f(L),
+           "ok": ok}
+    if lanes:
+        out["traced"] = alive
+    return out
 
 
 def photon_first_hits(scene, u: np.ndarray, lights=None):

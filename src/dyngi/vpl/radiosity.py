@@ -116,7 +116,7 @@ def estimate_radiosity_device(mscene, pos, nrm, seeds, spp: int, max_depth: int,
     rng = mi.PCG32()       # the sized constructor adds the lane index to initseq: seed explicitly
     rng.seed(dr.gather(mi.UInt64, mi.UInt64(seeds), v), mi.UInt64(idx % spp))
     L, _, n_rays, _ = trace_paths_split(mscene, PCGSampler(rng), ray, act, int(max_depth), int(max_depth) + 1,
-                                        lights, True, split=False)
+                                        lights, True, split=False, stage="radiosity")
     si = intersect(mscene, ray, mi.RayFlags.All, False, act, stage="radiosity")
     L = L - mi.Color3f(si.emitter(mscene).eval(si, act))
     dr.eval(L, n_rays)     # the walk once: each reduction below would otherwise evaluate (re-trace) it anew

@@ -72,7 +72,7 @@ def clamped_indirect(scene, t: float, res, spp: int, max_depth: int = 5, gmax: f
         else:
             pix = mi.UInt32(aligned(np.repeat(flat, k), np.uint32))
         ray = scene.camera(t).sample_rays(res, pix, sampler.next_2d())
-        si, okx, nx, alb = diffuse_surface(mscene, ray, mi.Bool(True))
+        si, okx, nx, alb = diffuse_surface(mscene, ray, mi.Bool(True), stage="reference")
         d = mi.Frame3f(nx).to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d()))
         ray2 = si.spawn_ray(d)
         si2 = intersect(mscene, ray2, mi.RayFlags.All, False, okx, stage="reference")
@@ -81,7 +81,7 @@ def clamped_indirect(scene, t: float, res, spp: int, max_depth: int = 5, gmax: f
         G = dr.dot(nx, d) * dr.abs(dr.dot(si2.n, d)) / dr.maximum(d2, 1e-20)
         scale = dr.select(G > g, g / dr.maximum(G, 1e-30), 1.0)
         L, _, _, _ = trace_paths_split(mscene, sampler, ray2, hit, int(max_depth) - 1, int(max_depth) + 1,
-                                       None, True, split=False)
+                                       None, True, split=False, stage="reference")
         Le = mi.Color3f(si2.emitter(mscene).eval(si2, hit))
         v = dr.select(hit, alb * scale * (L - Le), 0.0)
         dr.eval(v)
