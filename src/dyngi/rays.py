@@ -24,7 +24,9 @@ from .backend import dr, mi
 
 
 class RayLedger:
-    """Rays counted while open, per stage name: lazily reduced Dr.Jit counts or ints."""
+    """Rays counted while open, per stage name: ints, or Dr.Jit masks / per-lane counts that are scheduled
+    (:func:`_defer`) and reduced only when the ledger is read, so counting adds no kernel and no second
+    evaluation of the rays a mask depends on."""
 
     def __init__(self):
         self._parts: list = []
@@ -36,8 +38,7 @@ class RayLedger:
         """``{stage: rays}`` (reads the lazy counts: one host read per call)."""
         out: dict = {}
         for stage, n in self._parts:
-            v = int(n) if isinstance(n, (int, np.integer)) else int(np.asarray(n).ravel().sum())
-            out[stage] = out.get(stage, 0) + v
+            out[stage] = out.get(stage, 0) + _reduce(n)
         self._parts = [(k, v) for k, v in out.items()]
         return out
 
@@ -59,9 +60,32 @@ def counting():
         _OPEN.remove(led)
 
 
+def _reduce(n) -> int:
+    """An entry's rays: an int as it is; a Dr.Jit mask counted, a per-lane (or already reduced) count summed."""
+    if isinstance(n, (int, np.integer)):
+        return int(n)
+    if isinstance(n, (bool, np.bool_)):
+        return int(n)
+    if dr.is_array_v(n):
+        v = dr.count(n) if dr.type_v(n) == dr.VarType.Bool else dr.sum(n)
+        return int(np.asarray(v).ravel()[0]) if dr.width(v) else 0
+    return int(np.asarray(n).ravel().sum())
+
+
+def _defer(n):
+    """Schedule a Dr.Jit entry so that it is evaluated with the frame's next kernel (dr.count or dr.sum now
+    would launch a kernel of their own and re-evaluate everything the entry depends on, rays included)."""
+    if dr.is_array_v(n) and dr.width(n) > 1 and not _symbolic():
+        dr.schedule(n)
+    return n
+
+
 def add(stage: str, n) -> None:
-    """Add ``n`` rays (an int or a Dr.Jit count) to every open ledger: the per-lane counters of a symbolic
-    loop, summed after it."""
+    """Add ``n`` rays to every open ledger: an int, or a Dr.Jit per-lane count (the counter a symbolic loop
+    keeps, after the loop) or an already reduced count; reduced when the ledger is read."""
+    if not _OPEN:
+        return
+    n = _defer(n)
     for led in _OPEN:
         led.add(stage, n)
 
@@ -89,7 +113,7 @@ def _count(ray, active, stage: str, lanes: bool) -> None:
     if dr.width(m) == 1 and w > 1:     # a width-1 mask (a literal True) broadcasts to every lane
         add(stage, w if bool(m[0]) else 0)
         return
-    add(stage, dr.count(m))
+    add(stage, m)                      # the mask, scheduled; counted when the ledger is read
 
 
 def intersect(scene, ray, ray_flags=None, coherent: bool = False, active=None, *, stage: str = "trace",

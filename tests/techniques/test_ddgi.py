@@ -255,14 +255,18 @@ def test_shadow_rays_are_counted_as_cast():
 
 def test_equal_rays_budget_plans_with_the_measured_shadow_rays():
     """The warm-up measures the shadow rays per probe ray (fewer than 1 in the open box): the first
-    budgeted frame already plans with it, so later frames keep its rays per probe (no recompiles)."""
+    budgeted frame already plans with it, so the frames after the warm-up's keep one rays per probe (no
+    recompiles). The warm-up's rays are charged to the first frame's budget (issue 40: every ray from
+    frame 0), so that frame plans fewer rays per probe."""
     sc = load_scene("cornell-static")
     tech = create_technique("ddgi", sc, {"probe_counts": "4", "warmup": 2})
     res = (32, 24)
     cam = sc.camera(0.0)
     budget = 120_000
-    rs = [tech.step(Frame(f, 0.0, cam, res, ray_budget=budget)) for f in range(1, 4)]
+    rs = [tech.step(Frame(f, 0.0, cam, res, ray_budget=budget)) for f in range(0, 4)]
     assert 0.0 < tech._shadow_per_probe_ray < 0.98
+    assert rs[0].stats["rays_per_probe"] < rs[1].stats["rays_per_probe"]
+    rs = rs[1:]
     assert len({r.stats["rays_per_probe"] for r in rs}) == 1
     for r in rs[1:]:
         assert 0.75 * budget <= r.stats["total_rays"] <= budget

@@ -14,7 +14,8 @@ Techniques adapt as their modules document (``Technique.BUDGETS`` lists the budg
 the others run their own settings and the report says so).
 
 Accounting (:func:`budget_accounting`): for every budgeted technique the measured spend over the budget,
-per frame and in total. The rule is that no technique overspends by more than 5 % (:data:`MAX_OVERSPEND`):
+per frame and in total, in the rays the harness counted (``counted_rays``, :mod:`dyngi.rays`: a technique's
+own report may leave rays out). The rule is that no technique overspends by more than 5 % (:data:`MAX_OVERSPEND`):
 for equal rays over every frame from frame 0 (``total_ratio``; issue 40: a warm-up, a pilot, relocation
 and re-tests are rays like any other; the steady frames' ratio is reported beside it), for equal time the
 median steady frame (frame 0 holds the kernel compilation; wall time on a shared CPU is noisy; reported,
@@ -24,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .runner import SequenceResult, run_sequence
+from .runner import SequenceResult, frame_rays, run_sequence
 
 MAX_OVERSPEND = 0.05
 """Largest allowed spend over the budget (fraction) on a steady frame."""
@@ -46,7 +47,7 @@ def run_with_budget(scene, tech, frames, res, seed, budget, first: SequenceResul
         seq = run_sequence(scene, tech, frames, res, seed=seed, progress=bar)
     else:
         seq = run_sequence(scene, tech, frames, res, seed=seed, progress=bar,
-                           frame_budget=frame_budget(budget, [s.get("total_rays") for s in first.stats],
+                           frame_budget=frame_budget(budget, [frame_rays(s) for s in first.stats],
                                                      time_budget_ms(first)))
     if label is not None:
         seq.technique = label
@@ -65,7 +66,7 @@ def frame_budget(budget: str, rays: list, ms: float | None = None):
             return None, ms
         if i >= len(rays) or rays[i] is None:
             return None, None
-        balance = sum(st.get("total_rays", 0) - rays[j] for j, st in enumerate(so_far.stats)
+        balance = sum(frame_rays(st) - rays[j] for j, st in enumerate(so_far.stats)
                       if rays[j] is not None)
         return max(1, int(round(rays[i] - balance))), None
 
@@ -85,8 +86,8 @@ def budget_accounting(seq: SequenceResult, first: SequenceResult, budget: str) -
     if budget == "equal-frames":
         return None
     if budget == "equal-rays":
-        b = np.array([float(s.get("total_rays", 0)) for s in first.stats])
-        x = np.array([float(s.get("total_rays", 0)) for s in seq.stats])
+        b = np.array([float(frame_rays(s)) for s in first.stats])
+        x = np.array([float(frame_rays(s)) for s in seq.stats])
         what = "rays"
     else:
         b = np.full(len(seq.wall_ms), time_budget_ms(first))

@@ -46,6 +46,7 @@ from ..errors import DyngiError
 from ..registry import NO_PAPER_VALUE
 from ..techniques.base import get_technique, parse_spec, resolve_params
 from .compare import execute, prepare
+from .runner import frame_rays
 
 VERDICTS = ("reproduced", "reproduced only with ours", "not reproduced", "undecided")
 """The verdict words (:func:`decide`)."""
@@ -446,9 +447,9 @@ def result_from_values(claim: Claim, values: dict, quick: bool = False) -> Claim
     return ClaimResult(claim, rows, meas, {}, decide(claim, ratios, quick, rows))
 
 
-def frame_rays(stats: list) -> list:
+def rays_per_frame(stats: list) -> list:
     """The rays of every frame from frame 0 as the harness counted them (``counted_rays``, :mod:`dyngi.rays`)."""
-    return [int(st.get("counted_rays", 0)) for st in stats]
+    return [frame_rays(st) for st in stats]
 
 
 def run_on_harness(claims: list, scene_name: str, frames: int, res, ref_spp: int, out_dir: str, metric: Callable,
@@ -484,7 +485,7 @@ def run_on_harness(claims: list, scene_name: str, frames: int, res, ref_spp: int
     for c in claims:
         def measure(row, seed, base, c=c):
             rs = by_seed[seed]
-            return Measurement(float(metric(c, rs, row.spec)), frame_rays(rs["results"][row.spec].stats),
+            return Measurement(float(metric(c, rs, row.spec)), rays_per_frame(rs["results"][row.spec].stats),
                                resolved_params(row.spec))
         out.append(run_claim(c, measure, quick, seeds))
     return out
@@ -513,5 +514,5 @@ def resolved_params(spec_text: str) -> dict:
 
 __all__ = ["CONFIDENCE", "COST_RULES", "Claim", "ClaimCostError", "ClaimResult", "Criterion", "Judgement",
            "MAX_OVERSPEND", "MIN_SEEDS", "Measurement", "NO_PAPER_VALUE", "QUICK", "Row", "VERDICTS", "Verdict",
-           "check_cost", "claim_rows", "claims_json", "decide", "frame_rays", "result_from_values", "run_on_harness", "marked_params", "resolved_params", "run_claim",
+           "check_cost", "claim_rows", "claims_json", "decide", "rays_per_frame", "result_from_values", "run_on_harness", "marked_params", "resolved_params", "run_claim",
            "verdict_table"]

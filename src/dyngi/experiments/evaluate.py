@@ -26,6 +26,7 @@ from ..metrics.temporal import pick_tracked_pixels
 from .references.clamped import cached_clamped, clamped_indirect, clamped_reference_halves
 from .references.indirect import cached_indirect_reference
 from .references.path import reference_halves
+from .runner import frame_rays
 from .references.tracked import TRACKED_SPP_FACTOR, TRACKED_SPP_MAX, cached_tracked_reference
 
 METRIC_NAMES = ("mse", "relmse", "mape", "flip", "ssim")
@@ -194,7 +195,7 @@ def evaluate_sequence(label: str, seq, refs: list, names, images: list | None = 
         m = frame_metrics(img, refs[i], names)
         st = seq.stats[i]
         row = {"technique": label, "frame": i, "time": seq.times[i], **m, "nonfinite": nf, "negative": neg,
-               "wall_ms": seq.wall_ms[i], "rays": st.get("total_rays", 0)}
+               "wall_ms": seq.wall_ms[i], "rays": frame_rays(st)}
         for stage, ms in st.get("ms", {}).items():
             row[f"ms_{stage}"] = ms
         rows.append(row)
@@ -225,7 +226,7 @@ def evaluate_sequence(label: str, seq, refs: list, names, images: list | None = 
         "tracked_spp": int(tracked["spp"]) if tracked is not None else None,
         "ms_per_frame": float(np.mean(steady_ms)),
         "stage_ms": stage_ms,
-        "rays_per_frame": float(np.mean([s.get("total_rays", 0) for s in steady])),
+        "rays_per_frame": float(np.mean([frame_rays(s) for s in steady])),
         "nonfinite_pixels": int(sum(nonfinite)),
         "nonfinite_frames": int(sum(1 for n in nonfinite if n)),
         "negative_pixels": int(sum(negative)),

@@ -19,7 +19,7 @@ from ..scene import load_scene
 from ..techniques.base import TechniqueSpec, as_spec, create_technique
 from .denoise import aux_buffers, denoise as oidn, require
 from .io import atomic_output_dir, check_writable, tonemap_srgb, write_exr, write_json, write_mp4, write_png
-from .runner import run_sequence
+from .runner import frame_rays, run_sequence
 
 DEFAULT_RES = (320, 240)
 """Resolution of built-in scenes (and of files without a film) when none is given."""
@@ -84,4 +84,4 @@ def render_to_dir(scene_name: str, technique: "str | TechniqueSpec", out_dir: st
         write_json(os.path.join(tmp, "stats.json"), stats)
     steady, steady_ms = seq.steady()
     return {"scene": scene.name, "frames": frames, "res": list(res), "mean_ms": float(np.mean(steady_ms)),
-            "mean_rays": float(np.mean([s.get("total_rays", 0) for s in steady]))}
+            "mean_rays": float(np.mean([frame_rays(s) for s in steady]))}

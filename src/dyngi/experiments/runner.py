@@ -42,6 +42,12 @@ class SequenceResult:
         return (self.stats[1:] or self.stats), (self.wall_ms[1:] or self.wall_ms)
 
 
+def frame_rays(stats: dict) -> int:
+    """A frame's rays as the harness counted them (``counted_rays``, :mod:`dyngi.rays`); a technique's own
+    ``total_rays`` only for stats that did not come through :func:`run_sequence`."""
+    return int(stats.get("counted_rays", stats.get("total_rays", 0)) or 0)
+
+
 def parse_res(text: str) -> tuple[int, int]:
     try:
         w, h = (int(x) for x in text.lower().split("x"))

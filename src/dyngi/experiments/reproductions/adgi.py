@@ -64,11 +64,11 @@ from ...scene import load_scene
 from ...techniques.base import create_technique, get_technique, parse_spec
 from .. import cluster
 from ..budgets import frame_budget
-from ..claims import Claim, Criterion, Measurement, claims_json, frame_rays, resolved_params, run_claim, verdict_table
+from ..claims import Claim, Criterion, Measurement, claims_json, rays_per_frame, resolved_params, run_claim, verdict_table
 from ..references.indirect import cached_indirect_reference
 from ..references.path import reference_halves, scene_max_depth
 from ..reproduce import paper_table, register_experiment
-from ..runner import run_sequence
+from ..runner import frame_rays, run_sequence
 from ._summary import write_summary
 
 PAPER = ("Datta, Goli, Zhang, \"Adaptive Dynamic Global Illumination\", High Performance Graphics 2022 "
@@ -219,7 +219,7 @@ def _stage_costs(run: dict) -> dict:
     for st in steady:
         for k, v in st.get("ms", {}).items():
             ms[k] = ms.get(k, 0.0) + v / len(steady)
-    rays = float(np.mean([st.get("total_rays", 0) for st in steady]))
+    rays = float(np.mean([frame_rays(st) for st in steady]))
     wall = float(np.mean(run["ms"][1:] or run["ms"]))
     return {"ms": ms, "rays": rays, "wall_ms": wall, "nonfinite_pixels": run["nonfinite_pixels"],
             "nonfinite_frames": run["nonfinite_frames"], "failed": run["nonfinite_pixels"] > 0}
@@ -239,7 +239,7 @@ def tunnel(cfg: dict, quiet: bool = True) -> dict:
     runs["qddgi+drop"] = run_frames(scene, makers["qddgi+drop"](), times, res)
     runs["adgi"] = run_frames(scene, makers["adgi"](), times, res)
     runs["adgi@equal-rays"] = run_frames(scene, makers["adgi@equal-rays"](), times, res,
-                                         budgets=[st["total_rays"] for st in runs["qddgi"]["stats"]])
+                                         budgets=[frame_rays(st) for st in runs["qddgi"]["stats"]])
     runs["probes-reference"] = run_frames(scene, _make("probes-reference", scene, cfg["reference"],
                                                 cfg.get("params")),
                                           times, res)
@@ -265,7 +265,7 @@ def tunnel(cfg: dict, quiet: bool = True) -> dict:
                                 "mean": {m: float(np.nanmean([x[m] for x in per_frame[name]]))
                                          for m in per_frame[name][0]},
                                 **cost}
-    out["runs_rays"] = {n: [st.get("total_rays", 0) for st in r["stats"]] for n, r in runs.items()}
+    out["runs_rays"] = {n: [frame_rays(st) for st in r["stats"]] for n, r in runs.items()}
     return out
 
 
@@ -286,7 +286,7 @@ def atrium(cfg: dict, quiet: bool = True) -> dict:
         runs = {"qddgi": run_frames(scene, makers["qddgi"](), times, res, seed=seed)}
         runs["adgi"] = run_frames(scene, makers["adgi"](), times, res, seed=seed)
         runs["adgi@equal-rays"] = run_frames(scene, makers["adgi@equal-rays"](), times, res, seed=seed,
-                                             budgets=[st["total_rays"] for st in runs["qddgi"]["stats"]])
+                                             budgets=[frame_rays(st) for st in runs["qddgi"]["stats"]])
         for name, r in runs.items():
             per_seed.setdefault(name, []).append([_metrics(r["indirect"][i], refs[i]) for i in marks])
             if seed == seeds[0]:
@@ -332,7 +332,7 @@ def static(cfg: dict, quiet: bool = True) -> dict:
     runs = {"qddgi": run_frames(scene, makers["qddgi"](), times, res)}
     runs["adgi"] = run_frames(scene, makers["adgi"](), times, res)
     runs["adgi@equal-rays"] = run_frames(scene, makers["adgi@equal-rays"](), times, res,
-                                         budgets=[st["total_rays"] for st in runs["qddgi"]["stats"]])
+                                         budgets=[frame_rays(st) for st in runs["qddgi"]["stats"]])
     curves = {}
     for name, r in runs.items():
         ms = list(r["ms"])
@@ -376,10 +376,10 @@ def claims_fig9(cfg: dict, quick: bool = False, quiet: bool = True) -> list:
             spec = parse_spec(row.spec)
             have = get_technique(spec.name).PARAMS
             tech = create_technique(spec, scene, {k: v for k, v in common.items() if k in have})
-            budgets = None if base is None else [max(1, int(ratio * b)) for b in base.extra["reported_rays"]]
+            budgets = None if base is None else [max(1, int(ratio * b)) for b in base.rays]
             run = run_frames(scene, tech, times, res, seed=seed, budgets=budgets)
             v = float(np.mean([1.0 - _metrics(run["indirect"][i], refs[i])["ssim"] for i in marks]))
-            return Measurement(v, frame_rays(run["stats"]), resolved_params(row.spec),
+            return Measurement(v, rays_per_frame(run["stats"]), resolved_params(row.spec),
                                {"reported_rays": [st.get("total_rays", 0) for st in run["stats"]]})
         out.append(run_claim(claim, measure, quick))
     return out
@@ -406,7 +406,7 @@ def claims_fig8(cfg: dict, quick: bool = False, quiet: bool = True) -> list:
             tech = create_technique(spec, scene, {k: v for k, v in common.items() if k in have})
             run = run_frames(scene, tech, times, res, seed=seed)
             e = np.array([_metrics(img, ref)["relmse"] for img, ref in zip(run["images"], refs)])
-            runs[(row.spec, seed)] = (e, frame_rays(run["stats"]))
+            runs[(row.spec, seed)] = (e, rays_per_frame(run["stats"]))
         return runs[(row.spec, seed)]
     out = []
     for claim in (c for c in declare_claims(cfg) if c.key.startswith("adgi.fig8")):
@@ -655,7 +655,7 @@ def equal_rays_recovery(specs=("adgi",), baseline: str = "qddgi", **cfg) -> dict
 
     def record(name, seed, run):
         e = np.array([relmse(np.maximum(img, 0.0), ref) for img, ref in zip(run["images"], refs)])
-        rays = [st.get("total_rays", 0) for st in run["stats"]]
+        rays = [frame_rays(st) for st in run["stats"]]
         out["runs"].setdefault(name, {})[seed] = {"relmse": e, "rays": rays,
                                                    "final": float(np.median(e[-c["final"]:]))}
 
@@ -664,7 +664,7 @@ def equal_rays_recovery(specs=("adgi",), baseline: str = "qddgi", **cfg) -> dict
         record(baseline, seed, q)
         for spec in specs:
             record(spec, seed, run_frames(sc, create_technique(spec, sc), times, res, seed=seed,
-                                          budgets=[st["total_rays"] for st in q["stats"]]))
+                                          budgets=[frame_rays(st) for st in q["stats"]]))
     for name, per in out["runs"].items():
         for seed, r in per.items():
             e = r["relmse"][opened:]
