@@ -110,3 +110,115 @@ def test_relative_links_in_the_docs_resolve():
         broken += [f"{os.path.relpath(path, ROOT)} -> {os.path.relpath(t, ROOT)}" for t in _links(path)
                    if not os.path.exists(t)]
     assert not broken, "broken links:\n" + "\n".join(broken)
+
+
+# -- every marked parameter listed on its technique's page (issue 40) -----------------------------------------
+ROW = re.compile(r"^\| `([A-Za-z0-9_]+)` \| ([^|]*) \| ([^|]*) \|(.*)$")
+SHARED_PAGE = "ddgi.md"
+"""Where the probe techniques' shared parameters are listed ("Besides the shared probe parameters")."""
+
+
+def ours_cell(p) -> str:
+    """The ``ours?`` cell of a parameter row: empty, ``**ours**``, or ``**ours** (paper: VALUE)``."""
+    if not p.ours:
+        return ""
+    return f"**ours** (paper: `{p.paper!r}`)" if p.has_paper_value else "**ours**"
+
+
+def _page_rows(page: str, cell: int = 3) -> dict:
+    rows = {}
+    for line in open(os.path.join(DOCS, "techniques", page), encoding="utf-8"):
+        m = ROW.match(line.rstrip("\n"))
+        if m:
+            rows.setdefault(m.group(1), []).append(m.group(cell).strip())
+    return rows
+
+
+def _expected_defaults() -> dict:
+    """``{(page, parameter): {default cell}}`` (a page's parameter may belong to several techniques)."""
+    from dyngi.techniques.base import REGISTRY, technique_names
+    out: dict = {}
+    for name in technique_names():
+        for k, p in REGISTRY[name].PARAMS.items():
+            out.setdefault((TECHNIQUE_PAGES[name], k), set()).add(f"`{p.default!r}`")
+    return out
+
+
+def _expected_cells() -> dict:
+    """``{(page, parameter): {ours cell}}`` over every registered technique (a page's own technique first,
+    the shared probe page for the probe techniques' common parameters)."""
+    from dyngi.techniques.base import REGISTRY, technique_names
+    out: dict = {}
+    for name in technique_names():
+        for k, p in REGISTRY[name].PARAMS.items():
+            out.setdefault((TECHNIQUE_PAGES[name], k), set()).add(ours_cell(p))
+    return out
+
+
+def test_every_parameter_row_says_whether_it_is_ours():
+    """The ``ours?`` column of every technique page's parameter tables agrees with the ``Param`` marks (issue
+    40: the docs list every marked parameter per technique, with the paper's value where it gives one),
+    every marked parameter has a row on its page (or the shared probe page), and a row's default is the
+    code's where one technique owns it. ``python tests/test_docs.py
+    --write`` rewrites the cells from the marks."""
+    from dyngi.techniques.base import REGISTRY, technique_names
+    want = _expected_cells()
+    bad, missing = [], []
+    for page in sorted(set(TECHNIQUE_PAGES.values())):
+        for k, cells in _page_rows(page).items():
+            ok = want.get((page, k)) or want.get((SHARED_PAGE, k))
+            if ok is not None and any(c not in ok for c in cells):
+                bad.append(f"{page}: `{k}` says {cells}, the marks say {sorted(ok)}")
+    for name in technique_names():
+        page = TECHNIQUE_PAGES[name]
+        for k, p in REGISTRY[name].PARAMS.items():
+            if p.ours and k not in _page_rows(page) and k not in _page_rows(SHARED_PAGE):
+                missing.append(f"{name}: `{k}` (ours) has no row on {page}")
+    defaults = _expected_defaults()
+    for page in sorted(set(TECHNIQUE_PAGES.values())):
+        for k, cells in _page_rows(page, 2).items():
+            ok = defaults.get((page, k))
+            if ok is not None and len(ok) == 1 and any(c not in ok for c in cells):
+                bad.append(f"{page}: `{k}`'s default says {cells}, the code {sorted(ok)}")
+    assert not bad and not missing, "\n".join(bad + missing)
+
+
+def write_ours_cells() -> None:
+    """Rewrite the ``ours?`` cells of every technique page from the marks (a cell shared by techniques whose
+    marks differ is left as it is and reported by the test), and add a row for every marked parameter
+    without one after the page's last parameter row."""
+    from dyngi.techniques.base import REGISTRY, technique_names
+    want, defaults = _expected_cells(), _expected_defaults()
+    for page in sorted(set(TECHNIQUE_PAGES.values())):
+        path = os.path.join(DOCS, "techniques", page)
+        lines = open(path, encoding="utf-8").read().split("\n")
+        last = None
+        for i, line in enumerate(lines):
+            m = ROW.match(line)
+            if not m:
+                continue
+            last = i
+            cells = want.get((page, m.group(1))) or want.get((SHARED_PAGE, m.group(1)))
+            dflt = defaults.get((page, m.group(1)))
+            d = next(iter(dflt)) if dflt is not None and len(dflt) == 1 else m.group(2)
+            if cells is not None and len(cells) == 1:
+                lines[i] = f"| `{m.group(1)}` | {d} | {next(iter(cells))} |{m.group(4)}"
+        have = _page_rows(page) | (_page_rows(SHARED_PAGE) if page != SHARED_PAGE else {})
+        new = []
+        for name in technique_names():
+            if TECHNIQUE_PAGES[name] != page:
+                continue
+            for k, p in REGISTRY[name].PARAMS.items():
+                if p.ours and k not in have and not any(f"| `{k}` |" in x for x in new):
+                    extra = f" (one of {', '.join(map(str, p.choices))})" if p.choices else ""
+                    new.append(f"| `{k}` | `{p.default!r}` | {ours_cell(p)} | {p.doc}{extra} |")
+        if new and last is not None:
+            lines[last + 1:last + 1] = new
+        with open(path, "w", encoding="utf-8") as f:
+            f.write("\n".join(lines))
+
+
+if __name__ == "__main__":
+    import sys
+    if sys.argv[1:] == ["--write"]:
+        write_ours_cells()
