@@ -18,10 +18,24 @@ A volume is a :class:`~dyngi.probes.grid.ProbeGrid` plus, per probe ``p``:
   ``device.distance_count``).
 * ``offsets[p]`` -- relocation offset (world units, |component| bounded by a
   fraction of the spacing); ``states[p]`` -- 1 active, 0 inactive.
+* ``radiance[p]`` / ``radiance_count[p]`` -- the optional third atlas, allocated
+  when a technique asks for a radiance layer (:meth:`ProbeVolume.add_radiance_layer`,
+  ``R`` = ``radiance_texels`` per side; ADGI's, :mod:`dyngi.techniques.adgi.radiance`):
+  the ``(R-2)^2`` *interior* octahedral texels of an ``R x R`` map (row-major, no
+  border: nothing filters it bilinearly, see :meth:`ProbeVolume.radiance_texel_of`)
+  of mean radiance (Color3f interleaved, ``P*(R-2)^2*3`` floats) and a uint32
+  sample count each. It is device state only (``device.radiance`` /
+  ``device.radiance_count``): no host copy, :meth:`ProbeVolume.sync` does not
+  touch it, :meth:`ProbeVolume.radiance_host` reads it back.
 
 The host copy (NumPy, what blending and tests use) and the device copy
 (flat Dr.Jit arrays, what kernels gather from) are kept in one
 :class:`ProbeVolume`; :meth:`ProbeVolume.sync` uploads after host updates.
+The volume owns every texel store of a probe technique: the atlases, their
+reset (:meth:`ProbeVolume.reset`) and their memory (:meth:`ProbeVolume.memory_parts`).
+Relocation and classification (:mod:`dyngi.probes.states`) move probes and switch
+their states but touch no atlas: a relocated probe keeps its texels, the radiance
+layer's included.
 """
 from __future__ import annotations
 
@@ -31,6 +45,7 @@ import numpy as np
 
 from ..backend import dr, mi
 from ..errors import DyngiError
+from ..sampling.octahedral import direction_to_texel_coords
 from .arrays import upload
 from .grid import PROBE_ACTIVE, ProbeGrid
 from .trace import DEFAULT_HIT_LOBES, check_hit_lobes, check_two_sided
@@ -121,6 +136,8 @@ class DeviceAtlas:
     probe_data: "mi.Float" = None   # P*4: position xyz and 1.0 (active) / 0.0 -- one packet gather per probe
     irradiance_count: "mi.UInt32" = None   # P*Ti*Ti samples merged per texel
     distance_count: "mi.UInt32" = None     # P*Td*Td
+    radiance: "mi.Float" = None            # P*(R-2)^2*3 (the radiance layer, when asked for; no host copy)
+    radiance_count: "mi.UInt32" = None     # P*(R-2)^2
 
 
 class ProbeVolume:
@@ -138,6 +155,8 @@ class ProbeVolume:
                                   alike (:mod:`dyngi.probes.trace`, "The two-sided rule")
     hit_lobes : str = 'layered'   the hit-lobe rule: which lobes a probe-ray hit reflects as diffuse light
                                   (:mod:`dyngi.probes.trace`, :func:`~dyngi.probes.trace.hit_albedo`; ours)
+    radiance_texels : int | None  a radiance layer of this many texels per side incl. the border (only the
+                                  interior is stored; :meth:`add_radiance_layer`); None (default): none
 
     ``geometry``: the Mitsuba scene the probes were last traced in (set by the tracer,
     :func:`~dyngi.probes.trace.trace_probe_rays`); relocation checks its moves against it
@@ -146,7 +165,7 @@ class ProbeVolume:
 
     def __init__(self, grid: ProbeGrid, irradiance_texels: int = 8, distance_texels: int = 16,
                  max_distance: float | None = None, two_sided: str = "enclosed",
-                 hit_lobes: str = DEFAULT_HIT_LOBES):
+                 hit_lobes: str = DEFAULT_HIT_LOBES, radiance_texels: int | None = None):
         for name, t in (("irradiance_texels", irradiance_texels), ("distance_texels", distance_texels)):
             if int(t) < 3:
                 raise DyngiError(f"parameter '{name}' must be >= 3 (1-texel border on each side), got {t}")
@@ -160,7 +179,50 @@ class ProbeVolume:
         self.geometry = None
         self.state = ProbeVolumeState.zeros(grid.n_probes, self.irradiance_texels, self.distance_texels)
         self.device: DeviceAtlas | None = None
+        self.radiance_texels: int | None = None     # R of the radiance layer (None: no radiance layer)
         self.sync()
+        if radiance_texels is not None:
+            self.add_radiance_layer(radiance_texels)
+
+    # -- the radiance layer (the third atlas) -------------------------------------------------------
+    def add_radiance_layer(self, texels: int) -> None:
+        """Allocate the radiance layer: per probe the ``(texels-2)^2`` interior texels of a ``texels x texels``
+        octahedral map, mean radiance (zero) and a sample count (zero), on the device (module docstring).
+        Asking again for the same size keeps the layer; another size raises (one radiance layer per volume)."""
+        R = int(texels)
+        if R < 3:
+            raise DyngiError(f"parameter 'radiance_texels' must be >= 3 (1-texel border on each side), got {texels}")
+        if self.radiance_texels is not None:
+            if R != self.radiance_texels:
+                raise DyngiError(f"the probe volume already has a radiance layer of {self.radiance_texels} texels "
+                                 f"per side, asked for {R}")
+            return
+        self.radiance_texels = R
+        n = self.n_probes * self.radiance_interior
+        d = self.device
+        d.radiance = dr.zeros(mi.Float, n * 3)
+        d.radiance_count = dr.zeros(mi.UInt32, n)
+        dr.eval(d.radiance, d.radiance_count)
+
+    @property
+    def radiance_interior(self) -> int:
+        """Interior radiance texels per probe, ``(R-2)^2`` (0 without a radiance layer)."""
+        return 0 if self.radiance_texels is None else (self.radiance_texels - 2) ** 2
+
+    def radiance_texel_of(self, w):
+        """The interior radiance texel (row-major, ``0 .. (R-2)^2 - 1``) that direction ``w`` (Vector3f) falls
+        in; directions on the border clamp to the nearest interior texel."""
+        R = self.radiance_texels
+        c = direction_to_texel_coords(w, R)
+        ix = dr.clip(mi.Int32(dr.floor(c.x)) - 1, 0, R - 3)
+        iy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, R - 3)
+        return mi.UInt32(iy * (R - 2) + ix)
+
+    def radiance_host(self) -> tuple[np.ndarray, np.ndarray]:
+        """The radiance layer read back: ``(value (P, (R-2)^2, 3) float32, count (P, (R-2)^2) uint32)``."""
+        d, n = self.device, self.radiance_interior
+        return (np.asarray(d.radiance, np.float32).reshape(self.n_probes, n, 3),
+                np.asarray(d.radiance_count, np.uint32).reshape(self.n_probes, n))
 
     @property
     def n_probes(self) -> int:
@@ -174,7 +236,8 @@ class ProbeVolume:
         return np.flatnonzero(self.state.states == PROBE_ACTIVE).astype(np.uint32)
 
     def reset(self) -> None:
-        """Forget all history (irradiance, distance, update counts); keeps offsets and states."""
+        """Forget all history (irradiance, distance, update counts, the radiance layer); keeps offsets and
+        states."""
         self.state.irradiance[:] = 0
         self.state.distance[:] = 0
         self.state.updates[:] = 0
@@ -183,6 +246,9 @@ class ProbeVolume:
         self.state.extra.clear()
         self.state.extra["n_probes"] = self.n_probes
         self.sync()
+        R, self.radiance_texels = self.radiance_texels, None
+        if R is not None:
+            self.add_radiance_layer(R)
 
     def sync(self, what: tuple = ("irradiance", "distance", "positions", "states")) -> None:
         """Upload host arrays to the device mirror (only the named parts once it exists).
@@ -209,6 +275,22 @@ class ProbeVolume:
             d.probe_data = upload(pd.astype(np.float32))
         dr.eval(d.irradiance, d.distance, d.positions, d.states, d.probe_data, d.irradiance_count,
                 d.distance_count)
+
+    def memory_parts(self) -> dict:
+        """The arrays the volume allocates, by part: ``irradiance`` / ``visibility`` (the atlases and their texel
+        counts, host and device), ``probe_state`` (offsets, states, update counts, device positions, states and
+        probe packets), ``radiance_layer`` (the radiance atlas and its counts, device only; empty without one).
+        A newer device atlas is pulled into the host copy first. For measured memory (NumPy ``nbytes`` and
+        Dr.Jit arrays alike; ADGI's :meth:`memory_per_probe <dyngi.techniques.adgi.technique.ADGITechnique
+        .memory_per_probe>`)."""
+        st, dev = self.state, self.device
+        st._refresh()
+        return {
+            "irradiance": [st._irradiance, st._irradiance_count, dev.irradiance, dev.irradiance_count],
+            "visibility": [st._distance, st._distance_count, dev.distance, dev.distance_count],
+            "probe_state": [st.offsets, st.states, st.updates, dev.positions, dev.states, dev.probe_data],
+            "radiance_layer": ([dev.radiance, dev.radiance_count] if self.radiance_texels is not None else []),
+        }
 
     def copy_state(self) -> ProbeVolumeState:
         s = self.state

@@ -176,22 +176,63 @@ def test_equal_rays_in_a_static_scene_go_to_the_static_chains(adgi):
 def test_device_convolution_equals_the_numpy_reference(adgi):
     """The radiance-texel -> irradiance convolution on the device (no host read) equals the NumPy
     reference on random radiance, with a third of the texels never sampled (left out, weights
-    renormalised), including a probe with no sample at all (ok False everywhere), for R = 16 and R = 8."""
-    from dyngi.backend import dr, mi
-    from dyngi.techniques.adgi.radiance import RadianceCache
+    renormalised), including a probe with no sample at all (ok False everywhere), for R = 16 and R = 8.
+    The texels are the volume's radiance layer."""
+    from dyngi.backend import mi
+    from dyngi.probes import ProbeGrid, ProbeVolume
+    from dyngi.techniques.adgi.radiance import RadianceUpdate
     rng = np.random.default_rng(2)
+    grid = ProbeGrid((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0), (2, 2, 2))
     for R in (16, 8):
-        rc = RadianceCache(6, R, 8)
-        val = rng.random(6 * rc.n_tex * 3).astype(np.float32)
-        cnt = (rng.random(6 * rc.n_tex) < 0.66) * rng.integers(1, 40, 6 * rc.n_tex)
+        vol = ProbeVolume(grid, 8, 16, radiance_texels=R)
+        rc = RadianceUpdate(vol)
+        P = vol.n_probes
+        assert rc.n_tex == vol.radiance_interior == (R - 2) ** 2
+        val = rng.random(P * rc.n_tex * 3).astype(np.float32)
+        cnt = (rng.random(P * rc.n_tex) < 0.66) * rng.integers(1, 40, P * rc.n_tex)
         cnt[rc.n_tex * 2: rc.n_tex * 3] = 0                     # probe 2: never sampled
-        rc.value, rc.count = mi.Float(val), mi.UInt32(cnt.astype(np.uint32))
+        vol.device.radiance, vol.device.radiance_count = mi.Float(val), mi.UInt32(cnt.astype(np.uint32))
         ids = np.array([5, 2, 0, 3], np.uint32)
         a, b = rc.irradiance_estimate_device(ids), rc.irradiance_estimate_host(ids)
         ok_a, ok_b = np.asarray(a.ok), np.asarray(b.ok)
         assert np.array_equal(ok_a, ok_b) and not ok_a.reshape(4, -1)[1].any() and ok_a.sum() > 0
         assert np.allclose(np.asarray(a.value), np.asarray(b.value), rtol=2e-5, atol=1e-6)
         assert np.array_equal(np.asarray(a.count), np.asarray(b.count)) and a.n == b.n
+
+
+def test_the_radiance_layer_is_the_volumes(adgi):
+    """The radiance layer is the probe volume's third atlas: allocated (zero) when asked for, the same size
+    asked again keeps it, another size raises; the volume's reset zeroes it; its memory is the volume's
+    (device only, none without a layer); ADGI's volume holds it and its radiance update writes there."""
+    from dyngi.backend import mi
+    from dyngi.errors import DyngiError
+    from dyngi.probes import ProbeGrid, ProbeVolume
+
+    grid = ProbeGrid((-1.0, -1.0, -1.0), (1.0, 1.0, 1.0), (2, 3, 2))
+    vol = ProbeVolume(grid, 8, 16)
+    assert vol.radiance_texels is None and vol.radiance_interior == 0 and vol.memory_parts()["radiance_layer"] == []
+    vol.add_radiance_layer(6)
+    v, c = vol.radiance_host()
+    assert v.shape == (12, 16, 3) and c.shape == (12, 16) and not v.any() and not c.any()
+    vol.device.radiance_count = mi.UInt32(np.arange(12 * 16, dtype=np.uint32))
+    keep = vol.device.radiance_count
+    vol.add_radiance_layer(6)
+    assert vol.device.radiance_count is keep
+    with pytest.raises(DyngiError, match="radiance layer"):
+        vol.add_radiance_layer(8)
+    parts = vol.memory_parts()["radiance_layer"]
+    assert sum(np.asarray(x).nbytes for x in parts) == 12 * 16 * (3 * 4 + 4)
+    vol.reset()
+    assert vol.radiance_texels == 6 and not vol.radiance_host()[1].any()
+
+    sc = load_scene("cornell-static")
+    a = create_technique("adgi", sc, {"probe_counts": "3", "warmup": 1, "radiance_texels": 6,
+                                      "static_chains": 64, "dynamic_chains": 0, "iterations": 4, "burn_in": 1})
+    assert a.volume.radiance_texels == 6 and a.accumulator.radiance.volume is a.volume
+    sc.at(0.0)
+    a.step(Frame(0, 0.0, sc.camera(0.0), RES, seed=0))
+    assert a.volume.radiance_host()[1].sum() > 0
+    assert a.memory_per_probe()["radiance_layer"] == 16 * (3 * 4 + 4)
 
 
 def test_cache_update_is_algorithm_2_and_3_and_table3_memory(adgi):
@@ -209,8 +250,8 @@ def test_cache_update_is_algorithm_2_and_3_and_table3_memory(adgi):
 
     sc = load_scene("cornell-static")
     a = create_technique("adgi", sc, {"probe_counts": "3", "warmup": 0})
-    rc = a.radiance
-    assert rc.R == a.volume.irradiance_texels == 8
+    rc = a.accumulator.radiance          # ADGI's rules on the volume's radiance layer
+    assert rc.R == a.volume.radiance_texels == a.volume.irradiance_texels == 8
     centres = texel_directions(8)[1:-1, 1:-1].reshape(-1, 3)
     rng = np.random.default_rng(5)
     pids = np.array([1, 7], np.uint32)
@@ -243,7 +284,8 @@ def test_cache_update_is_algorithm_2_and_3_and_table3_memory(adgi):
     # measured from the arrays allocated, against an independent count from the layout: fp32 texels and a
     # UInt32 count per texel, each on the host and on the device (the mirror); 8 per-octant fp32 tables of the
     # heuristics + f_c, the pilot stamp and the culling mask per probe; the radiance layer's 6x6 fp32 RGB +
-    # UInt32 count. Table 3's packed words (what the paper stores, 1312 B) are reported beside, not measured.
+    # UInt32 count (the volume's third atlas, device only). Table 3's packed words (what the paper stores,
+    # 1312 B) are reported beside, not measured.
     Ti, Td = 8, 16
     assert mem["irradiance"] == 2 * (Ti * Ti * 3 * 4 + Ti * Ti * 4) == 2048
     assert mem["visibility"] == 2 * (Td * Td * 2 * 4 + Td * Td * 4) == 6144

@@ -83,9 +83,9 @@ def test_moving_object_is_finite_and_fires_the_dynamic_chains(adgi):
     assert outer.any()
     Td = a.volume.distance_texels
     assert a.volume.state.distance_count.reshape(-1, Td * Td)[outer].max() <= 16
-    assert np.asarray(a.radiance.count).reshape(a.volume.n_probes, -1)[outer].max() <= 16
+    assert np.asarray(a.volume.device.radiance_count).reshape(a.volume.n_probes, -1)[outer].max() <= 16
     inner = vin & (a.volume.state.states != 0)
-    assert np.asarray(a.radiance.count).reshape(a.volume.n_probes, -1)[inner].max() > 16
+    assert np.asarray(a.volume.device.radiance_count).reshape(a.volume.n_probes, -1)[inner].max() > 16
 
 
 def test_reruns_are_bit_identical(adgi):
@@ -135,14 +135,14 @@ def test_probes_no_pixel_uses_get_no_update(adgi):
     a, _ = _run("adgi", sc, p, 2, t=0.0)
     used = np.asarray(a.passes.used) > 0
     assert 0 < used.sum() < a.volume.n_probes, used.sum()
-    before = (np.asarray(a.radiance.count).copy(), a.volume.state.distance_count.copy(),
+    before = (np.asarray(a.volume.device.radiance_count).copy(), a.volume.state.distance_count.copy(),
               a.volume.state.irradiance.copy())
     for f in range(2, 5):
         sc.at(0.0)
         a.step(Frame(f, 0.0, sc.camera(0.0), RES, seed=0, static=True))
     assert np.array_equal(np.asarray(a.passes.used) > 0, used)        # a still camera uses the same probes
     P = a.volume.n_probes
-    after = (np.asarray(a.radiance.count), a.volume.state.distance_count, a.volume.state.irradiance)
+    after = (np.asarray(a.volume.device.radiance_count), a.volume.state.distance_count, a.volume.state.irradiance)
     for b, c in zip(before, after):
         b, c = b.reshape(P, -1), c.reshape(P, -1)
         assert np.array_equal(b[~used], c[~used])

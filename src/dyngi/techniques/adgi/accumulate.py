@@ -4,7 +4,7 @@
 :class:`ADGIAccumulator` receives every traced pass of :class:`.passes.ADGIPasses` from the pipeline
 (:meth:`ProbePipeline.update_passes <dyngi.probes.pipeline.ProbePipeline.update_passes>`):
 
-* the radiance along ``w`` into the radiance layer (:class:`.radiance.RadianceCache`: the one radiance texel
+* the radiance along ``w`` into the volume's radiance layer (:class:`.radiance.RadianceUpdate`: the one radiance texel
   ``w`` falls in, Algorithm 3's batch rule with the pass's N_max, per sample where the pass gives lane caps),
   or with ``cache_update='closest-entry'`` into the irradiance texel it falls in (Algorithm 2 literally);
 * the distance of the ``-w`` ray (the pilot rays: their own) into the one visibility texel ``-w`` falls in
@@ -17,8 +17,10 @@
   is the temporal estimate); returns the number of probes updated.
 
 The warm-up's last rays seed the radiance layer (:meth:`ADGIAccumulator.end_warmup`). The radiance layer is
-ADGI's working state between frames (per radiance texel a mean and a count); the texels the query reads are
-the volume's (irradiance and visibility atlases, through the encoding).
+ADGI's working state between frames (per radiance texel a mean and a count), the probe volume's third atlas
+(:meth:`ProbeVolume.add_radiance_layer <dyngi.probes.volume.ProbeVolume.add_radiance_layer>`, asked for by the
+technique; the accumulator adds one of ``radiance_texels`` when the volume has none); the texels the query
+reads are the volume's irradiance and visibility atlases, through the encoding.
 """
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ from ...probes.arrays import upload
 from ...probes.rays import compact
 from ...probes.trace import ProbeRayResults
 from .moving_average import Algorithm3Accumulator
-from .radiance import RadianceCache
+from .radiance import RadianceUpdate
 
 
 class ADGIAccumulator:
@@ -56,7 +58,8 @@ class ADGIAccumulator:
         self.est_dist = ScatterEstimator(p["distance_power"], "bin")
         self.est_irr = ScatterEstimator(p["distance_power"], "bin")     # closest-entry: one texel per sample
         n = volume.n_probes
-        self.radiance = RadianceCache(n, p["radiance_texels"], volume.irradiance_texels)
+        volume.add_radiance_layer(p["radiance_texels"])      # the volume's third atlas (kept if already there)
+        self.radiance = RadianceUpdate(volume)
         self._updated = np.zeros(n, bool)                 # probes merged this frame (host path)
         self._updated_dev = dr.zeros(mi.UInt32, n)        # probes merged this frame (device path)
         self._slots_merged = 0                            # slots merged this frame (device: the convolve width)

@@ -1,6 +1,11 @@
 """ADGI's per-sample radiance texels and the per-texel convolution pass to irradiance (ours; the paper is
 silent on how a radiance sample becomes an irradiance texel, issue 12 item 5).
 
+The radiance texels are the probe volume's third atlas, its radiance layer (ADGI asks for one of
+``radiance_texels`` per side: :meth:`ProbeVolume.add_radiance_layer
+<dyngi.probes.volume.ProbeVolume.add_radiance_layer>`; the volume allocates, resets and accounts for it);
+:class:`RadianceUpdate` holds ADGI's rules on it and no texels.
+
 A chain sample ``(p, w)`` with radiance ``L`` updates the one *radiance* texel
 ``w`` falls in (octahedral, ``R x R`` with the DDGI border, interior
 ``(R-2)^2``) of its probe with Algorithm 3's batch rule
@@ -12,9 +17,10 @@ biased low on the Cornell box probes whose -w rays miss through the open
 front, where the guide is 0; docs/techniques/adgi.md).
 
 Irradiance is then a convolution pass over the radiance texels of every probe
-updated this frame (:meth:`RadianceCache.irradiance_estimate`: on a GPU on the device, one lane per
+updated this frame (:meth:`RadianceUpdate.irradiance_estimate`: on a GPU on the device, one lane per
 irradiance texel and a symbolic loop over the radiance texels, no host read; on the LLVM backend the
-NumPy/BLAS pass :meth:`RadianceCache.irradiance_estimate_host`, the CPU fast path): ``E(n_t) / pi = sum_r W[r, t] L_r``,
+NumPy/BLAS pass :meth:`RadianceUpdate.irradiance_estimate_host`, the CPU fast path):
+``E(n_t) / pi = sum_r W[r, t] L_r``,
 ``W[r, t] = max(0, n_t . w_r) Omega_r / sum_r' max(0, n_t . w_r') Omega_r'``
 with ``Omega_r`` the texel solid angles (:func:`~dyngi.sampling.octahedral.texel_solid_angles`);
 over the texels that hold a sample (texels never reached are left out and the
@@ -29,10 +35,11 @@ from __future__ import annotations
 import numpy as np
 
 from ...backend import dr, mi
+from ...errors import DyngiError
 from ...probes.arrays import upload
 from ...probes.estimator import TexelEstimate, fixed_point_sum, is_cpu_backend
 from ...probes.trace import vector_to_numpy
-from ...sampling.octahedral import direction_to_texel_coords, texel_directions, texel_solid_angles
+from ...sampling.octahedral import texel_directions, texel_solid_angles
 from .moving_average import batch_update
 
 
@@ -43,34 +50,53 @@ def _ids(probe_ids):
     return mi.UInt32(probe_ids)
 
 
-class RadianceCache:
-    """Per probe and interior radiance texel: Algorithm-3 mean radiance (``value``, Color3f interleaved) and
-    its count (``count``); see the module docstring.
+class RadianceUpdate:
+    """ADGI's rules on the probe volume's radiance layer (:meth:`ProbeVolume.add_radiance_layer
+    <dyngi.probes.volume.ProbeVolume.add_radiance_layer>`: per probe and interior radiance texel an Algorithm-3
+    mean radiance, ``volume.device.radiance``, Color3f interleaved, and its count, ``volume.device
+    .radiance_count``): the merge of a pass's samples, the outer count cap and the convolution to irradiance
+    (module docstring). It stores no texels: the volume does (one texel store).
 
-    n_probes : int, texels : int (R incl. border), irradiance_texels : int (the volume's)
+    volume : ProbeVolume with a radiance layer (``R = volume.radiance_texels`` incl. border); the convolution
+    weights ``W`` map its ``(R-2)^2`` radiance texels to the volume's ``(Ti-2)^2`` interior irradiance texels.
     """
 
-    def __init__(self, n_probes: int, texels: int, irradiance_texels: int):
-        self.P = int(n_probes)
-        self.R = int(texels)
-        self.n_tex = (self.R - 2) ** 2
-        self.Ti = int(irradiance_texels)
-        self.value = dr.zeros(mi.Float, self.P * self.n_tex * 3)
-        self.count = dr.zeros(mi.UInt32, self.P * self.n_tex)
+    def __init__(self, volume):
+        if volume.radiance_texels is None:
+            raise DyngiError("ADGI's radiance update needs a probe volume with a radiance layer "
+                             "(ProbeVolume.add_radiance_layer)")
+        self.volume = volume
+        self.P = volume.n_probes
+        self.R = volume.radiance_texels
+        self.n_tex = volume.radiance_interior
+        self.Ti = volume.irradiance_texels
         wr = texel_directions(self.R)[1:-1, 1:-1].reshape(-1, 3)
         om = texel_solid_angles(self.R).reshape(-1)
         nt = texel_directions(self.Ti)[1:-1, 1:-1].reshape(-1, 3)
         W = np.maximum(wr @ nt.T, 0.0) * om[:, None]
         self.W = (W / W.sum(axis=0, keepdims=True)).astype(np.float32)     # (n_tex, (Ti-2)^2)
         self._W_dr = upload(np.ascontiguousarray(self.W).ravel(), mi.Float)  # W[r, t] at r * (Ti-2)^2 + t
-        dr.eval(self.value, self.count)
+
+    # the volume's radiance atlas (device arrays; a Dr.Jit scatter writes into them in place)
+    @property
+    def value(self):
+        return self.volume.device.radiance
+
+    @value.setter
+    def value(self, v) -> None:
+        self.volume.device.radiance = v
+
+    @property
+    def count(self):
+        return self.volume.device.radiance_count
+
+    @count.setter
+    def count(self, c) -> None:
+        self.volume.device.radiance_count = c
 
     def texel_of(self, w):
-        """Interior radiance texel (row-major) that direction ``w`` falls in."""
-        c = direction_to_texel_coords(w, self.R)
-        ix = dr.clip(mi.Int32(dr.floor(c.x)) - 1, 0, self.R - 3)
-        iy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, self.R - 3)
-        return mi.UInt32(iy * (self.R - 2) + ix)
+        """Interior radiance texel (row-major) that direction ``w`` falls in (the volume's layout)."""
+        return self.volume.radiance_texel_of(w)
 
     def merge(self, results, n_max: int, n_max_lane=None) -> None:
         """Bin the front-face hits of ``results`` (a ProbeRayResults) into their texels; Algorithm 3 batch rule.

@@ -349,6 +349,7 @@ class ADGITechnique(_ProbeTechniqueBase):
             raise DyngiError(f"technique 'adgi': parameter 'burn_in' = {p['burn_in']} must be below "
                              f"'iterations' = {p['iterations']}")
         self._setup_volume(p["irradiance_texels"], p["distance_texels"])
+        self.volume.add_radiance_layer(p["radiance_texels"])     # the radiance layer: the volume's third atlas
         self.counts = tuple(int(c) for c in self.grid.counts)
         self.shader = PilotShader(p["direct"], lights=self.light_nee, lookup=p["hit_lookup"])
         self.encoding = get_encoding(p["encoding"])     # Table 3: visibility rounds to nearest
@@ -369,32 +370,29 @@ class ADGITechnique(_ProbeTechniqueBase):
     def memory_per_probe(self) -> dict:
         """Bytes per probe by part, *measured*: the sum of the ``nbytes`` of the per-probe arrays the technique
         holds (host NumPy and device Dr.Jit alike; the device mirrors of the host atlases count apart) over the
-        probe count (:func:`allocated_bytes`). Parts: ``irradiance`` / ``visibility`` (the volume's atlases and
-        texel counts, host and device), ``probe_state`` (offsets, states, update counts, positions),
-        ``heuristics`` (the per-octant tables of :class:`.heuristics.HeuristicState`, the 6-10-10 word, the
-        culling mask), ``radiance_layer`` (ours: :class:`.radiance.RadianceCache`), ``total``. Beside them,
+        probe count (:func:`allocated_bytes`). Parts: the volume's (:meth:`ProbeVolume.memory_parts
+        <dyngi.probes.volume.ProbeVolume.memory_parts>`) -- ``irradiance`` / ``visibility`` (the atlases and
+        texel counts, host and device), ``probe_state`` (offsets, states, update counts, positions; with the
+        pipeline's update history), ``radiance_layer`` (ours: the volume's radiance atlas and counts, device
+        only, :mod:`.radiance`) -- and ``heuristics`` (the per-octant tables of
+        :class:`.heuristics.HeuristicState`, the 6-10-10 word, the culling mask), ``total``. Beside them,
         not measured: ``table3`` -- what the paper's Table 3 words would take (8x8 + 16x16 32-bit words and
         the 6-10-10 word per octant, 1312 B): our texels are fp32 values quantised through the encoding, not
         packed words, so the measured figure is larger (docs/techniques/adgi.md)."""
-        P = self.volume.n_probes
-        vol, st, dev = self.volume, self.volume.state, self.volume.device
-        st.irradiance       # noqa: B018  (pulls a newer device atlas into the host copy first)
-        parts = {
-            "irradiance": [st._irradiance, st._irradiance_count, dev.irradiance, dev.irradiance_count],
-            "visibility": [st._distance, st._distance_count, dev.distance, dev.distance_count],
-            "probe_state": [st.offsets, st.states, st.updates, dev.positions, dev.states, dev.probe_data,
-                            self.pipeline._history],
-            "heuristics": [self.passes.hstate, getattr(self.passes, "lut", None), self.passes.used],
-            "radiance_layer": [self.radiance.value, self.radiance.count],
-        }
+        vol = self.volume
+        P = vol.n_probes
+        parts = vol.memory_parts()
+        parts["probe_state"].append(self.pipeline._history)
+        parts["heuristics"] = [self.passes.hstate, getattr(self.passes, "lut", None), self.passes.used]
+        parts["radiance_layer"] = parts.pop("radiance_layer")          # the report's order: the layer last
         out = {k: allocated_bytes(v) / P for k, v in parts.items()}
         out["total"] = sum(out.values())
         Ti, Td = vol.irradiance_texels, vol.distance_texels
         out["table3"] = (Ti * Ti + Td * Td) * 4 + OCTANTS * 4
         return out
 
-    # the passes' chains, heuristics and the accumulator's radiance layer, readable here (the viewer draws the
-    # static chains; tests read the heuristics and the radiance counts)
+    # the passes' chains and heuristics, readable here (the viewer draws the static chains; tests read the
+    # heuristics); the radiance layer is the volume's (``volume.device.radiance_count``, ``volume.radiance_host()``)
     @property
     def static_state(self):
         return self.passes.chains.static_state
@@ -402,10 +400,6 @@ class ADGITechnique(_ProbeTechniqueBase):
     @property
     def hstate(self):
         return self.passes.hstate
-
-    @property
-    def radiance(self):
-        return self.accumulator.radiance
 
     def guide_feedback(self):
         """The static guide's irradiance feedback (:meth:`.planner.ADGIChainPlanner.guide_feedback`)."""
