@@ -170,20 +170,18 @@ FUNCTION_IMPORTS: dict[str, int] = {   # one module a line
     "dyngi.experiments.cluster": 7,
     "dyngi.experiments.reproduce": 1,
     "dyngi.lights.base": 1,
-    "dyngi.techniques.neept": 2,
 }
 FUNCTION_IMPORTS_WHY: dict[str, str] = {
     "dyngi.color": "optional dependency: Mitsuba only for a Dr.Jit argument, so NumPy-only users (metrics) stay "
                    "free of the renderer",
     "dyngi.directions.base": "plug-in discovery: names() imports the package, which imports every direction sampler",
-    "dyngi.directions.walk": "optional module: dyngi.directions.cdq imported only for kind='cdq', so that the techniques "
-                             "that use the walk load without it (tests/techniques/test_neept.py)",
+    "dyngi.directions.walk": "optional module: dyngi.directions.cdq imported only for kind='cdq' (a clear error where "
+                             "it cannot be imported), so that the techniques that use the walk load without it "
+                             "(tests/techniques/test_neept.py)",
     "dyngi.experiments.cluster": "worker set-up: a Ray worker loads this module and sets the driver's environment and "
                                  "variant before Dr.Jit loads, so no module that loads Dr.Jit is imported at its top",
     "dyngi.experiments.reproduce": "plug-in discovery: the reproductions register themselves with this module",
     "dyngi.lights.base": "plug-in discovery: the registry imports the package, which imports every light sampler",
-    "dyngi.techniques.neept": "optional module: directions=cdq fails with a clear error when dyngi.directions.cdq "
-                              "cannot be imported (tests/techniques/test_neept.py)",
 }
 
 

@@ -27,6 +27,19 @@ Learning samplers (the VLC): every NEE sample's light, visibility and octree lea
 per-lane buffers inside the walk's loop (the first ``RECORD_VERTICES`` vertices of each path) and
 handed to ``record`` in :meth:`end_frame`; path vertices are placed in the octree (VLC Sec. 6), which
 adapts at the end of the frame.
+
+``estimator="separate"`` (the VLC paper's evaluation path tracer, Sec. 7; ``nee-pt``): the walk's own
+estimators (:meth:`LightNEE.estimate`, :meth:`LightNEE.emitted`) for an unrolled walk whose vertex hook
+and per-vertex records are a :class:`~dyngi.directions.walk.WalkDirections` with ``record="vertex"``
+(``vertices=``). At each vertex two NEE samples instead of one choice between them: one triangle light by
+the sampler (its ``pmf``, a point by area sampling), the shadow ray traced only where the BSDF value (or
+the diffuse stand-in's) is positive, recorded into the sampler inside the kernel at the vertex's placing
+leaf; plus one Mitsuba sample of the other emitters excluding the environment (which only BSDF sampling
+reaches); each weighted by the MIS function ``mis`` (the walk's balance heuristic) against the direction
+strategy's pdf; random numbers in the order 1D (light), 2D (point), 2D (other emitters). The emission
+reached by a bounce is weighted against the previous vertex's NEE (weight 1 where it did none); with
+``record_hits`` a bounce that reaches a light's front is recorded as a visible sample of that light.
+The octree is shared (:meth:`LightNEE.share_octree`): its owner places the vertices and adapts it.
 """
 from __future__ import annotations
 
@@ -71,10 +84,24 @@ class LightNEE:
 
     walk_aware = True     # the walk calls sample_walk / pdf_hit / begin_walk
 
-    def __init__(self, scene, kind: str, leaf_samples: int = 0, **opts):
+    def __init__(self, scene, kind: str, leaf_samples: int = 0, *, estimator: str = "choice", vertices=None,
+                 mis=None, record_hits: bool = False, **opts):
         """``leaf_samples``: the octree's split threshold per leaf of an octree-based sampler (collapse: half;
-        0: the paper's scaled and floored, :func:`~dyngi.directions.octree.make_octree`); ``opts``: the light
-        sampler's options."""
+        0: the paper's scaled and floored, :func:`~dyngi.directions.octree.make_octree`); ``estimator``:
+        ``"choice"`` (one NEE sample, the walk's estimators) or ``"separate"`` (the VLC paper's Sec. 7, module
+        docstring; ``vertices``: the per-vertex records, ``mis(pdf_a, pdf_b)``: the MIS weight,
+        ``record_hits``: also learn the lights that bounces hit); ``opts``: the light sampler's options."""
+        if estimator not in ("choice", "separate"):
+            raise DyngiError(f"LightNEE: estimator must be 'choice' or 'separate', got '{estimator}'")
+        if estimator == "separate" and mis is None:
+            raise DyngiError("LightNEE: estimator='separate' needs mis= (and vertices=, the walk's per-vertex records, "
+                             "before the first walk)")
+        self.estimator = estimator
+        self.own_estimators = estimator == "separate"    # the walk calls estimate / emitted
+        self.vertices = vertices
+        self._mis = mis
+        self.record_hits = bool(record_hits)
+        self._owns_octree = True
         ms = scene.mi_scene if hasattr(scene, "mi_scene") else scene
         self.leaf_samples = int(leaf_samples)
         self.kind = kind
@@ -87,11 +114,16 @@ class LightNEE:
         tri_shapes = {sid for sid, _, _ in self.tris.shape_slices()}
         self._lights_move = bool(tri_shapes & set(self.dynamic))
 
+        separate = self.own_estimators
+
         def keep(e):
+            if separate and mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) and not mi.has_flag(
+                    e.flags(), mi.EmitterFlags.DeltaDirection):
+                return False     # the separate estimator's NEE ignores the environment (BSDF sampling only)
             return not any(e is x for x in self._tri_emitters)
 
         self.others = EmitterSubsetSampling(ms, keep) if any(keep(e) for e in ms.emitters()) else None
-        if self.others is not None:
+        if self.others is not None and not separate:
             self.others.glass = False      # shadow rays stop at glass, as Mitsuba's path (the reference)
         n_other = self.others.count if self.others is not None else 0
         self.p_tri = 1.0 if n_other == 0 else (0.0 if self.tris.count == 0 else P_TRI)
@@ -129,11 +161,20 @@ class LightNEE:
             dr.eval(self._light_emitters)
         return self._light_emitters
 
+    def share_octree(self, octree) -> None:
+        """Use ``octree`` (owned by the caller, who places the path vertices and adapts it; None: none) from
+        the next frame on; an octree-based sampler is built anew over it in :meth:`begin_frame`."""
+        self.octree = octree
+        self._owns_octree = False
+        if self.entry.needs_octree:
+            self.sampler = None
+
     # -- per-frame hooks ---------------------------------------------------------------------------
     def begin_frame(self, scene, frame, vertices_per_frame: int = 0) -> None:
         """Refresh the table of moving lights, build the octree (first frame), call the sampler's hook."""
         if self.entry.needs_octree and self.sampler is None:
-            self.octree = make_octree(self.bounds, vertices_per_frame, self.leaf_samples)
+            if self._owns_octree:
+                self.octree = make_octree(self.bounds, vertices_per_frame, self.leaf_samples)
             self.sampler = make(self.kind, self.tris, mi_scene=self._ms, bounds=self.bounds, octree=self.octree,
                                 **{k: v for k, v in self._opts.items() if k != "octree"})
         if self._lights_move and frame.index > 0:
@@ -152,15 +193,16 @@ class LightNEE:
                 self.sampler.record(None, None, light, vis != 0, light != INVALID, **kw)
         self._walks = []
         self.sampler.end_frame()
-        if self.octree is not None:
+        if self.octree is not None and self._owns_octree:
             self.octree.adapt()
 
     def stats(self) -> dict:
         return self.sampler.stats() if self.sampler is not None else {}
 
     def begin_walk(self, n: int) -> None:
-        """Before a walk of ``n`` lanes: the record buffers of a learning sampler."""
-        if not self.entry.learns:
+        """Before a walk of ``n`` lanes: the record buffers of a learning sampler (the separate estimator
+        records at each vertex: none)."""
+        if not self.entry.learns or self.own_estimators:
             return
         size = n * RECORD_VERTICES
         bufs = (dr.full(mi.UInt32, INVALID, size), dr.full(mi.UInt32, INVALID, size), dr.zeros(mi.UInt32, size))
@@ -274,6 +316,95 @@ class LightNEE:
         ds_hit = mi.DirectionSample3f(scene, si, ref_si)
         hit = active & (si.emitter(scene, active) != None)   # noqa: E711
         return dr.select(hit, self.pdf_hit(scene, ref_si, si, ds_hit, hit), 0.0)
+
+    # -- the separate estimator (estimator="separate": the walk's own NEE and emission estimators) -------
+    def estimate(self, scene, v, sampler, active, depth, dir_pdf):
+        """NEE at vertex ``v`` of an unrolled walk (module docstring): (radiance estimate without beta, rays
+        traced per lane: the walk counts them, ``lanes=True``, :mod:`dyngi.rays`). Keeps the vertex's NEE mask
+        and estimate in the per-vertex records (the next vertex's MIS weight, the CDQ's record)."""
+        u1, u2, u_o = sampler.next_1d(), sampler.next_2d(), sampler.next_2d()
+        active = mi.Bool(active) & v.active
+        tris, sel, balance = self.tris, self.sampler, self._mis
+        ctx = mi.BSDFContext()
+        L = mi.Color3f(0.0)
+        n_rays = mi.UInt32(0)
+        si, n, real_bsdf, albedo, p = v.si, v.n, v.bsdf, v.albedo, v.si.p
+        if tris.count:
+            k, pmf = sel.sample(p, n, u1, active, p_prev=p, **self._lk(v.leaf))
+            ok = active & (k != INVALID) & (pmf > 0.0)
+            pl, nl, pdf_a = tris.sample_point(k, u2, ok)
+            d = pl - p
+            dist2 = dr.squared_norm(d)
+            wi = d * dr.rsqrt(dist2)
+            cos_l = -dr.dot(nl, wi)
+            cos_r = dr.dot(n, wi)
+            ok &= (cos_l > 0.0) & (dist2 > 0.0) & (pdf_a > 0.0)
+            pdf_l = pmf * pdf_a * dist2 / cos_l
+            if real_bsdf is not None:
+                f, _ = real_bsdf.eval_pdf(ctx, si, si.to_local(wi), ok)
+                f = mi.Color3f(f)
+            else:
+                f = albedo * dr.maximum(cos_r, 0.0) * dr.inv_pi
+                ok &= cos_r > 0.0
+            ok &= dr.max(f) > 0.0
+            pdf_b = dir_pdf(wi, ok)
+            vis = ok & ~rays.occluded(scene, si.spawn_ray_to(pl), ok, stage="trace", lanes=True)
+            n_rays += mi.UInt32(ok)
+            Le = tris.gather_radiance(k, vis)
+            w = balance(pdf_l, pdf_b)
+            L += dr.select(vis, f * Le * (w / pdf_l), 0.0)
+            sel.record(p, n, k, vis, active & (k != INVALID), **self._lk(self.vertices.vx[depth]["leaf"]))
+        if self.others is not None and self.others.count:
+            ds, em_w, traced, n_o = self.others.sample_traced(scene, si, u_o, active, receiver=None, stage="trace",
+                                                              lanes=True)
+            if real_bsdf is not None:
+                f, _ = real_bsdf.eval_pdf(ctx, si, si.to_local(ds.d), traced)
+                f = mi.Color3f(f)
+            else:
+                f = albedo * dr.maximum(dr.dot(n, ds.d), 0.0) * dr.inv_pi
+            pdf_b = dir_pdf(ds.d, traced)
+            w = dr.select(ds.delta, 1.0, balance(ds.pdf, pdf_b))
+            L += dr.select(traced, f * em_w * w, 0.0)
+            n_rays += n_o
+        self.vertices.vx[depth].update(nee_on=active, L_nee=L)
+        return L, n_rays
+
+    def emitted(self, scene, si, ray, prev_si, prev_pdf, prev_delta, depth, active):
+        """MIS-weighted emission at vertex ``depth`` of an unrolled walk reached from the previous vertex
+        (module docstring): Mitsuba's emitter at vertex 0; after it the table's radiance of a triangle hit (or
+        Mitsuba's emitter of another), weighted against the previous vertex's NEE. Keeps the environment's
+        part in the per-vertex records (the CDQ learns it, NEE does not sample it)."""
+        if depth == 0:
+            return mi.Color3f(si.emitter(scene).eval(si))     # seen directly: Mitsuba's own emitter
+        rec = self.vertices
+        prev = rec.vx[depth - 1]
+        prev_n, prev_leaf = prev["v"].n, prev["v"].leaf
+        prev_delta = mi.Bool(prev_delta) | ~prev["nee_on"]    # no NEE there: the light pdf is 0, weight 1
+        tris, balance = self.tris, self._mis
+        k = tris.light_id(si, active) if tris.count else mi.UInt32(INVALID)
+        is_tri = active & (k != INVALID)
+        Le = mi.Color3f(0.0)
+        if tris.count:
+            nl = dr.gather(mi.Normal3f, tris.normal, k, is_tri)
+            cos_l = -dr.dot(nl, ray.d)
+            front = is_tri & (cos_l > 0.0)
+            area = dr.gather(mi.Float, tris.area, k, front)
+            pmf = self.sampler.pmf(prev_si.p, prev_n, k, front & ~prev_delta, p_prev=prev_si.p, **self._lk(prev_leaf))
+            pdf_l = pmf * dr.square(si.t) / (area * cos_l)
+            w = dr.select(prev_delta, 1.0, balance(prev_pdf, pdf_l))
+            Le += dr.select(front, tris.gather_radiance(k, front) * w, 0.0)
+            if self.record_hits:   # a BSDF-sampled ray that reached a light's front: a visible light sample
+                self.sampler.record(prev_si.p, prev_n, k, front, front & ~prev_delta, **self._lk(prev_leaf))
+        other = active & ~is_tri
+        em = si.emitter(scene, other)
+        ds = mi.DirectionSample3f(scene, si, prev_si)
+        pdf_o = mi.Float(0.0)
+        if self.others is not None and self.others.count:
+            pdf_o = self.others.pdf(scene, prev_si, ds, other & ~prev_delta)
+        w_o = dr.select(prev_delta, 1.0, balance(prev_pdf, pdf_o))
+        Le_o = dr.select(other, mi.Color3f(em.eval(si, other)) * w_o, 0.0)
+        rec.env[depth] = dr.select(~si.is_valid(), Le_o, 0.0)
+        return Le + Le_o
 
 
 class _Numbers:

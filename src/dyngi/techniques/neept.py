@@ -13,8 +13,11 @@ emission is Mitsuba's own). Every NEE sample and every BSDF-sampled emission are
 combined by the balance heuristic with the light selector's exact ``pmf``.
 
 The path is the one path walk (:func:`dyngi.transport.path_walk.walk`, unrolled over its three vertices,
-no Russian roulette) composed with :class:`NeePTWalk`: its vertex hook (real BSDF or diffuse stand-in,
-octree leaves), its light strategy (the NEE and emission estimators above) and its direction strategy. A
+no Russian roulette) with the shared light and direction strategies configured for Sec. 7: the light
+strategy :class:`~dyngi.lights.nee.LightNEE` with ``estimator="separate"`` (the NEE and emission
+estimators above, recording into the light sampler at every vertex) and the direction strategy
+:class:`~dyngi.directions.walk.WalkDirections` with ``record="vertex"`` and ``stand_in`` (its vertex hook:
+real BSDF or diffuse stand-in, octree leaves; the per-vertex records both share; the CDQ record below). A
 path goes on after a sampled direction of zero weight (e.g. a CDQ direction below the surface): the VLC and
 the CDQ learn at the vertices it reaches, and each path still traces its five rays (Sec. 7).
 
@@ -97,16 +100,13 @@ from .. import lights as light_samplers
 from .. import rays as ray_ledger
 from ..backend import dr, mi
 from ..color import luminance
-from ..directions.base import Vertex
 from ..directions.mixture import CDQ_FRACTION  # noqa: F401  (re-exported: Sec. 7's "brdf fraction of 50%")
 from ..directions.motion import MotionVectors
-from ..directions.octree import make_octree, octree_bounds
+from ..directions.octree import make_octree
+from ..directions.walk import WalkDirections
 from ..errors import DyngiError
-from ..lights.base import INVALID, EmitterTable, FrameCtx
-from ..lights.emitter_sampling import EmitterSubsetSampling
-from ..sampling.diffuse import diffuse_albedo
+from ..lights.nee import LightNEE
 from ..sampling.rng import make_sampler, mix_seed
-from ..scene.surface import shading_normal
 from ..transport.accumulate import ProgressiveMean
 from ..transport.mis import mis_weight
 from ..transport.path_walk import walk
@@ -133,203 +133,14 @@ def _weights(text: str) -> tuple:
     return w
 
 
-def _make_selector(kind: str, tris, mi_scene, bounds, octree, params, dynamic_shapes=()):
-    # dynamic_shapes: the SLL's PVS must not count moving occluders (a PVS knows static geometry only)
-    opts = dict(octree=octree, dynamic_shapes=list(dynamic_shapes), exploration=params["exploration"],
-                capacity=params["capacity"],
-                hysteresis=params["hysteresis"], merge_neighbours=params["merge_neighbours"], memory=params["memory"],
-                explore_weights=_weights(params["explore_weights"]), explorer=params["explorer"])
-    # the one light-sampler interface (dyngi.lights): each sampler takes the options it declares
+def _selector_options(kind: str, params) -> dict:
+    """The light sampler's options that nee-pt sets, those ``kind`` declares (the one light-sampler interface,
+    :mod:`dyngi.lights`); a light tree is rebuilt every frame (its default, the paper's baseline)."""
+    opts = dict(exploration=params["exploration"], capacity=params["capacity"], hysteresis=params["hysteresis"],
+                merge_neighbours=params["merge_neighbours"], memory=params["memory"],
+                explore_weights=_weights(params["explore_weights"]), explorer=params["explorer"], rebuild="frame")
     accepted = light_samplers.options(kind)
-    return light_samplers.make(kind, tris, mi_scene=mi_scene, bounds=bounds,
-                               **{k: v for k, v in opts.items() if k in accepted})
-
-
-def _diffuse_stand_in(si, bsdf, active):
-    """(albedo, side-corrected shading normal) of the diffuse stand-in after the primary hit (Sec. 7)."""
-    cos_wi = mi.Frame3f.cos_theta(si.wi)
-    back_ok = mi.has_flag(bsdf.flags(), mi.BSDFFlags.BackSide)
-    a = diffuse_albedo(bsdf, si, active)
-    a = dr.select((cos_wi > 0.0) | back_ok, a, 0.0)
-    return a, shading_normal(si)
-
-
-class NeePTWalk:
-    """nee-pt's part of the one path walk (:func:`dyngi.transport.path_walk.walk`, unrolled over the three
-    vertices of Sec. 7): its vertex hook, its light strategy (own NEE and emission estimators) and its
-    direction strategy, over the technique's selector, emitter table, octree and CDQ. One per frame: it keeps
-    each vertex's values (normal, leaves, NEE mask and estimate, sampled direction, environment radiance) for
-    the next vertex's MIS weight and for the CDQ record at the end of the walk.
-
-    * vertex 0 (primary hit): its real BSDF; the octree leaf pair of Sec. 6.3 (sampling: the previous
-      position's leaf, placing: the current one); vertex 1: the diffuse stand-in, its leaf; vertex 2:
-      emission only, placed in the octree.
-    * NEE (:meth:`estimate`): one triangle light by the selector (``pmf``), a point on it by area sampling,
-      f-gated shadow ray, recorded in the selector's placing leaf; plus one Mitsuba sample of the other
-      emitters; both weighted by the balance heuristic against the direction sampler's pdf.
-    * emission (:meth:`emitted`): Mitsuba's emitter at vertex 0; after it the table's radiance of a triangle
-      hit (or Mitsuba's emitter of another), balance-weighted against the light pdf of the previous vertex's
-      NEE (weight 1 where it did none).
-    """
-
-    def __init__(self, tech):
-        self.t = tech
-        self.vx: dict = {}
-        self.env: dict = {}
-
-    def begin_walk(self, n: int) -> None:
-        """Before the walk (called once as its light and once as its direction strategy): no vertex yet."""
-        self.vx, self.env = {}, {}
-
-    def _lk(self, leaf):
-        """``leaf=`` keyword for selectors that accept an already looked-up octree leaf (the VLC)."""
-        sel = self.t.selector
-        return {"leaf": leaf} if (leaf is not None and getattr(sel, "accepts_leaf", False)) else {}
-
-    # -- the vertex hook -------------------------------------------------------------------------
-    def vertex(self, c):
-        """The walk's vertex hook: the :class:`Vertex` NEE and the direction sampler see at vertex ``c.depth``
-        (None at the tertiary hit), its octree placement (class docstring)."""
-        t, oc, si, valid = self.t, self.t.octree, c.si, c.active
-        if c.depth >= MAX_DEPTH - 1:              # the tertiary hit: emission only
-            if oc is not None:
-                oc.place(si.p, valid)
-            return None
-        if c.depth == 0:                          # the primary hit keeps its real BSDF
-            n, albedo, bsdf, on = shading_normal(si), None, c.bsdf, valid
-        else:                                     # after it: the diffuse stand-in
-            albedo, n = _diffuse_stand_in(si, c.bsdf, valid)
-            bsdf, on = None, valid & (dr.max(albedo) > 0.0)
-        leaf = leaf_s = None
-        if oc is not None:
-            if c.depth == 0 and t.motion is not None and t.motion.active:   # Sec. 6.3: previous / current
-                leaf_s, leaf = oc.lookup_pair(t.motion.previous(si, valid), si.p, valid)
-            else:
-                leaf = leaf_s = oc.lookup(si.p, valid)
-            oc.place_leaf(leaf, valid)
-        v = Vertex(si, n, bsdf, albedo, leaf_s, on)
-        self.vx[c.depth] = {"v": v, "leaf": leaf, "nee_on": mi.Bool(False), "L_nee": mi.Color3f(0.0)}
-        return v
-
-    # -- the light strategy ----------------------------------------------------------------------
-    def estimate(self, scene, v, sampler, active, depth, dir_pdf):
-        """NEE at a vertex: (radiance estimate without beta, rays traced per lane: the walk counts them,
-        ``lanes=True``, :mod:`dyngi.rays`); class docstring."""
-        u1, u2, u_o = sampler.next_1d(), sampler.next_2d(), sampler.next_2d()
-        active = mi.Bool(active) & v.active
-        t = self.t
-        tris, sel = t.tris, t.selector
-        ctx = mi.BSDFContext()
-        L = mi.Color3f(0.0)
-        rays = mi.UInt32(0)
-        si, n, real_bsdf, albedo, p = v.si, v.n, v.bsdf, v.albedo, v.si.p
-        if tris.count:
-            k, pmf = sel.sample(p, n, u1, active, p_prev=p, **self._lk(v.leaf))
-            ok = active & (k != INVALID) & (pmf > 0.0)
-            pl, nl, pdf_a = tris.sample_point(k, u2, ok)
-            d = pl - p
-            dist2 = dr.squared_norm(d)
-            wi = d * dr.rsqrt(dist2)
-            cos_l = -dr.dot(nl, wi)
-            cos_r = dr.dot(n, wi)
-            ok &= (cos_l > 0.0) & (dist2 > 0.0) & (pdf_a > 0.0)
-            pdf_l = pmf * pdf_a * dist2 / cos_l
-            if real_bsdf is not None:
-                f, _ = real_bsdf.eval_pdf(ctx, si, si.to_local(wi), ok)
-                f = mi.Color3f(f)
-            else:
-                f = albedo * dr.maximum(cos_r, 0.0) * dr.inv_pi
-                ok &= cos_r > 0.0
-            ok &= dr.max(f) > 0.0
-            pdf_b = dir_pdf(wi, ok)
-            vis = ok & ~ray_ledger.occluded(scene, si.spawn_ray_to(pl), ok, stage="trace", lanes=True)
-            rays += mi.UInt32(ok)
-            Le = tris.gather_radiance(k, vis)
-            w = _balance(pdf_l, pdf_b)
-            L += dr.select(vis, f * Le * (w / pdf_l), 0.0)
-            sel.record(p, n, k, vis, active & (k != INVALID), **self._lk(self.vx[depth]["leaf"]))
-        if t.others is not None and t.others.count:
-            ds, em_w, traced, n_o = t.others.sample_traced(scene, si, u_o, active, receiver=None, stage="trace",
-                                                           lanes=True)
-            if real_bsdf is not None:
-                f, _ = real_bsdf.eval_pdf(ctx, si, si.to_local(ds.d), traced)
-                f = mi.Color3f(f)
-            else:
-                f = albedo * dr.maximum(dr.dot(n, ds.d), 0.0) * dr.inv_pi
-            pdf_b = dir_pdf(ds.d, traced)
-            w = dr.select(ds.delta, 1.0, _balance(ds.pdf, pdf_b))
-            L += dr.select(traced, f * em_w * w, 0.0)
-            rays += n_o
-        self.vx[depth].update(nee_on=active, L_nee=L)
-        return L, rays
-
-    def emitted(self, scene, si, ray, prev_si, prev_pdf, prev_delta, depth, active):
-        """MIS-weighted emission at vertex ``depth`` reached from the previous vertex (class docstring); records
-        the environment's part (the CDQ learns it, NEE does not sample it)."""
-        if depth == 0:
-            return mi.Color3f(si.emitter(scene).eval(si))     # seen directly: Mitsuba's own emitter
-        prev = self.vx[depth - 1]
-        prev_n, prev_leaf = prev["v"].n, prev["v"].leaf
-        prev_delta = mi.Bool(prev_delta) | ~prev["nee_on"]    # no NEE there: the light pdf is 0, weight 1
-        t, tris = self.t, self.t.tris
-        k = tris.light_id(si, active) if tris.count else mi.UInt32(INVALID)
-        is_tri = active & (k != INVALID)
-        Le = mi.Color3f(0.0)
-        if tris.count:
-            nl = dr.gather(mi.Normal3f, tris.normal, k, is_tri)
-            cos_l = -dr.dot(nl, ray.d)
-            front = is_tri & (cos_l > 0.0)
-            area = dr.gather(mi.Float, tris.area, k, front)
-            pmf = t.selector.pmf(prev_si.p, prev_n, k, front & ~prev_delta, p_prev=prev_si.p, **self._lk(prev_leaf))
-            pdf_l = pmf * dr.square(si.t) / (area * cos_l)
-            w = dr.select(prev_delta, 1.0, _balance(prev_pdf, pdf_l))
-            Le += dr.select(front, tris.gather_radiance(k, front) * w, 0.0)
-            if t._record_hits:   # a BSDF-sampled ray that reached a light's front: a visible light sample
-                t.selector.record(prev_si.p, prev_n, k, front, front & ~prev_delta, **self._lk(prev_leaf))
-        other = active & ~is_tri
-        em = si.emitter(scene, other)
-        ds = mi.DirectionSample3f(scene, si, prev_si)
-        pdf_o = mi.Float(0.0)
-        if t.others is not None and t.others.count:
-            pdf_o = t.others.pdf(scene, prev_si, ds, other & ~prev_delta)
-        w_o = dr.select(prev_delta, 1.0, _balance(prev_pdf, pdf_o))
-        Le_o = dr.select(other, mi.Color3f(em.eval(si, other)) * w_o, 0.0)
-        self.env[depth] = dr.select(~si.is_valid(), Le_o, 0.0)
-        return Le + Le_o
-
-    # -- the direction strategy ------------------------------------------------------------------
-    def sample(self, v, sampler, active):
-        """The indirect direction through the direction sampler (:mod:`dyngi.directions`); draws 1D, 1D, 2D."""
-        u_sel = sampler.next_1d()
-        u1 = sampler.next_1d()
-        u2 = sampler.next_2d()
-        return self.t.directions.sample(v, u_sel, u1, u2, mi.Bool(active) & v.active)
-
-    def pdf(self, v, wo, active):
-        """The direction sampler's density of ``wo`` (the BSDF side of the MIS weights)."""
-        return self.t.directions.pdf(v, wo, active)
-
-    def record(self, v, d, L, beta, depth) -> None:
-        """Keep vertex ``depth``'s sampled direction for the CDQ record (:meth:`end_walk`)."""
-        self.vx[depth]["d"] = d
-
-    def end_walk(self, L) -> None:
-        """CDQ record (directions=cdq): at vertices 0 and 1, the luminance of the indirect sample
-        ``f cos L_i / p_mix`` without the camera-path prefix, ``L_i`` without the emission of lights (NEE's
-        job, Sec. 5.1) but with the environment (module docstring)."""
-        cdq = self.t.cdq
-        if cdq is None:
-            return
-        inner = self.env[MAX_DEPTH - 1]      # radiance arriving along vertex d's sample, from the far end back
-        recs = []
-        for d in range(MAX_DEPTH - 2, -1, -1):
-            x = self.vx[d]
-            val = x["d"].weight * inner
-            recs.append((x["leaf"], x["d"].wo, luminance(val), x["d"].ok))
-            if d > 0:
-                inner = self.env[d] + x["L_nee"] + val
-        for leaf, wo, lum, ok in reversed(recs):
-            cdq.record(leaf, wo, lum, ok)
+    return {k: v for k, v in opts.items() if k in accepted}
 
 
 @register
@@ -376,52 +187,57 @@ class NeePT(Technique):
         super().__init__(scene, params)
         # nee-pt's depth is fixed (Sec. 7); exposed for the battery's depth-limited furnace value
         self.params["max_depth"] = MAX_DEPTH
-        ms = scene.mi_scene
-        self.tris = EmitterTable(ms)
-        tri_shapes = {sid for sid, _, _ in self.tris.shape_slices()}
-        self._lights_move = bool(tri_shapes & set(scene.meta.dynamic_shapes))
-        self._tri_emitters = [sh.emitter() for sh in self.tris._shapes]   # kept alive: compared by identity
-
-        def keep(e):   # NEE through Mitsuba for delta lights and non-triangle area emitters; never the environment
-            if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite) and not mi.has_flag(
-                    e.flags(), mi.EmitterFlags.DeltaDirection):
-                return False
-            return not any(e is x for x in self._tri_emitters)
-
-        self.others = EmitterSubsetSampling(ms, keep) if any(keep(e) for e in ms.emitters()) else None
-        self.bounds = octree_bounds(scene)    # a flat scene's zero extent grown (directions.octree)
         p = self.params
         self.octree = None
-        self.cdq = None
-        self.motion = None
         self._res = None
-        self.selector = None
         _weights(p["explore_weights"])          # bad values fail here, not at the first frame
-        if p["directions"] == "cdq":
-            try:
-                from ..directions.cdq import CDQDirections  # noqa: F401
-            except ImportError as e:
-                raise DyngiError(f"nee-pt: directions=cdq needs dyngi.directions.cdq ({e}); valid values: bsdf, cdq") \
-                    from None
+        # the light strategy: the emitter table, the light sampler (an octree-based one is built over the shared
+        # octree at the first frame of a resolution), the other emitters' sampling; the VLC paper's estimators
+        self.nee = LightNEE(scene, p["lights"], estimator="separate", vertices=None, mis=_balance,
+                            record_hits=p["record_hits"] and p["lights"] == "vlc", **_selector_options(p["lights"], p))
+        try:    # the vertex hook, the per-vertex records and the directions (a missing CDQ module fails here)
+            self.dirs = WalkDirections(scene, p["directions"], bits=p["cdq_bits"], stability=p["cdq_stability"],
+                                       memory=p["cdq_memory"], fraction=p["cdq_fraction"] if p["directions"] == "cdq"
+                                       else None, record="vertex", vertices=MAX_DEPTH, stand_in=True)
+        except DyngiError as e:
+            raise DyngiError(f"nee-pt: {e}") from None
+        self.nee.vertices = self.dirs          # the per-vertex records both strategies share
+        self.bounds = self.nee.bounds          # a flat scene's zero extent grown (directions.octree)
         self.accum = ProgressiveMean()
+
+    # the shared strategies' parts, by the names the tests and stats read
+    @property
+    def tris(self):
+        return self.nee.tris
+
+    @property
+    def selector(self):
+        return self.nee.sampler
+
+    @property
+    def others(self):
+        return self.nee.others
+
+    @property
+    def cdq(self):
+        return self.dirs.cdq
+
+    @property
+    def motion(self):
+        return self.dirs.motion
 
     # -- per-resolution setup ------------------------------------------------------------------
     def _setup(self, res, spp):
         p = self.params
-        need_octree = p["lights"] == "vlc" or p["directions"] == "cdq"
-        if need_octree:
-            self.octree = make_octree(self.bounds, MAX_DEPTH * res[0] * res[1] * spp, p["leaf_samples"])
-            if self.scene.meta.dynamic_shapes:     # motion vectors for Sec. 6.3's previous/current lookup
-                self.motion = MotionVectors(self.scene.mi_scene, self.scene.meta.dynamic_shapes)
-        if p["directions"] == "cdq":
-            from ..directions.cdq import CDQDirections
-            self.cdq = CDQDirections(self.octree, bits=p["cdq_bits"], stability=p["cdq_stability"],
-                                     memory=p["cdq_memory"])
-        opts = {"fraction": float(p["cdq_fraction"])} if p["directions"] == "cdq" else {}
-        self.directions = direction_samplers.make(p["directions"], guide=self.cdq, **opts)
-        self.selector = _make_selector(p["lights"], self.tris, self.scene.mi_scene, self.bounds, self.octree, p,
-                                       self.scene.meta.dynamic_shapes)
-        self._record_hits = p["record_hits"] and p["lights"] == "vlc"
+        sc = self.scene
+        vertices = MAX_DEPTH * res[0] * res[1] * spp
+        self.octree = motion = None
+        if p["lights"] == "vlc" or p["directions"] == "cdq":    # one octree, shared by the VLC and the CDQ
+            self.octree = make_octree(self.bounds, vertices, p["leaf_samples"])
+            if sc.meta.dynamic_shapes:     # motion vectors for Sec. 6.3's previous/current lookup
+                motion = MotionVectors(sc.mi_scene, sc.meta.dynamic_shapes)
+        self.dirs.share_octree(self.octree, motion)
+        self.nee.share_octree(self.octree)
         self._res = (tuple(res), spp)
 
     def _trace(self, frame, spp):
@@ -433,9 +249,9 @@ class NeePT(Technique):
         pix = idx // dr.opaque(mi.UInt32, spp) if spp > 1 else idx
         ray = frame.camera.sample_rays(frame.res, pix, sampler.next_2d())
         # -- the one path walk over Sec. 7's three vertices, unrolled (each vertex its own BSDF and records) --
-        nw = NeePTWalk(self)
-        r = walk(self.scene.mi_scene, sampler, ray, mi.Bool(True), MAX_DEPTH, -1, lights=nw, directions=nw,
-                 vertex=nw.vertex, power_heuristic=False, split=True, unroll=True, stop_at_zero=False, lanes=True)
+        r = walk(self.scene.mi_scene, sampler, ray, mi.Bool(True), MAX_DEPTH, -1, lights=self.nee,
+                 directions=self.dirs, vertex=self.dirs.vertex_hook, power_heuristic=False, split=True, unroll=True,
+                 stop_at_zero=False, lanes=True)
         L = dr.select(dr.isfinite(luminance(r.L)), r.L, 0.0)
         L_ind = dr.select(dr.isfinite(luminance(r.L_ind)), r.L_ind, 0.0)
         pending = list(getattr(self.selector, "pending", lambda: [])())
@@ -457,31 +273,24 @@ class NeePT(Technique):
         t = StageTimer()
         if self._res != (tuple(frame.res), spp):
             self._setup(frame.res, spp)
-        if self._lights_move and frame.index > 0:
-            self.tris.refresh(self.scene.mi_scene)
-        cam = np.asarray(frame.camera.origin, np.float64)
-        ctx = FrameCtx(self.scene.mi_scene, self.tris, frame.index, frame.time, self.octree, self.bounds, cam)
-        with t.stage("preprocess"):
-            if self.motion is not None:
-                self.motion.advance()
-            if self.cdq is not None:
-                self.cdq.begin_frame(ctx)
-            self.selector.begin_frame(ctx)
+        with t.stage("preprocess"):     # motion vectors, CDQ carry-over; moving lights, the light sampler
+            self.dirs.begin_frame(self.scene, frame)
+            self.nee.begin_frame(self.scene, frame)
         with t.stage("trace"):
             L, L_ind, rays = self._trace(frame, spp)
         t.add_rays("trace", rays)
         if self.cdq is not None:
             with t.stage("cdq adapt"):
-                self.cdq.end_frame()
+                self.dirs.end_frame()
         with t.stage("adapt"):
-            self.selector.end_frame()
-            if self.octree is not None:
+            self.nee.end_frame()
+            if self.octree is not None:     # the octree's owner adapts it, once
                 self.octree.adapt()
         self.accum.add(L, L_ind, samples=spp, accumulate=p["progressive"] and frame.static)
         stats = t.as_dict()
         stats["spp"] = spp
         stats["lights"] = self.tris.count
-        stats["selector"] = self.selector.stats()
+        stats["selector"] = self.nee.stats()
         if self.octree is not None:
             stats["octree"] = self.octree.stats()
         if self.cdq is not None:

@@ -39,7 +39,9 @@ vertex (instead of Mitsuba's emitter times the walk's MIS weight), and ``estimat
 active, depth, dir_pdf) -> (radiance, rays)``: the NEE estimate at the vertex without ``beta`` (instead of one
 light sample; ``dir_pdf(wo, active)``: the BSDF side's density, the direction strategy's where there is
 one), e.g. nee-pt's one triangle sample by its light selector plus one Mitsuba sample of the other emitters
-(the VLC paper, Sec. 7).
+(the VLC paper, Sec. 7: :class:`dyngi.lights.nee.LightNEE` with ``estimator="separate"``). A strategy with
+an ``own_estimators`` attribute says by it whether both are used (a :class:`~dyngi.lights.nee.LightNEE` has
+them, for its separate estimator only).
 
 ``unroll=True`` traces the loop in Python: exactly ``max_depth`` vertices, each hook gets its vertex index as
 a Python ``int`` (so it may specialise per vertex, and keep per-vertex values between its calls, e.g. per-frame
@@ -231,8 +233,9 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
     if unroll and max_depth < 1:
         raise DyngiError(f"path walk: unroll needs a bounded max_depth >= 1, got {max_depth}")
     n_unroll = max_depth if unroll else None
-    own_emission = hasattr(lights, "emitted")
-    own_estimate = hasattr(lights, "estimate")
+    own = getattr(lights, "own_estimators", None)    # a strategy may say whether its estimators replace the walk's
+    own_emission = hasattr(lights, "emitted") if own is None else bool(own)
+    own_estimate = hasattr(lights, "estimate") if own is None else bool(own)
     if state is None:
         state = mi.Float(0.0)
     max_depth = mi.UInt32(0xFFFFFFFF) if max_depth < 0 else mi.UInt32(max_depth)
