@@ -82,10 +82,10 @@ def _measure(scene):
     return measure
 
 
-def _claim(technique, baseline="fake-claim:trick=false", cost="equal-frames", seeds=(0, 1, 2)):
+def _claim(technique, baseline="fake-claim:trick=false", cost="equal-frames", seeds=(0, 1, 2), ratio=None):
     return C.Claim("fake.claim", "a paper", "lower error than the baseline", "Fig. 0", technique, baseline,
                    "MSE of 3 frames vs the truth", cost, C.Criterion("below", 1.0), tuple(seeds),
-                   {"frames": "3"}, {"frames": "3"})
+                   {"frames": "3"}, {"frames": "3"}, declared_ratio=ratio)
 
 
 def test_rows_come_from_the_marks_on_the_param_table(fake):
@@ -183,3 +183,22 @@ def test_settings_of_ours_shared_with_the_baseline_stay_equal_in_every_row(backe
     assert any(r.role == "paper-literal" for r in rows)            # adgi's own marks still make rows
     v = C.decide(claim, {r.label: [0.5, 0.6, 0.55] for r in rows if r.role != "baseline"}, rows=rows)
     assert v.word == "reproduced" and any("shared with the baseline" in c for c in v.conditions), v
+
+
+def test_a_quick_run_records_an_overspend_and_a_declared_ratio_counts_shared_rays_once(fake):
+    """Under a declared ratio the rays both rows spend alike (the baseline's ``shared_rays``) count once;
+    a quick run records a row over its budget in the conditions instead of failing."""
+    claim = _claim("fake-claim:trick=false:warmup=512", "fake-claim:trick=false:warmup=512", cost="declared",
+                   ratio=0.5)
+    base = _measure(fake)
+
+    def shared(row, seed, b):
+        m = base(row, seed, b)
+        m.extra["shared_rays"] = 512
+        return m
+    r = C.run_claim(claim, shared, quick=True)
+    assert any("over its ray budget" in c for c in r.verdict.conditions), r.verdict.conditions   # 704 > 608
+    with pytest.raises(C.ClaimCostError):
+        C.run_claim(claim, shared)
+    ok = dataclasses.replace(claim, declared_ratio=1.0)
+    assert C.run_claim(ok, shared).cost["default"][0]["budget"] == pytest.approx(64 * 3 + 512)

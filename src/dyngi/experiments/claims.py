@@ -265,16 +265,23 @@ class Measurement:
     extra: dict = field(default_factory=dict)
 
 
-def check_cost(claim: Claim, row: Row, m: Measurement, base: Measurement) -> dict:
+def check_cost(claim: Claim, row: Row, m: Measurement, base: Measurement, quick: bool = False) -> dict:
     """Every ray of every frame from frame 0 of ``row`` against the baseline's (one seed). Returns the
     accounting; raises :class:`ClaimCostError` when an equal-rays (or declared-ratio) row spends more than
-    :data:`MAX_OVERSPEND` over its budget."""
+    :data:`MAX_OVERSPEND` over its budget (``quick``: records it in the accounting, ``over``, instead: a
+    quick run decides nothing). Under a declared ratio the rays both spend alike (``extra['shared_rays']``
+    of the baseline, e.g. the warm-up both techniques share on frame 0) count once, the ratio applies to
+    the rest."""
     spent, budget = float(np.sum(m.rays)), float(np.sum(base.rays))
     out = {"rays": spent, "baseline_rays": budget, "ratio": spent / budget if budget > 0 else float("inf")}
     if claim.cost in ("equal-rays", "declared") and row.role != "baseline":
-        target = budget * (claim.declared_ratio if claim.cost == "declared" else 1.0)
+        shared = float(base.extra.get("shared_rays", 0.0)) if claim.cost == "declared" else 0.0
+        target = shared + (budget - shared) * (claim.declared_ratio if claim.cost == "declared" else 1.0)
         out["budget"] = target
         if target <= 0 or spent > target * (1.0 + MAX_OVERSPEND):
+            if quick:
+                out["over"] = spent / max(target, 1.0)
+                return out
             raise ClaimCostError(
                 f"claim '{claim.key}', row '{row.label}' ({row.spec}) traced {spent:.0f} rays over "
                 f"{len(m.rays)} frames (every frame from frame 0), {spent / max(target, 1):.3f}x its budget of "
@@ -419,10 +426,14 @@ def run_claim(claim: Claim, measure: Callable, quick: bool = False, seeds=None) 
                 continue
             m = measure(r, int(s), base)
             meas[r.label][int(s)] = m
-            cost[r.label][int(s)] = check_cost(claim, r, m, base)
+            cost[r.label][int(s)] = check_cost(claim, r, m, base, quick)
     ratios = {r.label: [meas[r.label][int(s)].value / meas[base_row.label][int(s)].value for s in seeds]
               for r in rows if r.role != "baseline"}
-    return ClaimResult(claim, rows, meas, cost, decide(claim, ratios, quick, rows))
+    verdict = decide(claim, ratios, quick, rows)
+    over = sorted({f"{lb} {c['over']:.2f}x" for lb, per in cost.items() for c in per.values() if "over" in c})
+    if over:
+        verdict.conditions.append("over its ray budget (a full run fails on this): " + ", ".join(over))
+    return ClaimResult(claim, rows, meas, cost, verdict)
 
 
 def result_from_values(claim: Claim, values: dict, quick: bool = False) -> ClaimResult:
