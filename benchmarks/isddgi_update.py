@@ -43,7 +43,7 @@ RUNS = ("isddgi", "ddgi", "ddgi@equal-rays")
 
 def run_scene(name: str, seeds, frames: int, res, skip: int, extra: dict) -> dict:
     """The three runs stepped round-robin per seed; returns per-run stage ms and per-seed speed-ups."""
-    from dyngi.experiments.runner import SequenceResult, _step
+    from dyngi.experiments.runner import SequenceResult, step_frame
     from dyngi.scene import load_scene
     from dyngi.techniques import Frame, create_technique
     ms = {t: {s: [] for s in STAGES + ("total",)} for t in RUNS}
@@ -61,7 +61,7 @@ def run_scene(name: str, seeds, frames: int, res, skip: int, extra: dict) -> dic
             sc.at(t)
             for tn, tech in techs.items():
                 budget = seqs["isddgi"].stats[i]["total_rays"] if tn == "ddgi@equal-rays" else None
-                _step(tech, Frame(i, t, sc.camera(t), res, seed=int(seed), ray_budget=budget), seqs[tn], False)
+                step_frame(tech, Frame(i, t, sc.camera(t), res, seed=int(seed), ray_budget=budget), seqs[tn], False)
                 st = seqs[tn].stats[i]
                 rays[tn].append(st.get("counted_rays") or st.get("total_rays", 0))
                 if i >= skip:

@@ -62,9 +62,7 @@ def counting():
 
 def _reduce(n) -> int:
     """An entry's rays: an int as it is; a Dr.Jit mask counted, a per-lane (or already reduced) count summed."""
-    if isinstance(n, (int, np.integer)):
-        return int(n)
-    if isinstance(n, (bool, np.bool_)):
+    if isinstance(n, (int, np.integer, np.bool_)):      # bool is an int
         return int(n)
     if dr.is_array_v(n):
         v = dr.count(n) if dr.type_v(n) == dr.VarType.Bool else dr.sum(n)

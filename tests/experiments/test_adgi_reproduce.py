@@ -44,25 +44,29 @@ def test_budgeted_adgi_spends_its_ratio_of_qddgi_rays_from_frame_0(rep, ratio):
     paper's 0.6, or 1: equal rays) times Q-DDGI's rays on every frame (their reported rays, as the reproduction
     sets the budgets). Counted every frame from frame 0, the warm-up included (both warm up alike, Q-DDGI's
     8 x 32 rays, and ADGI's is charged to frame 0), its total is within 5 % of its budget
-    (:func:`dyngi.experiments.claims.check_cost`) and spends most of it; no frame exceeds its budget by more
-    than half (measured at 0.6: the states pass of frame 8, 1.46x, repaid on frame 9; frame 0 1.15x, the
-    warm-up and pilot rays before any chain)."""
+    (:func:`dyngi.experiments.claims.check_cost`) and spends most of it; no frame exceeds the budget it was
+    given (the carried balance, :func:`~dyngi.experiments.budgets.carried_budgets`) by more than 30 %, the
+    bound the equal-rays protocol test had for its steady frames."""
+    from dyngi.experiments.budgets import carried_budgets
     from dyngi.experiments.claims import Claim, Criterion, Measurement, Row, check_cost
+    from dyngi.experiments.runner import frame_rays
     from dyngi.techniques.base import create_technique
     sc = load_scene("cornell-moving-box")
     times = [sc.frame_time(i) for i in range(10)]
     small = {"probe_counts": "4", "warmup": 1}
     q = rep.run_frames(sc, create_technique("qddgi", sc, small), times, (32, 24), keep=False)
     qr = [s["total_rays"] for s in q["stats"]]
-    a = rep.run_frames(sc, create_technique("adgi", sc, small), times, (32, 24),
-                       budgets=[max(1, int(ratio * b)) for b in qr], keep=False)
+    budgets = [max(1, int(ratio * b)) for b in qr]
+    a = rep.run_frames(sc, create_technique("adgi", sc, small), times, (32, 24), budgets=budgets, keep=False)
     ar = [s["total_rays"] for s in a["stats"]]
+    counted = [frame_rays(s) for s in a["stats"]]        # what the budget's balance is carried on
     assert a["stats"][0]["rays"]["warmup"] == q["stats"][0]["rays"]["warmup"] > 0      # Q-DDGI's warm-up, frame 0
     claim = Claim("t", "p", "q", "Fig. 9", "adgi", "qddgi", "m", "declared" if ratio != 1.0 else "equal-rays",
                   Criterion("below", 1.0), (0, 1, 2), {}, {}, declared_ratio=ratio if ratio != 1.0 else None)
     acc = check_cost(claim, Row("default", "default", "adgi"), Measurement(0.0, ar), Measurement(0.0, qr))
     assert 0.8 < acc["ratio"] / ratio <= 1.05, (acc, ar, qr)
-    assert max(x / (ratio * y) for x, y in zip(ar, qr)) < 1.5, (ar, qr)
+    given = carried_budgets(budgets, counted)
+    assert max(x / g for x, g in zip(counted, given)) < 1.05 + 0.3, (counted, given)
 
 
 MICRO = {"res": (16, 12), "dt": 1.0, "hold": 2, "ref_spp": 4, "static_frames": 3,

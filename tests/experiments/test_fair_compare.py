@@ -399,10 +399,9 @@ def test_ddgi_equal_rays_within_budget(env, tmp_path):
     js = _json(out)
     for t in ("ddgi:warmup=0", "ddgi:warmup=0:hysteresis=0.9"):
         acc = js["techniques"][t]["budget_accounting"]
-        # the balance is carried: what frame 0 left unspent frame 1 may spend, so every prefix of the run,
-        # not every single frame, keeps near its budget
-        prefix = np.cumsum(acc["spent"]) / np.cumsum(acc["budget"])
-        assert acc["total_ratio"] <= 1.0 + MAX_OVERSPEND and prefix.max() <= 1.15, acc
+        # the balance is carried (what frame 0 left unspent frame 1 may spend): a frame's own overspend is
+        # over the budget it was given, not over the first technique's rays on that frame
+        assert acc["total_ratio"] <= 1.0 + MAX_OVERSPEND and acc["max_given_ratio"] <= 1.15, acc
         assert acc["total_ratio"] > 0.7, acc
     acc = js["techniques"]["ddgi"]["budget_accounting"]
     assert acc["overspent"] and acc["frame0_ratio"] > 1.5, acc

@@ -66,11 +66,25 @@ def frame_budget(budget: str, rays: list, ms: float | None = None):
             return None, ms
         if i >= len(rays) or rays[i] is None:
             return None, None
-        balance = sum(frame_rays(st) - rays[j] for j, st in enumerate(so_far.stats)
-                      if rays[j] is not None)
-        return max(1, int(round(rays[i] - balance))), None
+        spent = [frame_rays(st) for st in so_far.stats]
+        return carried_budgets(rays[:i + 1], spent + [0])[i], None
 
     return budget_of
+
+
+def carried_budgets(rays: list, spent: list) -> list:
+    """The ray budget each frame is given under the carried balance (:func:`frame_budget`): ``rays[i]`` less
+    what frames ``0 .. i-1`` spent over (plus what they left under) theirs, at least 1; None where ``rays[i]``
+    is None (that frame has no budget and moves no balance). A frame's spend over *this* budget is its own
+    overspend; over ``rays[i]`` it may be a balance the earlier frames left."""
+    out, balance = [], 0.0
+    for r, s in zip(rays, spent):
+        if r is None:
+            out.append(None)
+            continue
+        out.append(max(1, int(round(r - balance))))
+        balance += s - r
+    return out
 
 
 def budget_accounting(seq: SequenceResult, first: SequenceResult, budget: str) -> dict | None:
@@ -79,7 +93,8 @@ def budget_accounting(seq: SequenceResult, first: SequenceResult, budget: str) -
     Returns ``{'what': 'rays'|'ms', 'budget': per-frame budgets, 'spent': per-frame spend,
     'ratio': spent / budget per frame, 'frame0_ratio', 'steady_max_ratio', 'steady_mean_ratio',
     'total_ratio' (every frame from frame 0 summed), 'steady_total_ratio' (frames 1.. summed),
-    'overspent': total_ratio > 1 + MAX_OVERSPEND}``.
+    'overspent': total_ratio > 1 + MAX_OVERSPEND}``; for equal rays also 'given' (each frame's budget under
+    the carried balance, :func:`carried_budgets`) and 'max_given_ratio' (the largest spend over it).
     For equal time the spend is the wall time of each frame and ``steady_median_ratio`` (median steady
     frame time over the budget, what the budget targets) is added.
     """
@@ -106,4 +121,7 @@ def budget_accounting(seq: SequenceResult, first: SequenceResult, budget: str) -
         out["overspent"] = bool(out["steady_median_ratio"] > 1.0 + MAX_OVERSPEND)
     else:
         out["overspent"] = bool(out["total_ratio"] > 1.0 + MAX_OVERSPEND)
+        given = np.asarray(carried_budgets(b.tolist(), x.tolist()), np.float64)
+        out["given"] = given.tolist()
+        out["max_given_ratio"] = float(np.max(x / given))
     return out

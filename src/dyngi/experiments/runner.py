@@ -94,7 +94,7 @@ def run_sequence(scene, technique, frames: int, res: tuple[int, int], seed: int 
         if tb is not None:
             frame.time_budget_ms = tb
         prev_sig = sig
-        r = _step(technique, frame, out, keep_images)
+        r = step_frame(technique, frame, out, keep_images)
         if progress is not None:
             progress.update(1)
         if on_frame is not None and on_frame(i, frame, r):
@@ -102,8 +102,9 @@ def run_sequence(scene, technique, frames: int, res: tuple[int, int], seed: int 
     return out
 
 
-def _step(technique, frame: Frame, out: SequenceResult, keep_images: bool = True) -> FrameResult:
-    """One timed step of ``technique`` with its rays counted, appended to ``out``."""
+def step_frame(technique, frame: Frame, out: SequenceResult, keep_images: bool = True) -> FrameResult:
+    """One timed step of ``technique`` with its rays counted (:mod:`dyngi.rays`), appended to ``out``: the one
+    frame step of :func:`run_sequence`, :func:`run_round_robin` and benchmarks that step techniques in turn."""
     w0 = time.perf_counter()
     with counting() as ledger:
         r: FrameResult = technique.step(frame)
@@ -143,7 +144,7 @@ def run_round_robin(scene, techniques: dict, frames: int, res: tuple[int, int], 
             frame = Frame(index=i, time=t, camera=scene.camera(t), res=tuple(res), seed=seed,
                           ray_budget=None, static=(sig == prev_sig))
             try:
-                _step(tech, frame, outs[lb])
+                step_frame(tech, frame, outs[lb])
             except Exception as e:       # noqa: BLE001 -- one technique's failure leaves the others running
                 errors[lb] = e
             if progress is not None:
