@@ -18,7 +18,13 @@ photons : str = 'per-frame'   'per-frame': a new photon set every frame (random 
                               (Keller's deterministic point set, frame-independent random numbers):
                               on static lights and geometry it cannot flicker -- a temporal-coherence
                               device the paper's IR lacks, so it is reported as its own row
-                              (``ir:photons=fixed``), never as the paper's baseline (issue 29).
+                              (``ir:photons=fixed``), never as the paper's baseline (issue 29);
+                              'qmc': Keller's deterministic quasi-random set -- frame f takes the *next*
+                              N points of the Halton sequence (points 1 + s + f N .. s + (f + 1) N, a new
+                              prefix per frame, not a scrambled set; s = (seed mod 4096) * 2^20 so that
+                              technique seeds take disjoint stretches of the sequence): the paper's IR
+                              as the SMC-IR claims run it (Keller 1997 draws the photons from Halton
+                              points; Hedman et al. give no further detail).
 
 Bias: clamping (the geometry term, ``clamp_distance``) and the finite bounce count.
 """
@@ -27,11 +33,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..sampling.rng import mix_seed
-from ..vpl.points import trace_photons
+from ..vpl.points import halton_photon_points, trace_photons
 from .base import Frame, Param, StageTimer, register
 from .vpl_base import COMMON_PARAMS, EMISSION_LIGHTS, VPLTechnique
 
-PHOTON_MODES = ("per-frame", "fixed")
+PHOTON_MODES = ("per-frame", "fixed", "qmc")
+QMC_SEED_STRIDE = 1 << 20
+"""Halton points between the stretches of two technique seeds (``photons='qmc'``): 2^20 / N frames each."""
 
 
 @register
@@ -40,7 +48,8 @@ class InstantRadiosity(VPLTechnique):
     description = "instant radiosity (Keller 1997): photons from the lights, a VPL at each diffuse bounce"
     PARAMS = {**COMMON_PARAMS, "lights": EMISSION_LIGHTS,
               "photons": Param("per-frame", "photon set: 'per-frame' (new random numbers each frame, the paper's "
-                               "IR) or 'fixed' (one set for the sequence)", choices=PHOTON_MODES)}
+                               "IR), 'fixed' (one set for the sequence) or 'qmc' (the next Halton points each frame: Keller's "
+                               "deterministic set)", choices=PHOTON_MODES)}
 
     def update_vpls(self, frame: Frame, t: StageTimer):
         b = self.bounces
@@ -49,9 +58,14 @@ class InstantRadiosity(VPLTechnique):
             return z, z, z, {"vpls_used": 0, "vpl_budget": self.budget}
         n_ph = max(1, self.budget // b)
         with t.stage("photons"):
-            key = frame.index if self.params["photons"] == "per-frame" else 0
+            mode = self.params["photons"]
+            key = frame.index if mode == "per-frame" else 0
+            pts = None
+            if mode == "qmc":
+                start = 1 + (int(frame.seed) % 4096) * QMC_SEED_STRIDE + int(frame.index) * n_ph
+                pts = halton_photon_points(n_ph, b, start)
             v, rays = trace_photons(self.scene, n_ph, b, mix_seed(frame.seed, 0, 0x1A), frame=key,
-                                     lights=self.lights)
+                                     lights=self.lights, points=pts)
         t.add_rays("photons", rays)
         flux = np.where(v["used"][:, None], v["radiosity"] / n_ph, 0.0).astype(np.float32)
         return v["pos"], v["nrm"], flux, {"vpls_used": int(v["used"].sum()), "vpl_budget": self.budget}

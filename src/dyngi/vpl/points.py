@@ -182,8 +182,51 @@ def camera_sees(scene, camera, res, pts: np.ndarray, nrm: np.ndarray | None = No
     return out, int(inside.sum())
 
 
+class PointSetSampler:
+    """``next_1d`` / ``next_2d`` over the columns of an (n, d) point set in [0, 1)^d, one column per
+    dimension in order: a deterministic (QMC) point set as the sampler of a walk that otherwise draws from
+    :func:`dyngi.sampling.rng.make_sampler`. The data are new arrays per call, not literals: a new point
+    set compiles nothing. A walk that asks for more than d dimensions is an error."""
+
+    def __init__(self, u: np.ndarray):
+        self.u = np.asarray(u, np.float64)
+        self.j = 0
+
+    def _col(self):
+        if self.j >= self.u.shape[1]:
+            raise ValueError(f"the point set has {self.u.shape[1]} dimensions; the walk asked for more")
+        c = mi.Float(aligned(np.minimum(self.u[:, self.j], np.nextafter(1.0, 0.0)), np.float32))
+        self.j += 1
+        return c
+
+    def next_1d(self):
+        return self._col()
+
+    def next_2d(self):
+        return mi.Point2f(self._col(), self._col())
+
+
+def photon_dimensions(bounces: int) -> int:
+    """Dimensions of one photon path of :func:`trace_photons`: emitter choice (1), position (2), direction
+    (2), and a cosine direction (2) after each of the ``bounces`` hits."""
+    return 5 + 2 * int(bounces)
+
+
+def halton_photon_points(n_photons: int, bounces: int, start: int) -> np.ndarray:
+    """Points ``start .. start + n_photons - 1`` of the (unscrambled, radical-inverse) Halton sequence in
+    :func:`photon_dimensions` dimensions (bases 2, 3, 5, ...), the deterministic low-discrepancy set of
+    Keller's instant radiosity (1997: Halton points for the photons; that paper is not among
+    papers/, Hedman et al. cite it as [3]); ``start >= 1`` skips the origin. A (n, d) float64 array."""
+    from scipy.stats import qmc   # not a dyngi module: loaded on first use
+
+    h = qmc.Halton(d=photon_dimensions(bounces), scramble=False)
+    if start > 0:
+        h.fast_forward(int(start))
+    return h.random(int(n_photons))
+
+
 def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 0x1A, frame: int = 0,
-                  lights=None):
+                  lights=None, points: np.ndarray | None = None):
     """Keller's instant radiosity: ``n_photons`` light paths, a VPL at each of the first ``bounces``
     diffuse hits. Slot ``b * n_photons + j`` is bounce ``b + 1`` of photon ``j``.
 
@@ -196,10 +239,12 @@ def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 
 
     The random numbers come from ``(seed, frame, stream)`` (an opaque seed: a new ``frame`` compiles
     nothing): ``ir`` passes the frame index (a new photon set per frame, the paper's IR) or 0 (one
-    fixed set for the whole sequence, ``photons='fixed'``).
+    fixed set for the whole sequence, ``photons='fixed'``). ``points``: an (n_photons,
+    :func:`photon_dimensions`) point set in [0, 1) used instead (``photons='qmc'``: Halton points,
+    :func:`halton_photon_points`); ``seed``, ``frame`` and ``stream`` are then unused.
     """
     mscene = _mscene(scene)
-    sampler = make_sampler(n_photons, seed, frame, stream)
+    sampler = make_sampler(n_photons, seed, frame, stream) if points is None else PointSetSampler(points)
     ray, beta = sample_photon_ray(mscene, lights, sampler.next_1d(), sampler.next_2d(), sampler.next_2d())
     alive = dr.isfinite(dr.max(beta)) & (dr.max(beta) > 0.0)
     cols = {k: [] for k in ("pos", "nrm", "albedo", "radiosity", "used")}
