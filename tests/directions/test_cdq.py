@@ -159,12 +159,13 @@ class _FakeOctree:
         self.prev_leaf = mi.UInt32(np.arange(n, dtype=np.uint32))
 
 
-@pytest.mark.parametrize("memory", (0.0, 0.8))
-def test_migration_moves_resolution_toward_scripted_peak(memory):
+@pytest.mark.parametrize("memory,min_records", ((0.0, 0), (0.8, 0), (0.0, 8), (0.8, 8)))
+def test_migration_moves_resolution_toward_scripted_peak(memory, min_records):
     """Samples drawn from the CDQ itself, contribution = L(w) / p(w) with L a narrow lobe: after
-    some frames the density at the peak is far above uniform and above the initial tree's."""
+    some frames the density at the peak is far above uniform and above the initial tree's (with and
+    without the evidence rule and the decaying prior)."""
     oct_ = _FakeOctree(2)
-    g = cdq.CDQDirections(oct_, bits=64, memory=memory)
+    g = cdq.CDQDirections(oct_, bits=64, memory=memory, min_records=min_records)
     peak = np.array([0.3, -0.5, 0.81])
     peak /= np.linalg.norm(peak)
     pk = mi.Vector3f(*[mi.Float(np.full(2, v)) for v in peak])
@@ -221,6 +222,59 @@ def test_device_migration_matches_numpy_reference():
                                      mi.UInt32(np.arange(L) * (bits + 1)), bits, 0.1, 12, True)
         assert (got_go.numpy() == go).all()
         assert (np.stack([o.numpy() for o in out], 1) == cdq.pack_np(want)).all()
+
+
+def test_migration_needs_evidence():
+    """min_records (ours): a node with no records cannot be the collapse (C_inner = 0 is no evidence), a leaf
+    with fewer than m records cannot split; with enough records the paper's rule decides; the device kernel
+    makes the same decisions as the NumPy reference."""
+    bits = 64
+    b0 = cdq.initial_bits_np(bits)[None]
+    leaves = cdq.leaf_nodes_np(b0[0])
+    S = np.zeros((1, bits + 1))
+    N = np.zeros((1, bits + 1))
+    hot = leaves[10]
+    S[0, hot], N[0, hot] = 50.0, 20.0                 # one hot leaf with 20 records, nothing recorded elsewhere
+    assert cdq.migrate_np(b0, S)[1][0]                # the paper's rule migrates on empty nodes
+    assert not cdq.migrate_np(b0, S, counts=N, min_records=8)[1][0]   # no node has evidence to collapse
+    N[0, leaves] = np.maximum(N[0, leaves], 3.0)       # 3 records per leaf: 12 under each collapsible node
+    nb, go = cdq.migrate_np(b0, S, counts=N, min_records=8)
+    assert go[0] and cdq.is_valid_tree_np(nb[0])
+    N[0, hot] = 5.0                                    # the hot leaf itself below the minimum: no split
+    assert not cdq.migrate_np(b0, S, counts=N, min_records=8)[1][0]
+    rng = np.random.default_rng(7)
+    L = 64
+    for bits in (32, 128):
+        B = np.stack([cdq.random_tree_np(bits, rng, int(rng.integers(5, 17))) for _ in range(L)])
+        S = np.floor(rng.exponential(size=(L, bits + 1)) ** 3 * 100)
+        N = rng.integers(0, 12, size=(L, bits + 1)).astype(np.float64)
+        N[1::3] = np.minimum(N[1::3], 1.0)              # too few records: these rows must not migrate
+        want, go = cdq.migrate_np(B, S, 0.1, 12, counts=N, min_records=6)
+        assert 0 < go.sum() < L and not go[1::3].any() and cdq.migrate_np(B, S, 0.1, 12)[1][1::3].any()
+        out, got_go = cdq.migrate_dr(cdq.words_from_numpy(cdq.pack_np(B)), mi.Float(S.astype(np.float32).ravel()),
+                                     mi.UInt32(np.arange(L) * (bits + 1)), bits, 0.1, 12, True,
+                                     mi.Float(N.astype(np.float32).ravel()), mi.Float(6.0))
+        assert (got_go.numpy() == go).all()
+        assert (np.stack([o.numpy() for o in out], 1) == cdq.pack_np(want)).all()
+
+
+@pytest.mark.parametrize("adapt", cdq.ADAPT_CHOICES)
+def test_evidence_counts_records_on_both_paths(adapt):
+    """CDQDirections(min_records=m): records of zero contribution count as evidence; a frame with too few
+    records in a leaf does not migrate it, one with enough does (device and host paths alike)."""
+    g = cdq.CDQDirections(_FakeOctree(1), bits=32, min_records=8, adapt=adapt)
+    rng = np.random.default_rng(2)
+
+    def frame(n):
+        g.begin_frame()
+        leaf = mi.UInt32(np.zeros(n, np.uint32))
+        d, pdf = g.sample(leaf, mi.Point2f(rng.random(n), rng.random(n)), True)
+        g.record(leaf, d, dr.select(d.z > 0.9, 100.0, 0.0), True)
+        g.end_frame()
+        return g.migrations_last
+
+    assert frame(20) == 0          # ~1 record per quadtree leaf: no evidence
+    assert frame(4000) == 1        # ~160 per leaf: the paper's rule decides
 
 
 def test_with_adaptive_octree_split_children_inherit_fields():

@@ -291,6 +291,16 @@ def test_thresholds_and_bad_input(oct_mod):
     assert oct_mod.scaled_thresholds(2 * 1920 * 1080) == (4096, 2048)
     assert oct_mod.scaled_thresholds(2 * 160 * 90) == (512, 256)
     assert oct_mod.scaled_thresholds(2 * 3840 * 2160) == (16384, 8192)
+    # nee-pt's rule: the paper's 4096 / 2048 wherever the frame records 8 x 4096 samples, scaled below (ours)
+    assert oct_mod.paper_thresholds(2 * 320 * 180) == (4096, 2048)
+    assert oct_mod.paper_thresholds(oct_mod.PAPER_MIN_RECORDS) == (4096, 2048)
+    assert oct_mod.paper_thresholds(2 * 64 * 36) == (576, 288)
+    assert oct_mod.paper_thresholds(2 * 64 * 36, scaling=False) == (4096, 2048)
+    assert oct_mod.paper_thresholds(10) == (oct_mod.MIN_SCALED_SPLIT, oct_mod.MIN_SCALED_SPLIT // 2)
+    o = oct_mod.make_octree(([0, 0, 0], [1, 1, 1]), 2 * 320 * 180, rule="paper")
+    assert (o.split_threshold, o.collapse_threshold) == (4096, 2048)
+    with pytest.raises(DyngiError, match="valid choices"):
+        oct_mod.make_octree(([0, 0, 0], [1, 1, 1]), 100, rule="nope")
     with pytest.raises(DyngiError, match="collapse_threshold"):
         oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], split_threshold=10, collapse_threshold=10)
     with pytest.raises(DyngiError, match="bounds"):

@@ -83,8 +83,13 @@ def test_five_rays_per_path_and_stats(backend):
         assert {"preprocess", "trace", "adapt"} <= set(s["ms"])
         assert "preprocess_ms" in s["selector"] and s["octree"]["leaves"] >= 8
     assert tech.tris.count == 256          # 128 quad lights = 256 triangle lights
-    # thresholds at this resolution: the octree's floor
-    assert (tech.octree.split_threshold, tech.octree.collapse_threshold) == (512, 256)
+    # thresholds at this resolution: the paper's scaled down to the frame's records (two recording vertices per
+    # path: the tertiary hit is not placed), the paper's 4096 / 2048 with leaf_scaling=false
+    from dyngi.directions.octree import paper_thresholds
+    assert (tech.octree.split_threshold, tech.octree.collapse_threshold) == paper_thresholds(2 * n) == (192, 96)
+    assert all(0 < s["octree"]["placed"] <= 2 * n for s in stats if s["octree"]["placed"] is not None)
+    t2 = frames_of("nee-pt:leaf_scaling=false", "warehouse-lights", 1, 1, res=(32, 24))[3]
+    assert (t2.octree.split_threshold, t2.octree.collapse_threshold) == (4096, 2048)
     assert stats[-1]["selector"]["lights_in_cache"] > 0
 
 

@@ -69,7 +69,16 @@ indirect ray brought back WITHOUT the emission of lights (NEE's job: "we ignore 
 entirely", Sec. 5.1) but with the environment (not NEE'd, as in Quake 2 RTX) and what the next
 vertex reflects (its NEE and its own indirect ray); NEE samples themselves are never recorded.
 
-Temporal memory (our extension, ``memory``, default 0 = the paper): the migration may use
+Evidence (ours, ``min_records``; 0 = the paper; nee-pt's ``cdq_min_records``, default 8): with sparse
+records most collapsible nodes have ``C_inner = 0`` only because nothing was recorded under them, so
+``stability * C_leaf > C_inner`` always holds, a migration happens every frame and argmin ties go to the
+shallowest empty node: the paper's hysteresis does nothing at our counts. With ``min_records = m`` a quadtree
+leaf splits only if it received at least ``m`` records this frame (zero contributions included: a record
+below the surface is evidence too) and an inner node collapses only if its four children received at least
+``m``; a per-(octree leaf, node) count buffer is scatter-added beside the contributions.
+
+Temporal memory (our extension, ``memory``, default 0 = the paper): the decaying prior the paper lacks
+(its migration sees the last frame only; nee-pt marks ``cdq_memory`` ours). The migration may use
 ``S = memory * S_prev + S_frame``. Each node then keeps three sums (c^2, c^2 x, c^2 y): a split
 hands the leaf's memory to the child that holds its contribution-weighted centroid, a collapse
 sums its children, the octree's correspondence carries them over. At our sample counts an octree
@@ -265,11 +274,15 @@ def random_tree_np(bits: int, rng: np.random.Generator, max_depth: int = MAX_DEP
 
 
 def migrate_np(bitarr: np.ndarray, node_stats: np.ndarray, stability: float = DEFAULT_STABILITY,
-               max_depth: int = MAX_DEPTH, return_stats: bool = False):
+               max_depth: int = MAX_DEPTH, return_stats: bool = False, counts=None, min_records: float = 0.0):
     """One leaf migration per row (Sec. 5.1, Fig. 4), vectorised over octree leaves.
 
     bitarr: (L, B) bool fields; node_stats: (L, B+1) summed squared contributions per node
-    (only leaf entries are used), or (L, B+1, 3) with the channels (C, sum c^2 x, sum c^2 y). A row migrates iff ``stability * max C_leaf > min C_inner``.
+    (only leaf entries are used), or (L, B+1, 3) with the channels (C, sum c^2 x, sum c^2 y), or (L, B+1, 4)
+    with the record counts as a fourth channel. A row migrates iff ``stability * max C_leaf > min C_inner``.
+    Evidence (ours, ``min_records``; 0 = the paper): only a quadtree leaf with at least ``min_records``
+    records may split and only an inner node whose children hold at least ``min_records`` records may
+    collapse (``counts``: (L, B+1) records per node, else the fourth channel).
     Returns (new (L, B) bool fields, (L,) bool mask of rows that migrated) and, with
     ``return_stats``, the (L, B+1) statistics carried over to the new nodes (see :class:`CDQDirections`
     ``memory``).
@@ -278,6 +291,9 @@ def migrate_np(bitarr: np.ndarray, node_stats: np.ndarray, stability: float = DE
     S_in = np.asarray(node_stats, np.float64)
     S_in = S_in[None] if S_in.ndim == 1 else S_in
     S = S_in[..., 0] if S_in.ndim == 3 else S_in          # the decision uses C only
+    if counts is None and S_in.ndim == 3 and S_in.shape[-1] > 3:
+        counts = S_in[..., 3]
+    N = None if counts is None or min_records <= 0 else np.asarray(counts, np.float64).reshape(S.shape)
     L, B = bitarr.shape
     r = np.arange(L)
     t = tree_topology_np(bitarr)
@@ -286,6 +302,8 @@ def migrate_np(bitarr: np.ndarray, node_stats: np.ndarray, stability: float = DE
     child_inner = inner[:, 1:].reshape(L, B // 4, 4).any(-1)
     c_inner = np.where(inner[:, 1:], 0.0, S[:, 1:]).reshape(L, B // 4, 4).sum(-1)
     collapsible = ~child_inner
+    if N is not None:     # evidence: the node's children hold min_records records (ours)
+        collapsible &= np.where(inner[:, 1:], 0.0, N[:, 1:]).reshape(L, B // 4, 4).sum(-1) >= min_records
     collapsible[:, 0] = False
     c_inner = np.where(collapsible, c_inner, np.inf)
     j_min = np.argmin(c_inner, axis=1)
@@ -294,6 +312,8 @@ def migrate_np(bitarr: np.ndarray, node_stats: np.ndarray, stability: float = DE
     k = np.arange(B + 1)
     in_block = (k[None, :] >= 4 * j_min[:, None] + 1) & (k[None, :] <= 4 * j_min[:, None] + 4)
     splittable = ~inner & (depth < max_depth) & ~in_block
+    if N is not None:     # evidence: the leaf holds min_records records (ours)
+        splittable &= N >= min_records
     c_leaf = np.where(splittable, S, -np.inf)
     k_max = np.argmax(c_leaf, axis=1)
     c_max = c_leaf[r, k_max]
@@ -330,7 +350,7 @@ def migrate_np(bitarr: np.ndarray, node_stats: np.ndarray, stability: float = DE
     kids_sum = np.take_along_axis(S3, kids[..., None], axis=1).sum(1)
     S_new = np.where((old == x[:, None])[..., None], kids_sum[:, None, :], S_new)
     leaf_s = S3[r, k_max]                                        # (L, channels)
-    if S3.shape[-1] == 3:
+    if S3.shape[-1] >= 3:
         d = depth[r, k_max] + 1
         cen = leaf_s[:, 1:3] / np.maximum(leaf_s[:, :1], 1e-300)
         q = (np.floor(np.clip(cen, 0.0, 1.0 - 1e-12) * (2.0 ** d)[:, None]).astype(np.int64) & 1)
@@ -524,7 +544,7 @@ def _put_bit(w, i, value: bool):
 
 
 @dr.syntax
-def migrate_dr(words, stats, base, bits: int, stability, max_depth: int, active):
+def migrate_dr(words, stats, base, bits: int, stability, max_depth: int, active, counts=None, min_records=None):
     """Device version of :func:`migrate_np` (statistics channel C only; ``return_stats`` is host-only).
 
     One lane per octree leaf: ``words`` its 4-word field (words beyond ``bits`` zero), ``stats`` the
@@ -535,8 +555,10 @@ def migrate_dr(words, stats, base, bits: int, stability, max_depth: int, active)
     depths come from the breadth-first level ends ``end(d + 1) = 4 (1 + rank1(end(d)))``. If
     ``stability * C_leaf > C_inner`` the bit field is rewritten as in Fig. 4 (clear, delete 4, set,
     insert 4). Returns (new words, migrated mask). Same decisions as :func:`migrate_np` up to float32
-    rounding of the sums (the host sums in float64).
+    rounding of the sums (the host sums in float64). ``counts`` (the flat per-(leaf, node) record counts) and
+    ``min_records`` (a Float): the evidence rule of :func:`migrate_np` (None: the paper, no minimum).
     """
+    ev = counts is not None and min_records is not None
     n = dr.width(base)
     active = mi.Bool(active) & dr.full(mi.Bool, True, n)
     w0, w1, w2, w3 = (mi.UInt32(w) for w in words)
@@ -555,6 +577,10 @@ def migrate_dr(words, stats, base, bits: int, stability, max_depth: int, active)
         c = (dr.gather(mi.Float, stats, k0, active) + dr.gather(mi.Float, stats, k0 + 1, active)) + \
             (dr.gather(mi.Float, stats, k0 + 2, active) + dr.gather(mi.Float, stats, k0 + 3, active))
         better = (nib == 0) & (c < c_min)
+        if ev:
+            nc = (dr.gather(mi.Float, counts, k0, active) + dr.gather(mi.Float, counts, k0 + 1, active)) + \
+                (dr.gather(mi.Float, counts, k0 + 2, active) + dr.gather(mi.Float, counts, k0 + 3, active))
+            better &= nc >= min_records
         c_min = dr.select(better, c, c_min)
         j_min = dr.select(better, j, j_min)
         j += 1
@@ -571,6 +597,8 @@ def migrate_dr(words, stats, base, bits: int, stability, max_depth: int, active)
         blk = (k >= 4 * j_min + 1) & (k <= 4 * j_min + 4)
         s = dr.gather(mi.Float, stats, base + k, active)
         better = leaf & (depth < max_depth) & ~blk & (s > c_max)
+        if ev:
+            better &= dr.gather(mi.Float, counts, base + k, active) >= min_records
         c_max = dr.select(better, s, c_max)
         k_max = dr.select(better, k, k_max)
         k += 1
@@ -607,6 +635,10 @@ class CDQDirections:
     max_depth : int = 16      deepest quadtree leaf (our choice)
     adapt : str = "device"    where the state is updated: "device" (no host read-back) or "host" (the NumPy CPU
                               fast path); ``memory > 0`` uses "host" (module docstring)
+    min_records : float = 0   evidence for a migration (ours; 0 = the paper): a quadtree leaf splits only
+                              with at least this many records of the frame (zero contributions included), an
+                              inner node collapses only when its children hold at least this many (module
+                              docstring, "Evidence")
     memory : float = 0.0      temporal memory of the statistics (our extension; 0 = the paper's "samples
                               of the last frame" only): the migration uses ``S = memory * S_prev + S_frame``,
                               ``S_prev`` carried through migrations (a collapsed node gets its children's
@@ -618,7 +650,8 @@ class CDQDirections:
     report_migrations = True   # stats() reads the device migration counters back (inspection only)
 
     def __init__(self, octree, bits: int = 128, stability: float = DEFAULT_STABILITY,
-                 max_depth: int = MAX_DEPTH, memory: float = 0.0, adapt: str = "device", **_ignored):
+                 max_depth: int = MAX_DEPTH, memory: float = 0.0, adapt: str = "device", min_records: float = 0.0,
+                 **_ignored):
         self.bits = check_bits(bits)
         if adapt not in ADAPT_CHOICES:
             raise DyngiError(f"CDQ adapt '{adapt}' is unknown; valid choices: {', '.join(ADAPT_CHOICES)}")
@@ -630,6 +663,9 @@ class CDQDirections:
         if not (0.0 <= float(memory) < 1.0):
             raise DyngiError(f"CDQ memory {memory} is out of range [0, 1)")
         self.memory = float(memory)
+        if not (0.0 <= float(min_records) <= 1e6):
+            raise DyngiError(f"CDQ min_records {min_records} is out of range [0, 1e6]")
+        self.min_records = float(min_records)
         self.device = adapt == "device" and self.memory == 0.0
         self.adapt = "device" if self.device else "host"
         self.max_depth = int(max_depth)
@@ -640,7 +676,7 @@ class CDQDirections:
         n = int(octree.leaf_count)
         self._field_np = np.tile(self._init_words, (n, 1))
         self._seen_prev = getattr(octree, "prev_leaf", None)
-        self._acc = np.zeros((n, self.bits + 1, 3))
+        self._acc = np.zeros((n, self.bits + 1, self._channels))
         self._upload()
         self._reset_stats()
         self._mig_last_h = 0
@@ -649,6 +685,11 @@ class CDQDirections:
         self._mig_total_d = dr.zeros(mi.UInt32, 1)
         self.adapt_ms = 0.0
         self.remaps = 0
+
+    @property
+    def _channels(self) -> int:
+        """Statistics channels the host memory keeps: C, C x, C y and, with evidence, the record count."""
+        return 4 if self.min_records > 0.0 else 3
 
     # -- device buffers ---------------------------------------------------------------------
     def _upload(self):
@@ -666,6 +707,9 @@ class CDQDirections:
         self.node_stats = dr.zeros(mi.Float, self._cap * (self.bits + 1))
         self._touched = dr.zeros(mi.UInt32, self._cap)      # device path: fields that got a sample
         dr.eval(self.node_stats, self._touched)
+        if self.min_records > 0.0:     # records per node (evidence, ours)
+            self.node_counts = dr.zeros(mi.Float, self._cap * (self.bits + 1))
+            dr.eval(self.node_counts)
         if self.memory > 0.0:
             self.node_stats_x = dr.zeros(mi.Float, self._cap * (self.bits + 1))
             self.node_stats_y = dr.zeros(mi.Float, self._cap * (self.bits + 1))
@@ -738,7 +782,7 @@ class CDQDirections:
             new = np.tile(self._init_words, (src.size, 1))
             new[ok] = self._field_np[src[ok]]
             self._field_np = new
-            acc = np.zeros((src.size, self.bits + 1, 3))
+            acc = np.zeros((src.size, self.bits + 1, self._channels))
             acc[ok] = self._acc[src[ok]]
             self._acc = acc
             self._seen_prev = pl
@@ -747,7 +791,7 @@ class CDQDirections:
             self._reset_stats()
         elif n != self._rows:   # no correspondence given: start over with initial trees
             self._field_np = np.tile(self._init_words, (n, 1))
-            self._acc = np.zeros((n, self.bits + 1, 3))
+            self._acc = np.zeros((n, self.bits + 1, self._channels))
             self._upload()
             self._reset_stats()
 
@@ -769,6 +813,8 @@ class CDQDirections:
         c2 = c * c
         slot = leaf * (self.bits + 1) + node
         dr.scatter_reduce(dr.ReduceOp.Add, self.node_stats, c2, slot, ok)
+        if self.min_records > 0.0:
+            dr.scatter_reduce(dr.ReduceOp.Add, self.node_counts, mi.Float(1.0), slot, ok)
         if self.device:
             dr.scatter(self._touched, mi.UInt32(1), leaf, ok & (c2 > 0.0))
         if self.memory > 0.0:     # centroid channels, so that a split hands memory to the right child
@@ -786,8 +832,9 @@ class CDQDirections:
             valid = leaf < self._rows_dev
             ok = valid & (self._touched != 0)
             words = [dr.gather(mi.UInt32, self.field, leaf * WORDS + j, valid) for j in range(WORDS)]
+            ev = (self.node_counts, dr.opaque(mi.Float, self.min_records)) if self.min_records > 0.0 else (None, None)
             new, go = migrate_dr(words, self.node_stats, leaf * (self.bits + 1), self.bits,
-                                 dr.opaque(mi.Float, self.stability), self.max_depth, ok)
+                                 dr.opaque(mi.Float, self.stability), self.max_depth, ok, *ev)
             field = dr.empty(mi.UInt32, self._cap * WORDS)
             for j in range(WORDS):
                 dr.scatter(field, new[j], leaf * WORDS + j)
@@ -798,22 +845,27 @@ class CDQDirections:
             self._reset_stats()
             self.adapt_ms = 1e3 * (time.perf_counter() - t0)     # launch time (not synchronised)
             return
-        S = self.node_stats.numpy().reshape(self._cap, self.bits + 1)[:self._rows]
-        if self.memory > 0.0:
-            shp = (self._cap, self.bits + 1)
-            S = np.stack([S] + [a.numpy().reshape(shp)[:self._rows] for a in (self.node_stats_x, self.node_stats_y)], -1)
+        shp = (self._cap, self.bits + 1)
+        S = self.node_stats.numpy().reshape(shp)[:self._rows]
+        N = self.node_counts.numpy().reshape(shp)[:self._rows] if self.min_records > 0.0 else None
+        if self.memory > 0.0:     # the decaying prior: C, C x, C y (and the counts) carried over (ours)
+            S = np.stack([S] + [a.numpy().reshape(shp)[:self._rows] for a in (self.node_stats_x, self.node_stats_y)]
+                         + ([N] if N is not None else []), -1)
             S = self.memory * self._acc + S
+            N = None
         # only fields with some contribution can migrate (0.1 * 0 > C_inner never holds): skip the rest
         rows = np.nonzero((S[..., 0] if S.ndim == 3 else S).any(axis=1))[0]
         moved = np.zeros(self._rows, bool)
         if rows.size:
             bits_arr = unpack_np(self._field_np[rows], self.bits)
             if self.memory > 0.0:
-                new_bits, mv, acc = migrate_np(bits_arr, S[rows], self.stability, self.max_depth, return_stats=True)
+                new_bits, mv, acc = migrate_np(bits_arr, S[rows], self.stability, self.max_depth, return_stats=True,
+                                               min_records=self.min_records)
                 self._acc = S.copy()
                 self._acc[rows] = acc
             else:
-                new_bits, mv = migrate_np(bits_arr, S[rows], self.stability, self.max_depth)
+                new_bits, mv = migrate_np(bits_arr, S[rows], self.stability, self.max_depth,
+                                          counts=None if N is None else N[rows], min_records=self.min_records)
             moved[rows] = mv
             if mv.any():
                 self._field_np = self._field_np.copy()

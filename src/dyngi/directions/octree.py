@@ -60,11 +60,13 @@ floating point, so the device traversal and a NumPy brute force
 (``floor(q * 2**depth)``) agree bit for bit. Points outside the bounds are
 clamped into the boundary leaves (our choice: a lookup never fails).
 
-Thresholds: the paper uses 4096 (split) / 2048 (collapse) at 1080p (Sec. 7). At
-our resolutions :func:`scaled_thresholds` scales them by the number of path
-vertices placed per frame relative to 1080p with two placed vertices per path
-(primary and secondary hit), but never below 512 / 256 samples per leaf so that
-a leaf's VLC stays meaningful (issue 17 item 2). Splits are limited to
+Thresholds: the paper uses 4096 (split) / 2048 (collapse) at 1080p (Sec. 7); its collapse
+threshold is over 8 siblings, so its leaves hold ~256-4096 records per frame.
+:func:`paper_thresholds` (nee-pt) keeps them wherever the frame records at least 8 x 4096
+samples and scales them down below that (ours, a marked parameter of nee-pt, ``leaf_scaling``);
+:func:`scaled_thresholds` (path, restir-pt) scales them by the number of path vertices placed per
+frame relative to 1080p with two placed vertices per path (primary and secondary hit), but never
+below 512 / 256 samples per leaf (issue 17 item 2). Splits are limited to
 ``max_depth`` levels (our choice, default 12: a leaf of a 40 m scene is then
 ~1 cm; protects against all samples landing at one point).
 
@@ -122,6 +124,29 @@ def scaled_thresholds(vertices_per_frame: int) -> tuple[int, int]:
     return max(MIN_SPLIT, int(round(PAPER_SPLIT * s))), max(MIN_COLLAPSE, int(round(PAPER_COLLAPSE * s)))
 
 
+PAPER_MIN_RECORDS = 8 * PAPER_SPLIT
+"""Records per frame from which :func:`paper_thresholds` keeps the paper's 4096 / 2048: the initial split's
+8 leaves (Sec. 7.2) can each reach the split threshold (32768 records: ~128x128 pixels at nee-pt's two recording
+vertices per path)."""
+MIN_SCALED_SPLIT = 64
+"""Floor of :func:`paper_thresholds`' scaled split threshold (collapse: half; ours): 8 leaves of a frame of fewer
+than 512 records."""
+
+
+def paper_thresholds(records_per_frame: int, scaling: bool = True) -> tuple[int, int]:
+    """(split, collapse) thresholds: the paper's 4096 / 2048 (Sec. 7) wherever the frame records at least
+    :data:`PAPER_MIN_RECORDS` samples (the resolution allows them: each of the initial 8 leaves can split);
+    below that, with ``scaling`` (ours: nee-pt's ``leaf_scaling``, ``Param(ours=True, paper=False)``), scaled
+    down to ``records / 8`` / ``records / 16`` (floored at :data:`MIN_SCALED_SPLIT` / half), so that the
+    tree still adapts; without it the paper's thresholds at every resolution (a small frame then keeps its
+    8 initial leaves)."""
+    r = max(int(records_per_frame), 1)
+    if not scaling or r >= PAPER_MIN_RECORDS:
+        return PAPER_SPLIT, PAPER_COLLAPSE
+    split = max(MIN_SCALED_SPLIT, r // 8)
+    return split, split // 2
+
+
 def octree_bounds(scene) -> tuple:
     """The box an octree over ``scene`` covers (lo[3], hi[3], float64): ``scene.meta.bounds`` (else the
     Mitsuba scene's bounding box), grown on an axis of (near) zero extent to 1% of the largest extent (a
@@ -139,13 +164,20 @@ def octree_bounds(scene) -> tuple:
     return lo - 0.5 * grow, hi + 0.5 * grow
 
 
-def make_octree(bounds, vertices_per_frame: int, leaf_samples: int = 0) -> "AdaptiveOctree":
+def make_octree(bounds, vertices_per_frame: int, leaf_samples: int = 0, rule: str = "scaled") -> "AdaptiveOctree":
     """The one construction of the adaptive octree (the VLC's, the CDQ's, nee-pt's shared one): over
-    ``bounds`` (:func:`octree_bounds`) with the thresholds of :func:`scaled_thresholds` for
-    ``vertices_per_frame`` placed vertices (at least 1); ``leaf_samples > 0`` raises the split threshold to
-    that many samples per leaf and the collapse threshold to half of it (the ``leaf_samples`` parameter of
-    nee-pt, path and restir-pt; 4096: the paper's 4096 / 2048 at our resolutions)."""
-    split, collapse = scaled_thresholds(max(int(vertices_per_frame), 1))
+    ``bounds`` (:func:`octree_bounds`) with the thresholds of ``rule`` for ``vertices_per_frame`` placed
+    vertices (at least 1): ``"scaled"`` (:func:`scaled_thresholds`, path and restir-pt), ``"paper"``
+    (:func:`paper_thresholds` with scaling below :data:`PAPER_MIN_RECORDS`, nee-pt's default) or
+    ``"paper-only"`` (the paper's at every resolution, nee-pt's ``leaf_scaling=false``); ``leaf_samples > 0``
+    raises the split threshold to that many samples per leaf and the collapse threshold to half of it (the
+    ``leaf_samples`` parameter of nee-pt, path and restir-pt)."""
+    if rule not in ("scaled", "paper", "paper-only"):
+        raise DyngiError(f"octree threshold rule '{rule}' is unknown; valid choices: scaled, paper, paper-only")
+    if rule == "scaled":
+        split, collapse = scaled_thresholds(max(int(vertices_per_frame), 1))
+    else:
+        split, collapse = paper_thresholds(vertices_per_frame, scaling=rule == "paper")
     if leaf_samples > 0:
         split, collapse = max(split, int(leaf_samples)), max(collapse, int(leaf_samples) // 2)
     return AdaptiveOctree(bounds[0], bounds[1], split, collapse)

@@ -14,7 +14,9 @@ of the frame. Unbiased for any learned state (the mixture's pdf is exact, ``test
 ``vertices`` vertices, :meth:`WalkDirections.vertex_hook` is the walk's vertex hook and this object keeps
 the per-vertex records (``vx``: the vertex, its placing leaf, its NEE mask and estimate, its sampled
 direction; ``env``: the environment's radiance reached) that a :class:`~dyngi.lights.nee.LightNEE` with
-``estimator="separate"`` shares. The hook places every vertex in the octree (the last one only placed);
+``estimator="separate"`` shares. The hook places every vertex that records (all but the last, which only
+collects emission) in the octree, so the octree's counts are the records its leaves learn from (the paper's
+two placed vertices per path, Sec. 7);
 with ``stand_in`` every vertex after the first is a diffuse stand-in (the diffuse-lobe albedo of its BSDF,
 :func:`~dyngi.sampling.diffuse.diffuse_albedo`); with motion vectors the first vertex samples with its
 previous position's leaf and records into its current one (Sec. 6.3). The CDQ learns inside the kernel at
@@ -60,13 +62,14 @@ class WalkDirections:
     """The walk's direction strategy for direction sampler ``kind`` (module docstring)."""
 
     def __init__(self, scene, kind: str, bits: int = 128, stability: float = 0.1, memory: float = 0.0,
-                 leaf_samples: int = 0, *, fraction=None, record: str = "path", vertices: int = RECORD_VERTICES,
+                 leaf_samples: int = 0, *, min_records: float = 0.0, fraction=None, record: str = "path", vertices: int = RECORD_VERTICES,
                  stand_in: bool = False):
         """``leaf_samples``: the octree's split threshold per leaf (collapse: half; 0: the paper's scaled and
         floored, :func:`~dyngi.directions.octree.make_octree`); ``fraction``: the mixture's CDQ probability
         (None: its default); ``record``: ``"path"`` (the path's sum after the vertex, handed to the CDQ at the
         end of the frame) or ``"vertex"`` (per-vertex records of a walk unrolled over ``vertices`` vertices,
-        :meth:`vertex_hook`, module docstring); ``stand_in``: a diffuse stand-in after the first vertex."""
+        :meth:`vertex_hook`, module docstring); ``stand_in``: a diffuse stand-in after the first vertex;
+        ``min_records``: the CDQ's evidence for a migration (:class:`~dyngi.directions.cdq.CDQDirections`)."""
         if kind not in names():
             raise DyngiError(f"unknown direction sampler '{kind}'; valid values: {', '.join(names())}")
         if record not in ("path", "vertex"):
@@ -74,7 +77,7 @@ class WalkDirections:
         self.kind = kind
         self._ms = scene.mi_scene if hasattr(scene, "mi_scene") else scene
         self.bounds = octree_bounds(scene)
-        self.cdq_opts = dict(bits=bits, stability=stability, memory=memory)
+        self.cdq_opts = dict(bits=bits, stability=stability, memory=memory, min_records=min_records)
         self.sampler_opts = {} if fraction is None else {"fraction": float(fraction)}
         self.leaf_samples = int(leaf_samples)
         self.per_vertex = record == "vertex"
@@ -145,12 +148,10 @@ class WalkDirections:
 
     def vertex_hook(self, c):
         """The walk's vertex hook (``record="vertex"``): the :class:`Vertex` NEE and the direction sampler see
-        at vertex ``c.depth`` (None at the last one, which is only placed in the octree), its octree placement
+        at vertex ``c.depth`` (None at the last one, which records nothing and is not placed), its octree placement
         and per-vertex record (module docstring)."""
         oc, si, valid = self.octree, c.si, c.active
-        if c.depth >= self.vertices - 1:          # the last vertex: emission only
-            if oc is not None:
-                oc.place(si.p, valid)
+        if c.depth >= self.vertices - 1:          # the last vertex: emission only, records nothing: not placed
             return None
         if c.depth == 0 or not self.stand_in:     # the first vertex keeps its real BSDF
             n, albedo, bsdf, on = shading_normal(si), None, c.bsdf, valid

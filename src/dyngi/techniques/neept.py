@@ -48,10 +48,13 @@ lobe the CDQ is not used (its mixture pdf would be undefined).
 Octree (Sec. 6)
 ---------------
 With ``lights=vlc`` or ``directions=cdq`` an :class:`~dyngi.directions.octree.AdaptiveOctree`
-over the scene bounds is created; every path vertex (hits 1-3) is placed in it
-and it adapts at the end of each frame. Thresholds: the paper's 4096 / 2048 at
-1080p scaled by the number of placed vertices per frame (3 per path per spp
-here), never below 512 / 256 (issue 17 item 2; ``octree.scaled_thresholds``).
+over the scene bounds is created; every recording path vertex is placed in it
+and it adapts at the end of each frame. Only the vertices that record (hits 1
+and 2: NEE and an indirect sample) are placed, so a leaf's count is its records.
+Thresholds (``octree.paper_thresholds``): the paper's 4096 / 2048 (Sec. 7)
+wherever the frame records at least 8 x 4096 samples (2 per path per spp:
+~128x128 pixels); below that scaled down to records/8 / records/16 so that the
+tree adapts at all (ours: ``leaf_scaling``, marked; false = the paper's always).
 Sampling uses the primary hit's previous-frame position (Sec. 6.3): on animated meshes
 (``scene.meta.dynamic_shapes``) :class:`~dyngi.directions.motion.MotionVectors` gives it (the same surface
 point one frame earlier), and ``octree.lookup_pair`` finds the sampling leaf (previous position) and the
@@ -83,9 +86,8 @@ leaf's cache for that many frames after its last visible sample.
 default 0.6, 0.2, 0.2, our choice: the paper gives no weights).
 ``explorer=lighttree`` (ours; default ``global``, the paper's alias table): the VLC explores with the
 light tree of ``lights=lighttree`` (exact mixture pmf; warehouse-lights 160x90: MSE 0.00477 -> 0.00174,
-:mod:`dyngi.lights.vlc`). ``leaf_samples`` (0 = the scaled paper thresholds): octree split threshold
-raised to this many samples per leaf, collapse half of it (an ablation knob; 2048 / 4096 did not lower
-the VLC's error on warehouse-lights at 160x90: 0.00462 / 0.00472 vs 0.00477).
+:mod:`dyngi.lights.vlc`). ``leaf_samples`` (0 = the thresholds of ``leaf_scaling``): octree split threshold
+raised to this many records per leaf, collapse half of it.
 The selectors' importance is the diffuse irradiance above the (side-corrected)
 shading normal, so behind a rough *transmissive* primary BSDF lights are reached by
 exploration / BSDF sampling only (unbiased, noisier; LTC-like glossy importance is
@@ -114,6 +116,9 @@ from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to
 
 MAX_DEPTH = 3
 """Mitsuba's vertex count of nee-pt's paths (emission at the tertiary hit): compare with --ref-depth 3."""
+RECORD_VERTICES = MAX_DEPTH - 1
+"""Vertices per path placed in the octree: those that record (NEE and an indirect sample: the primary and the
+secondary hit, the paper's two per path, Sec. 7); the tertiary hit only collects emission."""
 
 
 def _balance(a, b):
@@ -167,7 +172,13 @@ class NeePT(Technique):
         "cdq_fraction": Param(0.5, "probability of drawing an indirect direction from the CDQ in the one-sample "
                               "MIS mixture with the BSDF (directions=cdq; 0.5: the paper's Sec. 7 'brdf fraction of 50%')",
                               min=0.0, max=1.0),
-        "cdq_memory": Param(0.0, "CDQ statistics memory per frame (0 = paper: last frame only)", min=0.0, max=0.99),
+        "cdq_memory": Param(0.0, "CDQ statistics memory per frame: the decaying prior the paper lacks (ours, "
+                            "S = memory * S_prev + S_frame; 0 = the paper: the last frame only)", min=0.0, max=0.99,
+                            ours=True, paper=0.0),
+        "cdq_min_records": Param(8, "CDQ evidence for a migration (ours): a quadtree leaf splits only with >= this "
+                                 "many records of the frame, a node collapses only when its children hold >= this "
+                                 "many (the paper's rule, 0, migrates every frame on empty nodes at our counts)",
+                                 min=0, max=1 << 20, ours=True, paper=0),
         "explorer": Param("global", "VLC exploration strategy: the paper's global alias table, or a light tree "
                           "(our extension)", choices=("global", "lighttree")),
         "explore_weights": Param("0.6,0.2,0.2", "VLC exploration blend 'energy,change,camera-distance' (Sec. 4.3; "
@@ -176,10 +187,12 @@ class NeePT(Technique):
         "memory": Param(1, "VLC: frames a visible light stays in its leaf's cache (1: the paper's last frame only)",
                         min=1, max=64),
         "record_hits": Param(False, "VLC: also learn the lights that indirect rays hit (our extension)"),
-        "leaf_samples": Param(0, "octree split threshold per leaf (collapse: half); 0 = ours: the paper's 4096 / "
-                              "2048 at 1080p (Sec. 7) scaled to the placed vertices per frame and floored at 512 / "
-                              "256 (directions.octree.MIN_SPLIT / MIN_COLLAPSE: fewer samples make a meaningless "
-                              "VLC); 4096 = the paper's", min=0, max=1 << 20, ours=True, paper=4096),
+        "leaf_samples": Param(0, "octree split threshold per leaf raised to this (collapse: half); 0 = the "
+                              "thresholds of leaf_scaling", min=0, max=1 << 20),
+        "leaf_scaling": Param(True, "octree thresholds: the paper's 4096 / 2048 records per leaf (Sec. 7) wherever "
+                              "the frame records >= 8 x 4096 samples; below that (ours) scaled down to records/8 / "
+                              "records/16 so that the tree still adapts (directions.octree.paper_thresholds); "
+                              "false = the paper's at every resolution", ours=True, paper=False),
         "progressive": Param(False, "accumulate over frames while the scene is static"),
     }
 
@@ -197,7 +210,7 @@ class NeePT(Technique):
                             record_hits=p["record_hits"] and p["lights"] == "vlc", **_selector_options(p["lights"], p))
         try:    # the vertex hook, the per-vertex records and the directions (a missing CDQ module fails here)
             self.dirs = WalkDirections(scene, p["directions"], bits=p["cdq_bits"], stability=p["cdq_stability"],
-                                       memory=p["cdq_memory"], fraction=p["cdq_fraction"] if p["directions"] == "cdq"
+                                       memory=p["cdq_memory"], min_records=p["cdq_min_records"], fraction=p["cdq_fraction"] if p["directions"] == "cdq"
                                        else None, record="vertex", vertices=MAX_DEPTH, stand_in=True)
         except DyngiError as e:
             raise DyngiError(f"nee-pt: {e}") from None
@@ -230,10 +243,11 @@ class NeePT(Technique):
     def _setup(self, res, spp):
         p = self.params
         sc = self.scene
-        vertices = MAX_DEPTH * res[0] * res[1] * spp
+        records = RECORD_VERTICES * res[0] * res[1] * spp
         self.octree = motion = None
         if p["lights"] == "vlc" or p["directions"] == "cdq":    # one octree, shared by the VLC and the CDQ
-            self.octree = make_octree(self.bounds, vertices, p["leaf_samples"])
+            self.octree = make_octree(self.bounds, records, p["leaf_samples"],
+                                      rule="paper" if p["leaf_scaling"] else "paper-only")
             if sc.meta.dynamic_shapes:     # motion vectors for Sec. 6.3's previous/current lookup
                 motion = MotionVectors(sc.mi_scene, sc.meta.dynamic_shapes)
         self.dirs.share_octree(self.octree, motion)
