@@ -115,6 +115,9 @@ class RigidMotion(Animator):
         n = np.array(params[nkey], dtype=np.float64) if nkey in params else np.zeros(0)
         self._base_n = n.reshape(-1, 3) if n.size == self._base_p.size else None
 
+    #: ``transform`` returns an orthonormal R (the G-buffer inverts it by its transpose)
+    rigid = True
+
     def transform(self, t: float):
         R = rotation_matrix(self.axis, float(self.angle(t)[0])) if self.angle is not None else np.eye(3)
         d = self.translate(t) if self.translate is not None else np.zeros(3)
@@ -131,6 +134,57 @@ class RigidMotion(Animator):
     def signature(self, t):
         R, d = self.transform(t)
         return tuple(np.round(np.concatenate([R.ravel(), d]), 9))
+
+
+@dataclass
+class AffineMotion(Animator):
+    """An affine motion of one mesh: ``p(t) = M(t) (p_base - pivot) + pivot + d(t)``.
+
+    The public interface the G-buffer's motion reprojection reads (and any shape animator can mirror):
+    ``shape`` (the mesh's id), ``pivot`` (3,) and ``transform(t) -> (M 3x3, d 3)``; here ``transform`` is the
+    callable ``motion``. ``M`` need not be orthonormal (scale, shear; a glTF node's world matrix), normals
+    move by its inverse transpose and are renormalised. ``base`` gives the positions ``p_base`` (and
+    ``base_normals`` the normals) the map applies to, e.g. a glTF mesh in its node's local space with
+    ``pivot = 0`` so that ``M, d`` are the node's world matrix; without them the positions loaded into the
+    scene are captured at bind time. Like :class:`RigidMotion` it writes every vertex per frame and Mitsuba
+    rebuilds the mesh's acceleration structure (no refit).
+    """
+
+    shape: str
+    motion: object = None           # t -> (M (3, 3), d (3,))
+    pivot: tuple = (0.0, 0.0, 0.0)
+    base: np.ndarray | None = field(default=None, repr=False)
+    base_normals: np.ndarray | None = field(default=None, repr=False)
+
+    def bind(self, params):
+        key = f"{self.shape}.vertex_positions"
+        if key not in params:
+            raise DyngiError(f"animated shape '{self.shape}' is not a mesh of this scene")
+        if self.base is None:
+            self.base = np.array(params[key], dtype=np.float64).reshape(-1, 3)
+            nkey = f"{self.shape}.vertex_normals"
+            n = np.array(params[nkey], dtype=np.float64) if nkey in params else np.zeros(0)
+            self.base_normals = n.reshape(-1, 3) if n.size == self.base.size else None
+        self.base = np.asarray(self.base, np.float64).reshape(-1, 3)
+        self._has_n = f"{self.shape}.vertex_normals" in params and self.base_normals is not None
+
+    def transform(self, t: float):
+        M, d = self.motion(float(t))
+        return np.asarray(M, np.float64).reshape(3, 3), np.asarray(d, np.float64).reshape(3)
+
+    def apply(self, params, t):
+        M, d = self.transform(t)
+        piv = np.asarray(self.pivot, dtype=np.float64)
+        p = (self.base - piv) @ M.T + piv + d
+        params[f"{self.shape}.vertex_positions"] = p.astype(np.float32).ravel()
+        if self._has_n:
+            n = self.base_normals @ np.linalg.inv(M)     # (M^-T n) as rows
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+            params[f"{self.shape}.vertex_normals"] = n.astype(np.float32).ravel()
+
+    def signature(self, t):
+        M, d = self.transform(t)
+        return tuple(np.round(np.concatenate([M.ravel(), d]), 9))
 
 
 @dataclass

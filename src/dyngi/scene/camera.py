@@ -14,6 +14,7 @@ average over its footprint, as in our own renderer) for reference renders.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -124,3 +125,24 @@ class CameraPath:
 
     def __call__(self, t: float) -> Camera:
         return Camera(tuple(self.origin(t)), tuple(self.target(t)), self.up, self.fov)
+
+
+@dataclass
+class PoseCameraPath:
+    """Camera whose pose is a camera-to-world matrix function of time, looking down its local -Z with +Y up
+    (a glTF camera node, Sec. 3.10 of the glTF 2.0 specification); ``fov`` horizontal, as :class:`Camera`'s."""
+
+    pose: Callable[[float], np.ndarray]
+    fov: float = 45.0
+
+    @staticmethod
+    def fixed_pose(M, fov: float) -> "PoseCameraPath":
+        M = np.array(M, np.float64)
+        return PoseCameraPath(lambda t: M, fov)
+
+    def __call__(self, t: float) -> Camera:
+        M = np.asarray(self.pose(float(t)), np.float64)
+        o = M[:3, 3]
+        fwd = -M[:3, 2] / np.linalg.norm(M[:3, 2])
+        up = M[:3, 1] / np.linalg.norm(M[:3, 1])
+        return Camera(tuple(o), tuple(o + fwd), tuple(up), self.fov)

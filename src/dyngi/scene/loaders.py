@@ -6,11 +6,18 @@ raises one :class:`~dyngi.errors.DyngiError` naming the file and the problem.
 * XML: loaded by Mitsuba; the first sensor gives the camera (and its ``x_fov``).
 * OBJ / PLY: one mesh with a grey diffuse BSDF under a constant white
   environment; the camera looks at the bounding box from its +z side.
-* glTF / GLB: every mesh of the trimesh scene graph (transforms applied), base
-  colour factor as diffuse albedo, emissive factor as area light.
+* glTF / GLB: :mod:`dyngi.scene.gltf` (node hierarchy, animations, cameras,
+  punctual lights, metallic-roughness materials, skinning and morph targets).
+
+Options every scene command passes (``--fps``, ``--camera``, ``--animation``,
+``--loop``): :func:`load_scene`'s keywords, or :func:`scene_options` around code
+that loads the scene itself (a runner, the viewer and its child process, which
+reads them from the environment).
 """
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 
 import numpy as np
@@ -19,17 +26,69 @@ from ..backend import mi
 from ..errors import DyngiError
 from .camera import Camera, CameraPath
 from .core import Scene, scene_bounds
-from .geometry import check_finite, diffuse, make_mesh
+from .geometry import diffuse
 from .library import BUILTINS, builtin_names, make_builtin
 
 EXTENSIONS = (".xml", ".obj", ".ply", ".gltf", ".glb")
 
 
-def load_scene(name_or_path: str) -> Scene:
-    """A built-in scene by name, or a scene file by path."""
+OPTIONS_ENV = "DYNGI_SCENE_OPTIONS"
+"""Environment variable holding :func:`scene_options` as JSON (child processes inherit it)."""
+
+
+@contextlib.contextmanager
+def scene_options(**opts):
+    """Within the block, :func:`load_scene` uses ``opts`` (``fps``, ``camera``, ``animation``, ``loop``) where
+    its caller gives none; set in the environment so a child process (the viewer's error view, local cluster
+    workers) loads the same scene. ``None`` values are dropped."""
+    opts = {k: v for k, v in opts.items() if v is not None and v is not False}
+    old = os.environ.get(OPTIONS_ENV)
+    os.environ[OPTIONS_ENV] = json.dumps(opts)
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(OPTIONS_ENV, None)
+        else:
+            os.environ[OPTIONS_ENV] = old
+
+
+def _ambient_options() -> dict:
+    try:
+        return json.loads(os.environ.get(OPTIONS_ENV, "") or "{}")
+    except ValueError:
+        return {}
+
+
+def load_scene(name_or_path: str, *, fps: float | None = None, camera: str | None = None,
+               animation: str | None = None, loop: bool | None = None) -> Scene:
+    """A built-in scene by name, or a scene file by path.
+
+    ``fps``: frames per second (time of frame i is ``i / fps``; default the scene's own ``fps``).
+    ``camera``: a camera by name (glTF camera or its node; Mitsuba XML sensor id); default the first.
+    ``animation``: a keyframe sidecar (TOML) for a Mitsuba XML scene; without it, ``scene.anim.toml``
+    beside ``scene.xml`` is used when present (``animation: FILE`` is printed).
+    ``loop``: glTF animations wrap at the last keyframe instead of holding it.
+    Keywords left ``None`` fall back to :func:`scene_options`."""
+    amb = _ambient_options()
+    fps = amb.get("fps") if fps is None else fps
+    camera = amb.get("camera") if camera is None else camera
+    animation = amb.get("animation") if animation is None else animation
+    loop = bool(amb.get("loop", False)) if loop is None else bool(loop)
+    if fps is not None and not (isinstance(fps, (int, float)) and np.isfinite(fps) and fps > 0):
+        raise DyngiError(f"--fps must be a positive number of frames per second, got {fps!r}")
     names = builtin_names()
     if name_or_path in BUILTINS:
-        return make_builtin(name_or_path)
+        if animation is not None:
+            raise DyngiError(f"--animation applies to Mitsuba XML scene files, not the built-in scene "
+                             f"'{name_or_path}'")
+        if camera is not None:
+            raise DyngiError(f"--camera picks a camera of a scene file; the built-in scene '{name_or_path}' "
+                             "has one camera path")
+        sc = make_builtin(name_or_path)
+        if fps is not None:
+            sc.fps = float(fps)
+        return sc
     path = os.fspath(name_or_path)
     ext = os.path.splitext(path)[1].lower()
     if ext not in EXTENSIONS:
@@ -37,20 +96,49 @@ def load_scene(name_or_path: str) -> Scene:
                          f"nor a file with extension {', '.join(EXTENSIONS)}")
     if not os.path.isfile(path):
         raise DyngiError(f"scene file '{path}' does not exist")
+    if animation is not None and ext != ".xml":
+        raise DyngiError(f"--animation applies to Mitsuba XML scene files (a keyframe sidecar), not '{path}'; "
+                         "glTF files carry their own animations")
+    if animation is not None and not os.path.isfile(animation):
+        raise DyngiError(f"animation file '{animation}' does not exist")
+    if camera is not None and ext in (".obj", ".ply"):
+        raise DyngiError(f"--camera picks a camera of a glTF or XML scene; '{path}' has none")
     try:
         if ext == ".xml":
-            sc = _load_xml(path)
+            sc = _load_xml(path, camera)
         elif ext in (".obj", ".ply"):
             sc = _load_mesh_file(path, ext)
         else:
-            sc = _load_gltf(path)
+            from .gltf import load_gltf
+            sc = load_gltf(path, name=_name(path), fps=fps, camera=camera, loop=loop)
     except DyngiError:
         raise
-    except Exception as e:  # Mitsuba/trimesh parse errors -> one line
+    except Exception as e:  # Mitsuba parse errors -> one line
         msg = str(e).strip().splitlines()
         raise DyngiError(f"scene file '{path}' could not be loaded: {msg[-1] if msg else type(e).__name__}") from None
     _check_meshes(sc, path)
+    if fps is not None:
+        sc.fps = float(fps)
+    if ext == ".xml":
+        sc = _attach_keyframes(sc, path, animation)
     return sc
+
+
+def _attach_keyframes(sc: Scene, path: str, animation: str | None) -> Scene:
+    """The keyframe sidecar (:mod:`dyngi.scene.keyframes`) of an XML scene: ``animation`` or the one found
+    beside ``path``. Skipped when that module is not there."""
+    try:
+        from . import keyframes
+    except ImportError:
+        if animation is not None:
+            raise DyngiError("--animation needs dyngi.scene.keyframes, which this installation lacks") from None
+        return sc
+    if animation is None:
+        animation = keyframes.sidecar_for(path)
+        if animation is None:
+            return sc
+        print(f"animation: {animation}")
+    return keyframes.attach(sc, animation)
 
 
 def _check_meshes(sc: Scene, path: str) -> None:
@@ -77,9 +165,15 @@ def _name(path: str) -> str:
     return parent if stem.startswith("scene") and parent else stem
 
 
-def _load_xml(path: str) -> Scene:
+def _load_xml(path: str, camera: str | None = None) -> Scene:
     mis = mi.load_file(path)
     sensors = mis.sensors()
+    if camera is not None:
+        hits = [s for s in sensors if s.id() == camera]
+        if not hits:
+            raise DyngiError(f"scene file '{path}' has no sensor with id '{camera}'; sensors: "
+                             f"{', '.join(s.id() or '(no id)' for s in sensors) or 'none'}")
+        sensors = hits
     if sensors:
         s = sensors[0]
         T = np.array(s.world_transform().matrix, dtype=np.float64).reshape(4, 4)
@@ -106,36 +200,3 @@ def _load_mesh_file(path: str, ext: str) -> Scene:
     })
     return Scene(_name(path), mis, CameraPath.fixed(_camera_from_bbox(mis)), [],
                  f"loaded from {path} (grey diffuse, white sky)", source=path)
-
-
-def _load_gltf(path: str) -> Scene:
-    import trimesh
-
-    tm = trimesh.load(path, force="scene")
-    items: dict = {"type": "scene"}
-    has_light = False
-    for i, node in enumerate(tm.graph.nodes_geometry):
-        T, gname = tm.graph[node]
-        g = tm.geometry[gname]
-        if not hasattr(g, "faces") or len(g.faces) == 0:
-            continue
-        V = trimesh.transformations.transform_points(np.asarray(g.vertices, np.float64), T)
-        check_finite(V, f"{path}:{node}")
-        mat = getattr(getattr(g, "visual", None), "material", None)
-        base = np.array(getattr(mat, "baseColorFactor", None) if mat is not None and
-                        getattr(mat, "baseColorFactor", None) is not None else [204, 204, 204, 255], np.float64)
-        base = base[:3] / (255.0 if base.max() > 1.0 else 1.0)
-        emis = getattr(mat, "emissiveFactor", None) if mat is not None else None
-        emitter = None
-        if emis is not None and np.max(emis) > 0:
-            emitter = {"type": "area", "radiance": {"type": "rgb", "value": [float(x) for x in emis[:3]]}}
-            has_light = True
-        sid = f"mesh{i}"
-        items[sid] = make_mesh(sid, V, np.asarray(g.faces), diffuse(base), emitter)
-    if len(items) == 1:
-        raise DyngiError(f"scene file '{path}' contains no triangle meshes")
-    if not has_light:
-        items["env"] = {"type": "constant", "radiance": {"type": "rgb", "value": [1.0, 1.0, 1.0]}}
-    mis = mi.load_dict(items)
-    return Scene(_name(path), mis, CameraPath.fixed(_camera_from_bbox(mis)), [],
-                 f"loaded from {path}", source=path)

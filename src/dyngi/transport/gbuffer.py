@@ -10,9 +10,11 @@ previous frame's G-buffer and camera and computes, per pixel:
 * ``prev_pos``: the hit point where it was at the previous frame's time. A
   point on a shape moved by a :class:`~dyngi.scene.animation.RigidMotion` is
   mapped back by that shape's own transforms, ``p' = A_prev A_cur^-1 p`` (the
-  animation is rigid: ``A(t) x = R(t)(x - pivot) + pivot + d(t)``); points on
-  static shapes stay put. This is exact for rigid motion, which is all the
-  built-in scenes use (deforming meshes would need per-vertex history).
+  animation is affine: ``A(t) x = M(t)(x - pivot) + pivot + d(t)``, rigid for the
+  built-in scenes, with scale for glTF nodes; :class:`ShapeMotion`); points on
+  static shapes stay put. This is exact for affine motion; deforming meshes
+  (glTF skinning, morph targets) would need per-vertex history and are treated
+  as static here (approximate).
 * ``motion``: previous film position (pixels, continuous) of ``prev_pos``
   through the previous camera, minus this pixel's centre;
 * ``reproj_valid``: the disocclusion mask -- False where the previous pixel
@@ -24,7 +26,7 @@ previous frame's G-buffer and camera and computes, per pixel:
 
 Everything is Dr.Jit arrays of one lane per pixel; per-shape motion is a small
 table gathered by the shape's registry id, rebuilt per frame on the host (one
-12-float row per shape), so a new frame compiles nothing new.
+21-float row per shape), so a new frame compiles nothing new.
 """
 from __future__ import annotations
 
@@ -118,7 +120,17 @@ def project(camera, res, p):
 
 
 class ShapeMotion:
-    """Per-shape rigid map from time ``t`` to time ``t_prev`` (``A_prev A_cur^-1``), gathered by shape id."""
+    """Per-shape affine map from time ``t`` to time ``t_prev``, gathered by shape id.
+
+    An animator with ``shape``, ``pivot`` and ``transform(t) -> (M, d)`` moves its mesh as
+    ``p(t) = M(t) (p_base - pivot) + pivot + d(t)`` (:class:`~dyngi.scene.animation.RigidMotion`: ``M = R``
+    orthonormal; :class:`~dyngi.scene.animation.AffineMotion`: any invertible ``M``, e.g. a glTF node's
+    world matrix with scale). A point at ``t`` maps back by ``A = M_prev M_cur^-1``,
+    ``p' = A (p - pivot - d_cur) + pivot + d_prev``, and a normal by ``A^-T`` (``= A`` when rigid: an
+    animator that declares ``rigid`` is inverted by its transpose, so rigid scenes get the same table as
+    before). Deforming meshes (skinning, morph targets) have no such map and stay put here: their
+    reprojection is approximate (the disocclusion test rejects what moved too far).
+    """
 
     def __init__(self, scene):
         mscene = scene.mi_scene
@@ -129,34 +141,45 @@ class ShapeMotion:
         self.size = max(int(self.ids.max()) + 1 if len(self.ids) else 1, 2)
 
     def table(self, t_cur: float, t_prev: float) -> "mi.Float":
-        """Flat rows of 12 floats (3x3 matrix row-major, then offset) per registry id."""
-        rows = np.zeros((self.size, 12), np.float64)
+        """Flat rows of 21 floats per registry id: the 3x3 point matrix row-major, the offset, then the 3x3
+        normal matrix row-major."""
+        rows = np.zeros((self.size, 21), np.float64)
         rows[:, [0, 4, 8]] = 1.0
+        rows[:, [12, 16, 20]] = 1.0
         for rid, name in zip(self.ids, self.names):
             a = self.movers.get(name)
             if a is None:
                 continue
-            R1, d1 = a.transform(t_cur)
-            R0, d0 = a.transform(t_prev)
+            M1, d1 = a.transform(t_cur)
+            M0, d0 = a.transform(t_prev)
             piv = np.asarray(a.pivot, np.float64)
-            A = R0 @ R1.T
+            if getattr(a, "rigid", False):
+                A = M0 @ M1.T
+                N = A
+            else:
+                A = M0 @ np.linalg.inv(M1)
+                N = np.linalg.inv(A).T
             off = piv + d0 - A @ (piv + d1)
             rows[rid, :9] = A.ravel()
-            rows[rid, 9:] = off
+            rows[rid, 9:12] = off
+            rows[rid, 12:] = N.ravel()
         return mi.Float(rows.ravel().astype(np.float32))
 
     @staticmethod
     def apply(table, shape_id, p, n):
-        """(previous position, previous normal) of points ``p`` with normals ``n`` on shapes ``shape_id``."""
-        base = shape_id * 12
-        m = [dr.gather(mi.Float, table, base + k) for k in range(12)]
+        """(previous position, previous normal) of points ``p`` with normals ``n`` on shapes ``shape_id``
+        (the normal is renormalised only where the map is not rigid: a rigid row leaves it as before)."""
+        base = shape_id * 21
+        m = [dr.gather(mi.Float, table, base + k) for k in range(21)]
         px = m[0] * p.x + m[1] * p.y + m[2] * p.z + m[9]
         py = m[3] * p.x + m[4] * p.y + m[5] * p.z + m[10]
         pz = m[6] * p.x + m[7] * p.y + m[8] * p.z + m[11]
-        nx = m[0] * n.x + m[1] * n.y + m[2] * n.z
-        ny = m[3] * n.x + m[4] * n.y + m[5] * n.z
-        nz = m[6] * n.x + m[7] * n.y + m[8] * n.z
-        return mi.Point3f(px, py, pz), mi.Vector3f(nx, ny, nz)
+        nx = m[12] * n.x + m[13] * n.y + m[14] * n.z
+        ny = m[15] * n.x + m[16] * n.y + m[17] * n.z
+        nz = m[18] * n.x + m[19] * n.y + m[20] * n.z
+        nn = mi.Vector3f(nx, ny, nz)
+        nn = dr.select(dr.abs(dr.squared_norm(nn) - 1.0) > 1e-4, dr.normalize(nn), nn)
+        return mi.Point3f(px, py, pz), nn
 
 
 @dataclass
