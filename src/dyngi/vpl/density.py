@@ -2,8 +2,8 @@
 
 ``p(y) ~ k / (I pi r_k(y)^2)`` (Eq. 7): an unconstrained 3D search whose k
 nearest neighbours are assumed to lie on the same plane as ``y`` (photon-mapping
-assumption). ``k = max(1, floor(sqrt(I) / 32))`` (Eq. 8) for rendering; k = 1
-for candidates (against the current VPLs). Two implementations of one search:
+assumption). Eq. 8's k for rendering (:func:`knn_k`, two readings); k = 1 for candidates (against the
+current VPLs). Two implementations of one search:
 :func:`knn_density` on the host (``scipy.spatial.cKDTree``; a few thousand points: ~1 ms, the CPU
 fast path of the host-side selection steps) and :class:`KNNGrid` / :func:`knn_density_device` on the
 device (a uniform grid built with Dr.Jit ops, no host round trip), exact alike (tested against a brute
@@ -21,9 +21,21 @@ MIN_RADIUS = 1e-6
 """Floor of r_k (scene units) so that coincident points do not give an infinite density (our choice)."""
 
 
-def knn_k(n: int) -> int:
-    """k = max(1, floor(sqrt(I) / 32)) (Eq. 8): 1 for both 2048 and 512 VPLs."""
-    return max(1, int(math.floor(math.sqrt(max(int(n), 0)) / 32.0)))
+EQ8_READINGS = ("text", "root-of-ratio")
+"""The two readings of Eq. 8 (Sec. 3.2.4): ``'text'``, k = max(1, floor(sqrt(I) / 32)) as printed (1 at both
+of the paper's budgets, 2048 and 512); ``'root-of-ratio'``, k = max(1, floor(sqrt(I / 32))) (8 and 4)."""
+
+
+def knn_k(n: int, reading: str = "text") -> int:
+    """Eq. 8's k of the rendering density for I = ``n`` VPLs under ``reading`` (:data:`EQ8_READINGS`):
+    ``'text'`` max(1, floor(sqrt(I) / 32)) -- 1 for both 2048 and 512 VPLs; ``'root-of-ratio'``
+    max(1, floor(sqrt(I / 32))) -- 8 and 4. Both grow as sqrt(I) (k -> inf, k / I -> 0: consistent)."""
+    n = max(int(n), 0)
+    if reading == "text":
+        return max(1, int(math.floor(math.sqrt(n) / 32.0)))
+    if reading == "root-of-ratio":
+        return max(1, int(math.floor(math.sqrt(n / 32.0))))
+    raise ValueError(f"Eq. 8 reading '{reading}' is invalid; valid: {', '.join(EQ8_READINGS)}")
 
 
 def knn_density(points: np.ndarray, queries: np.ndarray | None = None, k: int | None = None,

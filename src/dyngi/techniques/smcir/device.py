@@ -142,7 +142,7 @@ class DeviceAlgorithm1:
                 st.radiosity = dr.select(st.used, st.sel_radiosity, 0.0)
             dr.eval(st.radiosity, st.sel_radiosity)
         with t.stage("knn"):
-            k = self.params["density_k"] or knn_k(self.budget)
+            k = self.params["density_k"] or knn_k(self.budget, self.params["eq8"])
             d = knn_density_device(st.pos, k=k, valid=st.used)
             st.density = dr.select(st.used, d, 1.0)
             dr.eval(st.density)

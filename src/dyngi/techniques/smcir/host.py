@@ -133,7 +133,7 @@ class HostAlgorithm1:
                 st.radiosity[st.used] = st.sel_radiosity[st.used]
         with t.stage("knn"):
             used = np.flatnonzero(st.used)
-            k = self.params["density_k"] or knn_k(self.budget)
+            k = self.params["density_k"] or knn_k(self.budget, self.params["eq8"])
             st.density[used] = knn_density(st.pos[used], k=k, n_total=len(used))
 
     def iterate(self, frame: Frame, key: int, t: StageTimer) -> dict:
