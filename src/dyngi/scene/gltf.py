@@ -880,7 +880,9 @@ def load_gltf(path: str, *, name: str | None = None, fps: float | None = None, c
 
 
 def _animation_bounds(mis, g: NodeGraph, moving) -> tuple[np.ndarray, np.ndarray]:
-    """Bounds of the scene over every keyframe time and :data:`BOUND_SAMPLES` times in between."""
+    """Bounds of the scene over the animation: every keyframe time and :data:`BOUND_SAMPLES` times in between,
+    each moving mesh's box grown by the largest step of its corners (vertices) between consecutive samples, so
+    a curve (slerp, a cubic spline) bulging between samples stays inside."""
     from .core import scene_bounds
 
     lo, hi = scene_bounds(mis)
@@ -891,12 +893,16 @@ def _animation_bounds(mis, g: NodeGraph, moving) -> tuple[np.ndarray, np.ndarray
         if kind == "affine":     # an affine map of the local box's corners bounds the mesh
             a, b = pr.V.min(0), pr.V.max(0)
             C = np.array([[x, y, z] for x in (a[0], b[0]) for y in (a[1], b[1]) for z in (a[2], b[2])])
-            for t in ts:
-                M = g.world(t)[pr.node]
-                P = C @ M[:3, :3].T + M[:3, 3]
-                lo, hi = np.minimum(lo, P.min(0)), np.maximum(hi, P.max(0))
+            pos = lambda t, C=C, node=pr.node: C @ g.world(t)[node][:3, :3].T + g.world(t)[node][:3, 3]  # noqa: E731
         else:
-            for t in ts[:: max(1, len(ts) // 17)]:
-                P, _ = dfm(t)
-                lo, hi = np.minimum(lo, P.min(0)), np.maximum(hi, P.max(0))
+            ts = ts[:: max(1, len(ts) // 17)]
+            pos = lambda t, dfm=dfm: dfm(t)[0]  # noqa: E731
+        prev, plo, phi, pad = None, lo, hi, np.zeros(3)
+        for t in ts:
+            P = pos(t)
+            plo, phi = np.minimum(plo, P.min(0)), np.maximum(phi, P.max(0))
+            if prev is not None:
+                pad = np.maximum(pad, np.abs(P - prev).max(0))
+            prev = P
+        lo, hi = np.minimum(lo, plo - pad), np.maximum(hi, phi + pad)
     return lo, hi
