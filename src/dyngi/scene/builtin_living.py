@@ -95,11 +95,35 @@ def living_walls():
          "DDGI Resampling's Living Room (Fig. 8, Table 1: where DDGI leaks)")
 def living_room():
     """Single-layer walls, roof and floor; sun + sky outside; see the module docstring."""
+    return _living("living-room", sun=True)
+
+
+LIVING_ENV_SKY = (2.0, 2.3, 2.8)
+"""The bright sky of ``living-room-sky`` (the only light: the interior is lit through the window)."""
+LIVING_GLOSSY_FLOOR = {"type": "twosided", "bsdf": {
+    "type": "roughplastic", "distribution": "ggx", "alpha": 0.1, "int_ior": 1.5, "nonlinear": True,
+    "diffuse_reflectance": {"type": "rgb", "value": [0.45, 0.30, 0.18]}}}
+"""A varnished wooden floor (GGX alpha 0.1), the glossy floor of the room the issue measured."""
+
+
+@builtin("living-room-sky", "The thin-walled living room lit only by a bright sky (environment) through its "
+         "window, with a glossy wooden floor: ReSTIR's environment candidates mostly occluded",
+         "a real living room lit through its windows by an environment map")
+def living_room_sky():
+    """``living-room`` without the sun: a bright constant sky (environment emitter) is the only light, seen
+    through the window; the floor is varnished wood (``roughplastic`` GGX alpha 0.1). Static."""
+    return _living("living-room-sky", sun=False)
+
+
+def _living(name: str, sun: bool):
+    """The room of ``living-room`` (``sun``: sun + dim sky, diffuse floor, animated sun) or of
+    ``living-room-sky`` (bright sky only, glossy floor, static)."""
     X, H, Z = LIVING_X, LIVING_H, LIVING_Z
-    b = SceneBuilder("living-room")
+    b = SceneBuilder(name)
     # floor = ground: one quad reaching 4 m beyond the walls (facing +y)
     G = 4.0
-    b.mesh("floor", quad((0.0, 0.0, 0.0), (0, 0, Z + G), (X + G, 0, 0)), _twosided((0.55, 0.48, 0.40)))
+    b.mesh("floor", quad((0.0, 0.0, 0.0), (0, 0, Z + G), (X + G, 0, 0)),
+           _twosided((0.55, 0.48, 0.40)) if sun else LIVING_GLOSSY_FLOOR)
     b.mesh("ceiling", quad((0.0, H, 0.0), (X, 0, 0), (0, 0, Z)), _twosided((0.75, 0.74, 0.72)))
     b.mesh("walls", living_walls(), _twosided(WALL))
     sofa = merge([box((-2.95, 0.0, -1.2), (-2.1, 0.45, 1.2)), box((-2.95, 0.45, -1.2), (-2.75, 0.95, 1.2))])
@@ -109,10 +133,14 @@ def living_room():
            _twosided((0.35, 0.25, 0.16)))
     b.mesh("shelf", box((-1.5, 0.0, -2.48), (0.3, 1.9, -2.1)), _twosided((0.5, 0.5, 0.55)))
     b.mesh("chimney", box((1.5, H, 1.4), (2.0, 3.3, 1.9)), _twosided((0.5, 0.35, 0.3)))
+    cam = Camera((-2.5, 1.55, 2.2), (1.5, 0.9, -1.4), (0, 1, 0), 75.0)
+    if not sun:
+        b.add("sky", _sky(LIVING_ENV_SKY))
+        return b.build(cam, "Thin-walled living room lit by a bright sky through its window, glossy floor",
+                       duration=4.0, probe_box=LIVING_PROBE_BOX, probe_counts=LIVING_PROBE_COUNTS)
     b.add("sun", _sun(LIVING_SUN, LIVING_SUN_IRRADIANCE))
     b.add("sky", _sky(LIVING_SKY))
     b.animate(SunMotion("sun", Track([0.0, 1.0, 2.0, 4.0], [LIVING_SUN, LIVING_SUN, LIVING_SUN_LATER,
                                                            LIVING_SUN_LATER], interp="smooth")))
-    cam = Camera((-2.5, 1.55, 2.2), (1.5, 0.9, -1.4), (0, 1, 0), 75.0)
     return b.build(cam, "Thin-walled living room lit by the sun through a window", duration=4.0,
                    probe_box=LIVING_PROBE_BOX, probe_counts=LIVING_PROBE_COUNTS)

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 from .. import lights as light_samplers
 from ..backend import dr, mi
-from ..errors import unknown_choice
+from ..errors import DyngiError, unknown_choice
 from ..lights.candidates import EmitterCandidates, LightCandidates
 from ..lights.emitter_sampling import EmitterSampling
 from ..lights.nee import LightNEE
@@ -54,7 +54,7 @@ PATH_STREAM = 0x7E57
 """RNG stream of the path after the primary vertex (:meth:`ReSTIRDI.path_after`; the ReSTIR stages use
 stream 0)."""
 
-VISIBILITY_REUSE = ("candidate", "final", "none")
+VISIBILITY_REUSE = ("unbiased", "candidate", "final", "none")
 """Where a shadow ray's visibility enters the reservoirs (:class:`ReSTIRDI`, ``visibility_reuse``)."""
 REFERENCE_WIDTH = 1920
 """``radius`` is given in pixels of an image this wide (Bitterli et al. Sec. 6: 30 px at 1920x1080)."""
@@ -131,13 +131,22 @@ def initial_candidates(cand, si, n, two_sided, active, sampler, m: int, time, ta
 
 
 def spatial_reuse(gb, r_t, active, sampler, radius, count: int, combine: str, eval_here, gather_domain,
-                  eval_there):
+                  eval_there, vis_here=None, vis_there=None):
     """Spatial reuse of ``r_t`` over ``count`` neighbours in a disk of ``radius`` pixels (Bitterli et al.
     Alg. 4/5, the unbiased combination of Alg. 6), for any target function.
 
     ``eval_here(sample, ok)``: the target of a neighbour's sample at this pixel; ``gather_domain(nid, npos,
     nn, ntwo, ok)``: what the target needs of neighbour ``nid`` (a tuple); ``eval_there(domain, sample,
-    ok)``: the target of this pixel's chosen sample at that neighbour (for the MIS / 1/Z weights)."""
+    ok)``: the target of this pixel's chosen sample at that neighbour (for the MIS / 1/Z weights).
+
+    ``vis_here(sample, ok)`` and ``vis_there(nid, sample, ok)`` (both or neither; ``visibility_reuse=
+    'unbiased'``): one shadow ray each, the final sample's visibility at this pixel and at neighbour ``nid``.
+    Every reservoir then holds a sample visible from its own pixel or ``W = 0`` (the invariant that
+    :meth:`ReSTIRDI.candidates` starts), so a domain's support is ``p_hat_j V_j > 0`` and the MIS / 1/Z
+    weights are taken over ``p_hat_j(y) V_j(y)`` (generalized RIS: a partition of unity over the true
+    supports). The domain the sample came from needs no ray (visible there by the invariant); the output's
+    ``W`` is 0 where the sample is occluded at this pixel (which keeps the invariant, and lets the shading
+    skip its shadow ray)."""
     w, h = gb.res
     npix = w * h
     idx = dr.arange(mi.UInt32, npix)
@@ -145,7 +154,7 @@ def spatial_reuse(gb, r_t, active, sampler, radius, count: int, combine: str, ev
     y = mi.Int32(idx // w)
     out = Reservoir.empty(r_t.sample, npix)
     merge(out, r_t, r_t.p_hat, sampler.next_1d(), active, src=0)
-    counts, domains, masks = [r_t.M], [], [active]
+    counts, domains, masks, nids = [r_t.M], [], [active], []
     radius = dr.opaque(mi.Float, radius)
     for j in range(count):
         off = mi.warp.square_to_uniform_disk_concentric(sampler.next_2d()) * radius
@@ -165,10 +174,22 @@ def spatial_reuse(gb, r_t, active, sampler, radius, count: int, combine: str, ev
         counts.append(rn.M)
         domains.append(dom)
         masks.append(ok)
+        nids.append(nid)
     p_hats = [out.p_hat]
     for dom, ok in zip(domains, masks[1:]):
         p_hats.append(eval_there(dom, out.sample, ok))
+    vis0 = None
+    if vis_here is not None:    # -- 'unbiased': V_j(y) of the final sample at every other domain --
+        have = out.p_hat > 0.0
+        vis0 = (out.src == 0) | vis_here(out.sample, active & have & (out.src != 0))
+        p_hats[0] = dr.select(vis0, p_hats[0], 0.0)
+        for j, (nid, ok) in enumerate(zip(nids, masks[1:])):
+            need = ok & have & (p_hats[j + 1] > 0.0) & (out.src != j + 1)
+            vj = (out.src == j + 1) | vis_there(nid, out.sample, need)
+            p_hats[j + 1] = dr.select(vj, p_hats[j + 1], 0.0)
     finalize(out, combine, counts, p_hats, masks)
+    if vis0 is not None:
+        out.W = dr.select(vis0, out.W, 0.0)
     dr.eval(*out.arrays())
     return out
 
@@ -340,7 +361,7 @@ class ReSTIRDI:
                       dr.zeros(mi.UInt32, npix))
         finalize_single(r)
         self.candidate_rays = 0
-        if self.visibility_reuse == "candidate":     # Alg. 5: W = 0 (and no weight in merges) if occluded
+        if self.visibility_reuse in ("candidate", "unbiased"):   # Alg. 5: W = 0 (no weight in merges) if occluded
             vis, traced = self.candidate_visibility(gb, (k, pl), active & (r.W > 0.0), time)
             r.W = dr.select(vis, r.W, 0.0)
             r.w_sum = dr.select(vis, r.w_sum, 0.0)
@@ -348,11 +369,17 @@ class ReSTIRDI:
         dr.eval(*r.arrays())
         return r
 
-    def temporal_reuse(self, r, gb, reproj, active, sampler, m: float, eval_here, eval_prev) -> None:
+    def temporal_reuse(self, r, gb, reproj, active, sampler, m: float, eval_here, eval_prev, vis_here=None,
+                       vis_prev=None) -> None:
         """Merge the reprojected previous pixel's reservoir into ``r`` (Alg. 4/5; in place), M capped at
         ``m_cap * m`` (``m``: the candidates a fresh reservoir holds). ``eval_here(sample, ok)``: the
         target at this pixel; ``eval_prev(prev_gbuffer, prev_pixel, sample, ok)``: at the previous pixel
-        (for the MIS / 1/Z weights). Does nothing without temporal reuse or a previous frame."""
+        (for the MIS / 1/Z weights). Does nothing without temporal reuse or a previous frame.
+
+        ``vis_here(sample, ok)``, ``vis_prev(prev_gbuffer, prev_pixel, sample, ok)`` (``visibility_reuse=
+        'unbiased'``): the final sample's visibility at this pixel and at the previous pixel, one shadow ray
+        where the sample came from the other domain (visible at its own by the invariant of
+        :func:`spatial_reuse`); the weights over ``p_hat V`` and ``W = 0`` where occluded here."""
         npix = dr.width(gb.valid)
         prev = self.hist.prev
         if not (self.temporal and self.prev_res is not None and prev is not None
@@ -366,21 +393,60 @@ class ReSTIRDI:
         merge(r, rp, ph_here, sampler.next_1d(), ok, src=1, m_cap=cap)
         # the final sample's target at the previous pixel (its G-buffer, today's lights)
         ph_prev = eval_prev(prev, reproj.prev_pixel, r.sample, ok)
-        finalize(r, self.combine, [mi.Float(m), m_prev], [r.p_hat, ph_prev], [True, ok])
+        ph_here = r.p_hat
+        vis0 = None
+        if self.visibility_reuse == "unbiased":
+            self._need_vis(vis_here, vis_prev)
+            have = r.p_hat > 0.0
+            vis0 = (r.src == 0) | vis_here(r.sample, active & have & (r.src != 0))
+            visp = (r.src == 1) | vis_prev(prev, reproj.prev_pixel, r.sample, ok & have & (ph_prev > 0.0)
+                                           & (r.src != 1))
+            ph_here = dr.select(vis0, ph_here, 0.0)
+            ph_prev = dr.select(visp, ph_prev, 0.0)
+        finalize(r, self.combine, [mi.Float(m), m_prev], [ph_here, ph_prev], [True, ok])
+        if vis0 is not None:
+            r.W = dr.select(vis0, r.W, 0.0)
         dr.eval(*r.arrays())
 
-    def spatial_reuse(self, gb, r, active, sampler, eval_here, gather_domain, eval_there) -> Reservoir:
+    def spatial_reuse(self, gb, r, active, sampler, eval_here, gather_domain, eval_there, vis_here=None,
+                      vis_there=None) -> Reservoir:
         """Spatial reuse (:func:`spatial_reuse`) with this component's count, radius (scaled with the image
-        width, :func:`radius_px`) and combination."""
+        width, :func:`radius_px`) and combination; ``vis_here`` / ``vis_there`` are used (and required) with
+        ``visibility_reuse='unbiased'`` only."""
+        unbiased = self.visibility_reuse == "unbiased"
+        if unbiased:
+            self._need_vis(vis_here, vis_there)
         return spatial_reuse(gb, r, active, sampler, radius_px(self.radius, gb.res[0], self.min_radius_px),
                              self.spatial, self.combine,
-                             eval_here, gather_domain, eval_there)
+                             eval_here, gather_domain, eval_there, vis_here if unbiased else None,
+                             vis_there if unbiased else None)
 
-    def shade(self, gb, bsdf, sample, W, active, time):
+    @staticmethod
+    def _need_vis(*fns) -> None:
+        if any(f is None for f in fns):
+            raise DyngiError("visibility_reuse='unbiased' needs the reuse stage's visibility callables "
+                             "(vis_here, vis_prev / vis_there); this caller passes none")
+
+    def visible_at(self, si, sample, time, active, stage: str):
+        """Visibility of emitter samples ``sample`` = (k, payload) from surface interactions ``si`` (one shadow
+        ray per ``active`` lane with a valid sample, counted under ``stage``); returns (visible, lanes that
+        traced a ray)."""
+        ev = self.cand.evaluate(si.p, sample[0], sample[1], time, active)
+        traced = mi.Bool(active) & ev.valid
+        return self.cand.visible(si, ev, traced, stage=stage), traced
+
+    def shade(self, gb, bsdf, sample, W, active, time, known_visible: bool = False):
         """One shadow ray to the emitter sample ``sample`` = (k, payload) per ``active`` lane; returns
-        (BSDF x Lg x W where visible, lanes that traced a shadow ray, lanes that found it occluded)."""
+        (BSDF x Lg x W where visible, lanes that traced a shadow ray, lanes that found it occluded).
+        ``known_visible``: the reservoirs hold only samples visible from their pixel (``W > 0``;
+        ``visibility_reuse='unbiased'``), so no ray is traced (none is counted)."""
         si = gb.si
         ev = self.cand.evaluate(gb.pos, sample[0], sample[1], time, active)
+        if known_visible:
+            vis = ev.valid
+            f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ev.wi), vis)
+            none = dr.zeros(mi.Bool, dr.width(vis))
+            return dr.select(vis, f * ev.Lg * W, 0.0), none, none
         vis = self.cand.visible(si, ev, ev.valid, stage="shadow")
         f = bsdf.eval(mi.BSDFContext(), si, si.to_local(ev.wi), vis)
         return dr.select(vis, f * ev.Lg * W, 0.0), ev.valid, ev.valid & ~vis
@@ -406,8 +472,15 @@ class ReSTIRDI:
         gb, reproj, bsdf, smooth, sampler, time = pv.gb, pv.reproj, pv.bsdf, pv.smooth, pv.sampler, pv.time
         with timer.stage("candidates"):
             r = self.candidates(gb, smooth, sampler, time)
-        if self.visibility_reuse == "candidate":
+        if self.visibility_reuse in ("candidate", "unbiased"):
             timer.add_rays("candidates", self.candidate_rays)
+        unbiased = self.visibility_reuse == "unbiased"
+        vis_rays = []
+
+        def vis_here(sample, ok, stage):
+            v, traced = self.visible_at(gb.si, sample, time, ok, stage)
+            vis_rays.append((stage, traced))
+            return v
         with timer.stage("temporal"):
             def here(sample, ok):
                 return self.eval_at(gb.pos, gb.n_sh, gb.transmissive, sample, time, ok)
@@ -418,14 +491,31 @@ class ReSTIRDI:
                 ptwo = dr.gather(mi.Bool, prev.transmissive, pix, ok)
                 return self.eval_at(ppos, pn, ptwo, sample, time, ok)
 
-            self.temporal_reuse(r, gb, reproj, smooth, sampler, self.m, here, there_prev)
+            def vis_prev(prev, pix, sample, ok):
+                v, traced = self.visible_at(dr.gather(mi.SurfaceInteraction3f, prev.si, pix, ok), sample, time,
+                                            ok, "temporal")
+                vis_rays.append(("temporal", traced))
+                return v
+
+            self.temporal_reuse(r, gb, reproj, smooth, sampler, self.m, here, there_prev,
+                                lambda s, ok: vis_here(s, ok, "temporal"), vis_prev)
         with timer.stage("spatial"):
             if self.spatial > 0:
+                def vis_there(nid, sample, ok):
+                    v, traced = self.visible_at(dr.gather(mi.SurfaceInteraction3f, gb.si, nid, ok), sample,
+                                                time, ok, "spatial")
+                    vis_rays.append(("spatial", traced))
+                    return v
+
                 r = self.spatial_reuse(gb, r, smooth, sampler, here,
                                        lambda nid, npos, nn, ntwo, act: (npos, nn, ntwo),
-                                       lambda dom, sample, ok: self.eval_at(*dom, sample, time, ok))
+                                       lambda dom, sample, ok: self.eval_at(*dom, sample, time, ok),
+                                       lambda s, ok: vis_here(s, ok, "spatial"), vis_there)
+        for stage, ok in vis_rays:
+            timer.add_rays(stage, dr.count(ok))
         with timer.stage("shadow"):
-            direct, shadow, occluded = self.shade(gb, bsdf, r.sample, r.W, smooth & (r.W > 0.0), time)
+            direct, shadow, occluded = self.shade(gb, bsdf, r.sample, r.W, smooth & (r.W > 0.0), time,
+                                                  known_visible=unbiased)
             if self.visibility_reuse == "final":
                 self.store_visibility(r, occluded)
             dr.eval(direct, r.W)
