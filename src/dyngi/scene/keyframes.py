@@ -442,9 +442,7 @@ def attach(scene: Scene, toml_path: str) -> Scene:
     mis = scene.mi_scene
     if any(sid not in _shape_ids(mis) for sid in shapes_doc) and str(scene.source).lower().endswith(".xml") \
             and os.path.isfile(scene.source):
-        unmerged = _reload_unmerged(scene.source)
-        if all(sid in _shape_ids(unmerged) for sid in shapes_doc):
-            mis = unmerged
+        mis = _reload_unmerged(scene.source)
     params = mi.traverse(mis)
     shapes = _shape_ids(mis)
     emitters = _emitter_entries(mis, params)

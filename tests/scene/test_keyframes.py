@@ -1,0 +1,296 @@
+"""Keyframe sidecars (dyngi.scene.keyframes): poses at chosen times agree with Mitsuba renders of the
+XML edited by the test to those poses; every kind of bad sidecar gives one line."""
+import math
+import os
+
+import numpy as np
+import pytest
+
+from stats import z_test_images
+
+# -- a small XML: a floor and a box sharing one BSDF (Mitsuba merges them on load), a sphere, a sun --
+
+XML = """<scene version="3.0.0">
+  <sensor type="perspective">
+    <float name="fov" value="50"/>
+    <transform name="to_world"><lookat origin="0, 2.6, 3.6" target="0, 0.3, 0" up="0, 1, 0"/></transform>
+  </sensor>
+  <bsdf type="diffuse" id="grey"><rgb name="reflectance" value="0.6, 0.6, 0.6"/></bsdf>
+  <bsdf type="diffuse" id="red"><rgb name="reflectance" value="0.7, 0.2, 0.1"/></bsdf>
+  <shape type="rectangle" id="floor">
+    <transform name="to_world"><scale value="2.5"/><rotate x="1" angle="-90"/></transform>
+    <ref id="grey"/>
+  </shape>
+  <shape type="cube" id="box">
+    <transform name="to_world">{box}</transform>
+    <ref id="grey"/>
+  </shape>
+  <shape type="sphere" id="ball">
+    <point name="center" x="{cx}" y="{cy}" z="{cz}"/><float name="radius" value="{radius}"/>
+    <ref id="red"/>
+  </shape>
+  <emitter type="directional" id="sun">
+    <vector name="direction" x="{dx}" y="{dy}" z="{dz}"/>
+    <rgb name="irradiance" value="{irr}, {irr}, {irr}"/>
+  </emitter>
+  <emitter type="constant" id="sky"><rgb name="radiance" value="0.25, 0.3, 0.4"/></emitter>
+</scene>
+"""
+
+SIDECAR = """
+[shapes.box]
+interpolation = "smooth"
+keys = [
+  { t = 0.0, translate = [0.0, 0.0, 0.0], rotate = 0.0 },
+  { t = 2.0, translate = [0.8, 0.0, -0.4], rotate = 120.0 },
+]
+
+[shapes.ball]
+keys = [
+  { t = 0.0, translate = [0.0, 0.0, 0.0], scale = 1.0 },
+  { t = 2.0, translate = [0.3, 0.4, 0.2], scale = 1.6 },
+]
+
+[emitters.sun]
+keys = [
+  { t = 0.0, elevation = 60.0, azimuth = 0.0 },
+  { t = 2.0, elevation = 30.0, azimuth = 90.0 },
+]
+
+[emitters.sky]
+interpolation = "step"
+keys = [
+  { t = 0.0, scale = 1.0 },
+  { t = 1.0, scale = 2.0 },
+]
+"""
+
+BOX_C = np.array([0.0, 0.35, 0.0])
+BALL_C, BALL_R = np.array([-0.8, 0.25, 0.5]), 0.25
+IRR = 3.0
+
+
+def _pose_xml(t: float, wrong: str = "") -> str:
+    """The XML edited to the sidecar's pose at ``t``, computed here from the documented conventions;
+    ``wrong`` names one deliberate error (to show the comparison sees it)."""
+    a = min(max(t / 2.0, 0.0), 1.0)
+    s = a * a * (3.0 - 2.0 * a)                  # smooth (box)
+    d = s * np.array([0.8, 0.0, -0.4])
+    p = BOX_C + d
+    angle = 120.0 * (a if wrong == "box_linear" else s) * (0.0 if wrong == "box_rotate" else 1.0)
+    box = (f'<scale value="0.35"/><rotate y="1" angle="{angle:.9g}"/>'
+           f'<translate x="{p[0]:.9g}" y="{p[1]:.9g}" z="{p[2]:.9g}"/>')
+    c = BALL_C + a * np.array([0.3, 0.4, 0.2])   # linear (ball)
+    r = BALL_R * (1.0 + (0.0 if wrong == "ball_scale" else 0.6) * a)
+    el = math.radians(60.0 - 30.0 * a + (4.0 if wrong == "sun_elevation" else 0.0))
+    az = math.radians(90.0 * a * (-1.0 if wrong == "sun_azimuth" else 1.0))   # linear (sun)
+    to_sun = np.array([math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)])
+    sky = 2.0 if t >= 1.0 else 1.0              # step (sky)
+    if wrong == "sky_linear":
+        sky = 1.0 + min(t, 1.0)
+    f = [f"{float(v):.9g}" for v in (*c, r, *(-to_sun))]
+    xml = XML.format(box=box, cx=f[0], cy=f[1], cz=f[2], radius=f[3], dx=f[4], dy=f[5], dz=f[6], irr=IRR)
+    return xml.replace('value="0.25, 0.3, 0.4"', f'value="{0.25 * sky}, {0.3 * sky}, {0.4 * sky}"')
+
+
+def _write(tmp_path, name, text):
+    p = tmp_path / name
+    p.write_text(text)
+    return str(p)
+
+
+@pytest.fixture
+def animated(backend, tmp_path):
+    from dyngi.scene.keyframes import attach
+    from dyngi.scene.loaders import load_scene
+
+    xml = _write(tmp_path, "scene.xml", _pose_xml(0.0))
+    toml = _write(tmp_path, "poses.toml", SIDECAR)
+    return attach(load_scene(xml), toml), tmp_path
+
+
+def _ours(scene, t, res, spp, k):
+    from dyngi.techniques.base import to_image
+    from dyngi.techniques.path import render_paths
+
+    scene.at(t)
+    L, _ = render_paths(scene, scene.camera(t), res, spp, seed=1000 + k, frame_index=0, max_depth=6, rr_depth=5)
+    return to_image(L, res)
+
+
+def _mitsuba_xml(path, camera, res, spp, k):
+    from dyngi.backend import mi
+
+    mis = mi.load_file(path)
+    integ = mi.load_dict({"type": "path", "max_depth": 6, "rr_depth": 5})
+    return np.asarray(mi.render(mis, sensor=camera.to_sensor(res, spp), integrator=integ, spp=spp, seed=5000 + k),
+                      np.float32)
+
+
+def _agree(a, b):
+    """z_test_images on the stacks, after checking the noise-free pixels (the sky seen directly: both
+    stacks constant to float round-off) agree to 1e-5 relative; those pixels are then left out (a Welch
+    statistic over round-off noise is meaningless)."""
+    la, lb = a.mean(-1), b.mean(-1)
+    still = (la.std(0) <= 1e-6 * np.abs(la.mean(0)) + 1e-9) & (lb.std(0) <= 1e-6 * np.abs(lb.mean(0)) + 1e-9)
+    diff = np.abs(a.mean(0) - b.mean(0))[still]
+    if diff.size and np.max(diff) > 1e-5 * max(float(np.abs(b).max()), 1e-6):
+        return False, {"noise_free_pixels_differ": float(np.max(diff))}
+    b = np.where(still[None, ..., None], a, b)
+    return z_test_images(a, b)
+
+
+def test_sidecar_found_beside_xml(tmp_path):
+    from dyngi.scene.keyframes import sidecar_for
+
+    xml = _write(tmp_path, "room.xml", "<scene version='3.0.0'/>")
+    assert sidecar_for(xml) is None
+    toml = _write(tmp_path, "room.anim.toml", "")
+    assert sidecar_for(xml) == toml
+
+
+def test_merged_shape_keeps_its_id_and_scene_metadata(animated):
+    """The box shares the floor's BSDF (Mitsuba merges such meshes on load); the sidecar still moves it."""
+    sc, _ = animated
+    assert {"box", "ball", "floor"} <= {sh.id() for sh in sc.mi_scene.shapes()}
+    assert sc.duration == 2.0 and sc.is_animated
+    assert sc.meta.dynamic_shapes == ["ball", "box"]
+    # probe box and bounds cover the box's and the ball's end poses (box corner reaches x = 0.7 + 0.3*...)
+    lo, hi = (np.asarray(v) for v in sc.meta.bounds)
+    assert hi[1] >= BALL_C[1] + 0.4 + BALL_R * 1.6 - 1e-4
+    assert hi[0] >= 0.8 + 0.35 - 1e-4
+    assert sc.state_hash(0.0) != sc.state_hash(1.3) and sc.state_hash(2.0) == sc.state_hash(3.0)
+
+
+WRONG = ("box_linear", "box_rotate", "ball_scale", "sun_elevation", "sun_azimuth", "sky_linear")
+
+
+def test_poses_match_mitsuba_renders_of_edited_xml(animated):
+    """dyngi's path tracer on the animated scene at t and Mitsuba's path on the XML the test edited to the
+    pose at t estimate the same image (per-pixel Welch/Sidak, binomial count, mean; alpha 0.01, 16 renders
+    of 16 spp each); and the comparison sees each single wrong detail (the box interpolated linearly or not
+    rotated, the ball not scaled, the sun 4 degrees low or mirrored in azimuth, the sky's step interpolated
+    linearly) at one of the two times at least."""
+    sc, tmp = animated
+    res, spp, k = (32, 24), 16, 16
+    cam = sc.camera(0.0)
+    seen = {w: False for w in WRONG}
+    for t in (0.5, 1.5):
+        a = np.stack([_ours(sc, t, res, spp, i) for i in range(k)])
+        for wrong in ("",) + WRONG:
+            edited = _write(tmp, "pose.xml", _pose_xml(t, wrong))
+            b = np.stack([_mitsuba_xml(edited, cam, res, spp, i) for i in range(k)])
+            ok, info = _agree(a, b)
+            if not wrong:
+                assert ok, f"t={t}: the animated scene and the edited XML disagree: {info}"
+            else:
+                seen[wrong] |= not ok
+    assert all(seen.values()), f"the comparison cannot see these pose errors: {[w for w in seen if not seen[w]]}"
+
+
+# -- bad sidecars: one line each, naming the problem and the valid choices --
+
+BAD = {
+    "unknown_id": ("[shapes.crate]\nkeys = [{ t = 0.0, rotate = 0.0 }, { t = 1.0, rotate = 9.0 }]\n",
+                   ["unknown shape id 'crate'", "box", "ball", "floor"]),
+    "unknown_emitter": ("[emitters.moon]\nkeys = [{ t = 0.0, scale = 1.0 }, { t = 1.0, scale = 2.0 }]\n",
+                        ["unknown emitter id 'moon'", "sun", "sky"]),
+    "unknown_property": ("[shapes.box]\nkeys = [{ t = 0.0, spin = 0.0 }, { t = 1.0, rotate = 9.0 }]\n",
+                         ["unknown property 'spin'", "translate, rotate, scale"]),
+    "emitter_property": ("[emitters.sky]\nkeys = [{ t = 0.0, elevation = 10.0 }, { t = 1.0, scale = 2.0 }]\n",
+                         ["unknown property 'elevation'", "scale"]),
+    "times": ("[shapes.box]\nkeys = [{ t = 0.0, rotate = 0.0 }, { t = 2.0, rotate = 9.0 }, { t = 1.0, rotate = 1.0 }]\n",
+              ["strictly increasing", "0, 2, 1"]),
+    "nan": ("[shapes.box]\nkeys = [{ t = 0.0, translate = [0.0, nan, 0.0] }, { t = 1.0, rotate = 9.0 }]\n",
+            ["'translate' has NaN or infinite values"]),
+    "inf_time": ("[emitters.sun]\nkeys = [{ t = 0.0, elevation = 10.0 }, { t = inf, elevation = 20.0 }]\n",
+                 ["t = inf is not finite"]),
+    "interpolation": ("[shapes.box]\ninterpolation = 'cubic'\nkeys = [{ t = 0.0, rotate = 0.0 }, { t = 1.0, rotate = 9.0 }]\n",
+                      ["unknown interpolation 'cubic'", "linear, smooth, step"]),
+    "sphere_scale": ("[shapes.ball]\nkeys = [{ t = 0.0, scale = 1.0 }, { t = 1.0, scale = [1.0, 2.0, 1.0] }]\n",
+                     ["sphere", "uniformly"]),
+    "top_level": ("duration = 3\n[shapes.box]\nkeys = [{ t = 0.0, rotate = 0.0 }, { t = 1.0, rotate = 9.0 }]\n",
+                  ["unknown setting 'duration'", "fps, loop"]),
+    "toml_syntax": ("[shapes.box\n", ["not valid TOML"]),
+    "static": ("[shapes.box]\nkeys = [{ t = 0.0, rotate = 0.0 }]\n", ["nothing moves"]),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(BAD))
+def test_bad_sidecar_one_line(backend, tmp_path, kind):
+    from dyngi.errors import DyngiError
+    from dyngi.scene.keyframes import attach
+    from dyngi.scene.loaders import load_scene
+
+    text, needles = BAD[kind]
+    sc = load_scene(_write(tmp_path, "scene.xml", _pose_xml(0.0)))
+    toml = _write(tmp_path, "bad.anim.toml", text)
+    with pytest.raises(DyngiError) as e:
+        attach(sc, toml)
+    msg = str(e.value)
+    assert "\n" not in msg, msg
+    assert msg.startswith(toml), msg
+    for n in needles:
+        assert n in msg, (n, msg)
+
+
+def test_problems_are_reported_together_one_line_each(backend, tmp_path):
+    from dyngi.errors import DyngiError
+    from dyngi.scene.keyframes import attach
+    from dyngi.scene.loaders import load_scene
+
+    sc = load_scene(_write(tmp_path, "scene.xml", _pose_xml(0.0)))
+    toml = _write(tmp_path, "bad.anim.toml", BAD["unknown_id"][0] + BAD["unknown_emitter"][0])
+    with pytest.raises(DyngiError) as e:
+        attach(sc, toml)
+    lines = str(e.value).splitlines()
+    assert len(lines) == 2 and "'crate'" in lines[0] and "'moon'" in lines[1]
+
+
+def test_shape_that_cannot_move_in_place(backend, tmp_path):
+    """A curve exposes neither vertex positions nor to_world to mi.traverse."""
+    from dyngi.errors import DyngiError
+    from dyngi.scene.keyframes import attach
+    from dyngi.scene.loaders import load_scene
+
+    pts = _write(tmp_path, "c.txt", "0 0 0 0.05\n0 1 0 0.05\n")
+    xml = _pose_xml(0.0).replace("</scene>", f'<shape type="linearcurve" id="rope"><string name="filename" '
+                                            f'value="{pts}"/></shape></scene>')
+    sc = load_scene(_write(tmp_path, "scene.xml", xml))
+    toml = _write(tmp_path, "bad.anim.toml", "[shapes.rope]\nkeys = [{ t = 0.0, rotate = 0.0 }, "
+                                             "{ t = 1.0, rotate = 9.0 }]\n")
+    with pytest.raises(DyngiError) as e:
+        attach(sc, toml)
+    msg = str(e.value)
+    assert "\n" not in msg and "cannot be transformed in place" in msg and "'rope'" in msg, msg
+
+
+def test_camera_path(backend, tmp_path):
+    from dyngi.scene.keyframes import attach
+    from dyngi.scene.loaders import load_scene
+
+    sc = load_scene(_write(tmp_path, "scene.xml", _pose_xml(0.0)))
+    toml = _write(tmp_path, "cam.anim.toml", """
+[camera]
+keys = [
+  { t = 0.0, position = [0.0, 2.0, 4.0], target = [0.0, 0.0, 0.0], fov = 40.0 },
+  { t = 1.0, position = [4.0, 2.0, 0.0], fov = 60.0, up = [0.0, 1.0, 0.0] },
+]
+""")
+    a = attach(sc, toml)
+    c = a.camera(0.5)
+    assert np.allclose(c.origin, (2.0, 2.0, 2.0)) and np.allclose(c.target, 0.0) and c.fov == pytest.approx(50.0)
+    assert a.duration == 1.0 and a.is_animated and a.state_hash(0.0) != a.state_hash(0.5)
+
+
+def test_example_sidecars_load(backend):
+    """The shipped examples attach to their scenes (ids checked against the real XML files)."""
+    from conftest import ROOT, shared_scene
+    from dyngi.scene.keyframes import attach
+    from dyngi.scene.loaders import load_scene
+
+    for xml, toml in (("cornell-box/scene_mi3.xml", "cornell-light-moves.anim.toml"),
+                      ("veach-ajar/scene_nopots.xml", "veach-ajar.anim.toml")):
+        sc = attach(load_scene(shared_scene(xml)), os.path.join(ROOT, "examples", toml))
+        assert sc.is_animated and sc.duration > 0
+        sc.at(0.5 * sc.duration)
