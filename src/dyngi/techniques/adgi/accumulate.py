@@ -84,6 +84,8 @@ class ADGIAccumulator:
                 self.merge(pipeline, results, None, self.acc_static, p["n_max_static"])
             return None
         static = probe_pass.name == "static"
+        if distance_results is None:          # D's distance rays, traced apart (their own plan)
+            distance_results = o.get("distances")
         self.merge(pipeline, results, distance_results, self.acc_static if static else self.acc_dynamic,
                    p["n_max_static"] if static else p["n_max_dynamic"], o.get("lane_cap"))
         return None
@@ -99,16 +101,22 @@ class ADGIAccumulator:
             self._merge_closest(pipeline, irr_res, acc, lane_cap)
         else:
             self.radiance.merge(irr_res, n_max, lane_cap)
-        est_d = self.est_dist.distance(vol, dist_res if dist_res is not None else irr_res)
-        if plan.weight is not None:      # the static plan's weight is a multiplicity: m samples of one ray
+        dres = dist_res if dist_res is not None else irr_res
+        dplan = dres.plan                # the distance rays' own plan (D's: apart from the radiance rays')
+        est_d = self.est_dist.distance(vol, dres)
+        if dplan.weight is not None:     # the static plan's weight is a multiplicity: m samples of one ray
             est_d = dataclasses.replace(est_d, count=mi.UInt32(dr.round(est_d.weight)))
         if self.device:
-            slot_probe, slot_valid = self._slots(plan)
+            slot_probe, slot_valid = self._slots(dplan)
             pipeline.merge_slots(None, est_d, slot_probe, slot_valid, accumulator=acc, encoding=self.encoding)
             dr.scatter(self._updated_dev, mi.UInt32(1), slot_probe, slot_valid)
             self._slots_merged += dr.width(slot_probe)
+            if dplan.probe is not plan.probe:       # D's two plans: their probes are the same set
+                slot_probe, slot_valid = self._slots(plan)
+                dr.scatter(self._updated_dev, mi.UInt32(1), slot_probe, slot_valid)
             return
-        pipeline.merge(None, est_d, plan.probe_ids, plan.counts, accumulator=acc, encoding=self.encoding)
+        pipeline.merge(None, est_d, dplan.probe_ids, dplan.counts, accumulator=acc, encoding=self.encoding)
+        self._updated[dplan.probe_ids[dplan.counts > 0]] = True
         self._updated[plan.probe_ids[plan.counts > 0]] = True
 
     @staticmethod

@@ -30,6 +30,7 @@ from ...backend import dr, mi
 from ...probes import UniformSFDirections
 from ...probes.arrays import upload
 from ...probes.pipeline import ProbePass
+from ...probes.trace import ProbeRayResults, trace_probe_distances
 from ..base import Frame, StageTimer
 from .heuristics import OCTANTS, ADGIHeuristics, frusta, octant_of, pack_heuristics, unpack_heuristics, view_distances
 from .planner import ADGIChainPlanner
@@ -58,6 +59,7 @@ class ADGIPasses:
         self.chains.device = self.device
         self.warmup = UniformSFDirections(p["warmup_rays"])     # ddgi's shared set, for the warm-up's updates
         self.used = dr.full(mi.Float, 1.0, volume.n_probes)    # probes the last primary pass read (all at first)
+        self.scene = None           # the scene D's distance rays trace (the technique's, set per frame)
         self._shadow_rate = 1.0                # NEE shadow rays per probe ray (measured)
         self._static_rays = None               # this frame's ray allowance of S and D (None: no budget)
         self._dynamic_rays = None
@@ -172,8 +174,7 @@ class ADGIPasses:
         spent = self._count(got.timer) + plan.rays_cast()
         t.add_rays("S", spent)
         if self._avail_dev is not None:       # device path: D's exact cap on the device
-            self._dynamic_limit = mi.UInt32(dr.maximum(self._avail_dev - mi.Float(spent), 0.0)
-                                            / dr.opaque(mi.Float, 2.0 + self._shadow_rate))
+            self._dynamic_limit = mi.UInt32(dr.maximum(self._avail_dev - mi.Float(spent), 0.0))   # rays
             dr.make_opaque(self._dynamic_limit)
         elif self._dynamic_rays is not None:
             self._dynamic_rays = max(self._dynamic_rays - spent, 0.0)
@@ -185,8 +186,15 @@ class ADGIPasses:
                                 rays=self._dynamic_rays, shadow_rate=self._shadow_rate,
                                 rays_max=self._dynamic_rays_max, limit=self._dynamic_limit)
         if plan is not None:
-            got = yield ProbePass("dynamic", plan, DYNAMIC_STREAM, shader=self.shader, reverse_distances=True)
-            t.add_rays("D", self._count(got.timer) + plan.rays_cast())
+            # the paper's texel-centre rays: the distances from their own rays through the distance-texel
+            # centres of the opposite octant (traced here, unshaded); the strata: along each ray's -w
+            dplan = self.chains.distance_plan
+            dist = None
+            if dplan is not None:
+                dist = ProbeRayResults(None, trace_probe_distances(self.scene, self.volume, dplan), dplan)
+            got = yield ProbePass("dynamic", plan, DYNAMIC_STREAM, shader=self.shader,
+                                  reverse_distances=dplan is None, options={"distances": dist})
+            t.add_rays("D", self._count(got.timer) + (plan if dplan is None else dplan).rays_cast())
         return self.chains.last_samples
 
     def _count(self, tt: StageTimer):
@@ -241,8 +249,20 @@ class ADGIPasses:
         spent = sum(t.as_dict()["rays"].values())      # the warm-up's rays too: charged to frame 0
         primary = frame.res[0] * frame.res[1] * (1 + p["direct_samples"])
         avail = max(float(frame.ray_budget) - spent - primary, 0.0)
-        self._static_rays = avail * (1.0 - share)
+        self._static_rays = avail - self._dynamic_reserve(avail, share)
         self._dynamic_rays = avail      # less what S spends
+
+    def _dynamic_wanted(self) -> float:
+        """1.1x the rays D wanted on its last frame (its marked octants' pairs before the budget cut), or
+        infinity when it wanted none or is unmeasured (a change may just have begun)."""
+        w = self.chains.dynamic_wanted
+        return 1.1 * w if w else float("inf")
+
+    def _dynamic_reserve(self, avail: float, share: float) -> float:
+        """The rays of ``avail`` that S leaves to D: ``share`` of them (``dynamic_share``; 0 when no f_d > 0),
+        at most what D wanted last frame (:meth:`_dynamic_wanted`; ours: D's work is bounded by one proxy
+        octant per chain, Sec. 4.9, so a fixed share would leave rays of an equal-ray budget unspent)."""
+        return min(avail * share, self._dynamic_wanted())
 
     def _plan_budget_device(self, frame: Frame, t: StageTimer) -> None:
         """:meth:`_plan_budget` without a host read (device path): the exact caps are device values -- the
@@ -259,7 +279,7 @@ class ADGIPasses:
         dyn_on = self.chains.dynamic_state is not None
         share = float(p["dynamic_share"]) if dyn_on else 0.0
         avail_est = max(fixed - est, 0.0)
-        self._static_rays = avail_est * (1.0 - (share if self._dyn_prev else 0.0))
+        self._static_rays = avail_est - self._dynamic_reserve(avail_est, share if self._dyn_prev else 0.0)
         self._static_rays_max = self._dynamic_rays_max = max(fixed - lower, 0.0)
         self._dynamic_rays = avail_est
         spent = mi.Float(0.0)
@@ -269,8 +289,9 @@ class ADGIPasses:
         dyn = (self.lut_scale > 0.0) if dyn_on else mi.Bool(False)
         per = 2.0 + self._shadow_rate
         self._avail_dev = avail
-        self._static_limit = mi.UInt32(avail * (1.0 - dr.select(dyn, dr.opaque(mi.Float, share), 0.0))
-                                       / dr.opaque(mi.Float, per))
+        wanted = self._dynamic_wanted()
+        reserve = dr.minimum(avail * dr.opaque(mi.Float, share), dr.opaque(mi.Float, min(wanted, 3.0e38)))
+        self._static_limit = mi.UInt32((avail - dr.select(dyn, reserve, 0.0)) / dr.opaque(mi.Float, per))
         dr.make_opaque(self._static_limit)     # evaluated, as the planner's opaque caps: the same kernels
 
     # -- after the frame's image ----------------------------------------------------------------------

@@ -14,11 +14,14 @@
   starting where the last frame's stopped (the chains rotate, so a budget spreads over all of them),
   and a device prefix sum caps the traced samples at what the budget pays for (ours).
 * ``stage='dynamic'`` -- ``dynamic_chains`` chains over 3x3x3 virtual proxies with 8 octant directions,
-  target the max of ``f_d`` over the proxy's 27 probes; every proxy octant a chain visits traces, for
-  each of its probes in ``V_in``, the centres of an equal-area ``k x k`` stratification of the octant
-  (ours: the paper's texel centres repeat directions in an 8x8 map). Under a budget the octants with
-  the highest table value go first (:func:`budget_keep`: a counting sort by f_d's 10-bit level with
-  prefix sums, on the device).
+  target the max of ``f_d`` over the proxy's 27 probes; each chain marks at most one proxy octant per
+  frame (its last sample's: Sec. 4.9's fixed bound), and every marked octant traces, for each of its
+  probes in ``V_in``, one ray through each irradiance-texel centre of the octant and, in a second plan
+  (:attr:`ADGIChainPlanner.distance_plan`, traced unshaded), one through each distance-texel centre of
+  the opposite octant (:func:`octant_texel_centres`; ``dynamic_rays`` > 0: equal-area strata with their
+  ``-w`` rays instead, ours). Under a budget the octants with the highest table value go first
+  (:func:`budget_keep`: a counting sort by f_d's 10-bit level with prefix sums, on the device), each
+  costing its pairs' rays (:meth:`ADGIChainPlanner.pair_cost`).
 
 The hints: ``vin`` (per probe, 1 in V_in), ``fs`` / ``fd`` (per probe octant, from the 6-10-10 word),
 ``rays`` (the stage's ray allowance or None) and ``shadow_rate`` (measured NEE shadow rays per probe
@@ -31,9 +34,10 @@ Two implementations of the same sampling (``device``, ours): the host one sizes 
 (``device=True``) returns masked plans (:meth:`RayPlan.masked <dyngi.probes.rays.RayPlan.masked>`) of a
 width fixed on the host -- static: the chains' samples, at most what the stage's allowance ``rays_max``
 pays for, without a budget at most 1.25x the samples the last frame wanted (in steps of 4096; the early
-iterations' samples first, as a budget's cap); dynamic: the lanes a budget pays for, or without one 1.25x
-the last frame's lanes (in steps of 8 proxy octants' worth; :meth:`ADGIChainPlanner.dynamic_capacity`) --
-and takes the stage's exact cap as a device value (``limit``: samples, or rays for D). The counts
+iterations' samples first, as a budget's cap); dynamic: (octant, probe) pairs, at most 27 per chain, and
+what a budget pays for, or without one 1.25x the last frame's pairs (in steps of 8 proxy octants' worth;
+:meth:`ADGIChainPlanner.dynamic_capacity`) -- and takes the stage's exact cap as a device value (``limit``:
+samples for S, rays for D). The counts
 (:attr:`last_samples`, the unique share, the lanes each stage wanted) stay device values until
 :meth:`ADGIChainPlanner.finish_frame` reads them after the frame's image. A change of guide that needs
 more dynamic lanes than the capacity is traced, highest guide first, up to it, and fully from the next
@@ -49,7 +53,7 @@ from ...probes.arrays import upload
 from ...probes.rays import RayPlan, compact
 from ...sampling.metropolis import ChainState, MetropolisChains
 from ...sampling.octahedral import direction_to_texel_coords, texel_directions
-from .heuristics import OCTANTS, octant_of, octant_signs, static_guide
+from .heuristics import OCTANTS, octant_of, octant_of_np, static_guide
 
 PROXY = 3                 # 3x3x3 probes per virtual proxy (Sec. 4.9)
 GUIDE_LEVELS = 1024       # f_d's levels in the 6-10-10 word (Sec. 4.3): the budget's sort keys
@@ -64,6 +68,14 @@ def _ray_cap(rays, shadow_rate: float) -> int:
     if r != r or r <= 0.0:
         return 0
     return int(min(r / (2.0 + shadow_rate), 2.0 ** 32 - 1))
+
+
+def _ray_total(rays) -> int:
+    """A ray allowance as a UInt32 value: clipped to ``[0, 2^32 - 1]`` (NaN: 0)."""
+    r = float(rays)
+    if r != r or r <= 0.0:
+        return 0
+    return int(min(r, 2.0 ** 32 - 1))
 
 
 def sorted_plan(probe, direction, weight, n_probes: int) -> RayPlan:
@@ -132,6 +144,47 @@ def budget_keep(key, cost, budget, levels: int):
     return whole | (boundary & (lo + pre + cost <= budget))
 
 
+_OCTANT_SIGNS_NP = np.array([[-1.0 if o & 1 else 1.0, -1.0 if o & 2 else 1.0, -1.0 if o & 4 else 1.0]
+                             for o in range(OCTANTS)])
+
+
+def octant_strata(k: int) -> np.ndarray:
+    """(k*k, 3) directions in the +++ octant: centres of an equal-area k x k stratification (``z = (i + 1/2) /
+    k``, ``phi = (j + 1/2) / k * pi / 2``; ours, ``dynamic_rays`` > 0)."""
+    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    z = (i.ravel() + 0.5) / k
+    phi = (j.ravel() + 0.5) / k * np.pi / 2
+    r = np.sqrt(1 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], -1)
+
+
+def octant_texel_centres(texels: int, opposite: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The interior texel centres of a ``texels`` x ``texels`` octahedral map (DDGI border), by octant (Sec.
+    4.9: D's "ray-direction is deterministic, passing through the center of a texel"): ``(dirs (8, R, 3),
+    valid (8, R))``, row ``o`` the centres whose direction lies in octant ``o`` (:func:`.heuristics.octant_of`'s
+    signs; centres on an octant plane go to the octant of their signs, so each interior texel is in exactly
+    one row), padded to the longest row. ``opposite``: row ``o`` holds the centres ``d`` with ``-d`` in ``o``
+    (the distance texels an octant's ``-w`` rays reach). At 8x8 an octant holds 3-6 of the 36 centres, at
+    16x16 21-28 of the 196."""
+    d = texel_directions(texels)[1:-1, 1:-1].reshape(-1, 3).astype(np.float64)
+    oc = octant_of_np(-d if opposite else d)
+    rows = [d[oc == o] for o in range(OCTANTS)]
+    R = max(len(r) for r in rows)
+    dirs = np.zeros((OCTANTS, R, 3))
+    valid = np.zeros((OCTANTS, R), bool)
+    for o, r in enumerate(rows):
+        dirs[o, :len(r)] = r
+        dirs[o, len(r):] = r[0] if len(r) else (0.0, 0.0, 1.0)
+        valid[o, :len(r)] = True
+    return dirs, valid
+
+
+def _table(dirs: np.ndarray):
+    """An (8, R, 3) direction table as a flat Vector3f (entry ``o * R + r``)."""
+    flat = np.ascontiguousarray(dirs.reshape(-1, 3), np.float32)
+    return mi.Vector3f(*[upload(flat[:, c]) for c in range(3)])
+
+
 class ADGIChainPlanner:
     """Static and dynamic Metropolis chains of ADGI as one ray planner; see the module docstring.
 
@@ -157,14 +210,16 @@ class ADGIChainPlanner:
         self._setup_guide_mip(p["guide_mip"])
         self._texel_dirs = mi.Float(texel_directions(volume.irradiance_texels)[1:-1, 1:-1]
                                     .reshape(-1).astype(np.float32))
-        self._strata = self._octant_strata(int(round(np.sqrt(p["dynamic_rays"]))))
+        self._setup_dynamic_directions(int(p["dynamic_rays"]))
         self.n_run = self.static_state.n
         self.last_samples = 0
         self._first = 0              # the first static chain to run under a budget (rotates, ours)
         self._unique = 1.0           # traced / kept samples of the last budgeted static frame (measured)
         self.device = False          # masked plans, no host read (set by the technique's ``impl``)
         self._pending = {}           # device counts of this frame, read by finish_frame()
-        self._dyn_lanes = 0          # lanes the last frame's dynamic stage wanted (device path, measured)
+        self._dyn_pairs = 0          # (octant, probe) pairs the last frame's dynamic stage wanted (device, measured)
+        self.distance_plan = None    # D's distance rays of the last dynamic plan (None: the plan's reversed)
+        self.dynamic_wanted = None   # rays the last D wanted before a budget cut (device path: after finish_frame)
         self._static_lanes = 0       # samples the last frame's static stage wanted (device path, measured)
 
     def plan(self, frame: int, seed: int, probe_ids=None, previous=None, stage: str = "static", vin=None,
@@ -181,15 +236,41 @@ class ADGIChainPlanner:
             return self._dynamic_plan(frame, seed, vin, fd, rays, shadow_rate, rays_max, limit)
         raise unknown_choice("ADGI planner stage", stage, STAGES)
 
-    @staticmethod
-    def _octant_strata(k: int):
-        """(k*k) directions in the +++ octant: centres of an equal-area k x k stratification."""
-        i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
-        z = (i.ravel() + 0.5) / k
-        phi = (j.ravel() + 0.5) / k * np.pi / 2
-        r = np.sqrt(1 - z * z)
-        d = np.stack([r * np.cos(phi), r * np.sin(phi), z], -1).astype(np.float32)
-        return mi.Vector3f(*[upload(d[:, c]) for c in range(3)])
+    def _setup_dynamic_directions(self, dynamic_rays: int) -> None:
+        """D's per-octant direction tables (Sec. 4.9): with ``dynamic_rays`` = 0 (the paper's) the radiance rays
+        of octant ``o`` are the irradiance-texel centres in ``o`` and the distance rays the distance-texel
+        centres in ``-o`` (:func:`octant_texel_centres`); else ``dynamic_rays`` equal-area strata per octant
+        (:func:`octant_strata`; ours, the earlier default) with the distances along their ``-w``. Also the
+        rays one (octant, probe) pair costs per octant, less the NEE shadow rays (:meth:`pair_cost`)."""
+        vol = self.volume
+        if dynamic_rays == 0:
+            d_irr, ok_irr = octant_texel_centres(vol.irradiance_texels)
+            d_dist, ok_dist = octant_texel_centres(vol.distance_texels, opposite=True)
+        else:
+            k = int(round(np.sqrt(dynamic_rays)))
+            d_irr = octant_strata(k)[None] * _OCTANT_SIGNS_NP[:, None, :]
+            ok_irr = np.ones(d_irr.shape[:2], bool)
+            d_dist = ok_dist = None
+        self._R_irr = d_irr.shape[1]
+        self._n_irr = ok_irr.sum(1)                          # radiance rays per octant
+        self._dir_irr = _table(d_irr)
+        self._ok_irr = mi.Bool(upload(ok_irr.ravel().astype(np.uint32), mi.UInt32) != 0)
+        if d_dist is None:                                   # the -w of each radiance ray
+            self._R_dist, self._n_dist, self._dir_dist, self._ok_dist = 0, self._n_irr, None, None
+        else:
+            self._R_dist = d_dist.shape[1]
+            self._n_dist = ok_dist.sum(1)                    # distance rays per octant
+            self._dir_dist = _table(d_dist)
+            self._ok_dist = mi.Bool(upload(ok_dist.ravel().astype(np.uint32), mi.UInt32) != 0)
+
+    def pair_cost(self, shadow_rate: float) -> np.ndarray:
+        """Rays one (proxy octant, probe) pair of D costs, per octant (8 ints, rounded up): its radiance rays
+        with ``shadow_rate`` NEE shadow rays each, and its distance rays."""
+        return np.ceil(self._n_irr * (1.0 + float(shadow_rate)) + self._n_dist).astype(np.int64)
+
+    def rays_per_pair(self) -> tuple[np.ndarray, np.ndarray]:
+        """(radiance rays, distance rays) per octant of one (proxy octant, probe in V_in) pair of D."""
+        return self._n_irr.copy(), self._n_dist.copy()
 
     def _chains_to_run(self, rays, shadow_rate: float) -> int:
         n = self.static_state.n
@@ -353,14 +434,17 @@ class ADGIChainPlanner:
         return RayPlan.masked(probe, w, lane_ok, self.volume.n_probes, weight=m)
 
     def dynamic_capacity(self, rays_max, shadow_rate: float) -> int:
-        """Lanes of the device path's dynamic plan: under a budget what ``rays_max`` pays for; without one
-        1.25x the lanes the last frame wanted, rounded up to a multiple of 8 proxy octants' worth (at least
-        one; ours, module docstring: a width is no kernel parameter, so it may change every frame)."""
-        per_octant = PROXY ** 3 * dr.width(self._strata.x)
+        """(Proxy octant, probe) pairs of the device path's dynamic plans: at most 27 per chain (one proxy octant
+        per chain per frame, Sec. 4.9's fixed bound); under a budget also what ``rays_max`` pays for at the
+        cheapest octant; without one 1.25x the pairs the last frame wanted (the bound before any was measured), rounded up
+        to a multiple of 8 proxy octants' worth (ours, module docstring: a width is no kernel parameter, so it may change every frame)."""
+        bound = PROXY ** 3 * max(self.dynamic_state.n, 1)
         if rays_max is not None:
-            return max(int(rays_max // (2.0 + shadow_rate)) + 1, 1)
-        step = 8 * per_octant
-        return max(-(-int(1.25 * self._dyn_lanes) // step), 1) * step
+            return max(min(int(rays_max // max(int(self.pair_cost(shadow_rate).min()), 1)) + 1, bound), 1)
+        if not self._dyn_pairs:      # nothing measured yet: the fixed bound
+            return bound
+        step = 8 * PROXY ** 3
+        return max(min(-(-int(1.25 * self._dyn_pairs) // step) * step, bound), step)
 
     def finish_frame(self) -> None:
         """Read this frame's device counts (after the frame's image: no extra wait): :attr:`last_samples` as
@@ -375,7 +459,10 @@ class ADGIChainPlanner:
             self._static_lanes = int(np.asarray(lanes).ravel()[0])
         dyn = self._pending.pop("dynamic", None)
         if dyn is not None:
-            self._dyn_lanes = int(np.asarray(dyn).ravel()[0])
+            self._dyn_pairs = int(np.asarray(dyn).ravel()[0])
+        wanted = self._pending.pop("dynamic_wanted", None)
+        if wanted is not None:
+            self.dynamic_wanted = int(np.asarray(wanted).ravel()[0])
         self._pending.clear()
 
     def _dynamic_plan(self, frame: int, seed: int, vin_dr, fd, rays, shadow_rate: float, rays_max=None,
@@ -408,39 +495,56 @@ class ADGIChainPlanner:
             return dr.gather(mi.Float, table, self._probe_of(x, self.proxies) * OCTANTS + octant_of(w))
 
         self.dynamic_state, s = self.dynamic.run(self.dynamic_state, target, seed, frame)
-        # -- each proxy octant a chain visited (with h > 0) traces once --
+        # -- one proxy octant per chain per frame (Sec. 4.9: "the first invocation to update the octant marks
+        # it", a fixed bound of the stage's work): the chain's last sample of the frame, if h > 0 there --
+        n = self.dynamic_state.n
+        last = dr.arange(mi.UInt32, n) + (self.dynamic.samples_per_chain - 1) * n
+        pos = dr.gather(mi.Vector3f, s.position, last)
+        w = dr.gather(mi.Vector3f, s.direction, last)
         mark = dr.zeros(mi.UInt32, n_entries)
-        ent = self._probe_of(s.position, self.proxies) * OCTANTS + octant_of(s.direction)
-        dr.scatter(mark, mi.UInt32(1), ent, s.value > 0.0)
+        ent = self._probe_of(pos, self.proxies) * OCTANTS + octant_of(w)
+        dr.scatter(mark, mi.UInt32(1), ent, dr.gather(mi.Float, s.value, last) > 0.0)
+        cost = upload(self.pair_cost(shadow_rate).astype(np.uint32), mi.UInt32)     # rays per pair, by octant
+        self.distance_plan = None
         if self.device:
-            return self._dynamic_masked(table, mark, vin_dr, rays, shadow_rate, rays_max, limit)
+            return self._dynamic_masked(table, mark, vin_dr, cost, rays, rays_max, limit)
         marked = dr.compress(mark != 0)          # its width is the count of marked octants
         n_marked = self.last_samples = dr.width(marked)
         if n_marked == 0:
+            self.dynamic_wanted = 0
             return None
-        # -- (marked proxy octant, sub-probe of 27) pairs; then the strata of the pairs in V_in: the octants'
-        # invalid sub-probes never get stratum lanes (27x fewer planning lanes at a large grid; same plan) --
-        R = dr.width(self._strata.x)
+        # -- (marked proxy octant, sub-probe of 27) pairs; then the rays of the pairs in V_in: the octants'
+        # invalid sub-probes never get ray lanes (27x fewer planning lanes at a large grid; same plan) --
         probe, ok, oo, m = self._pairs(marked, None, vin_dr)
+        pair_cost = dr.select(ok, dr.gather(mi.UInt32, cost, oo), 0)
+        self.dynamic_wanted = int(dr.sum(pair_cost)[0])      # (the host path reads its sizes anyway)
         if rays is not None:    # budget: whole proxy octants, the highest guide value first
             # pairs of one proxy octant are contiguous: a block sum, not a scatter into n_marked slots
             # (on LLVM that bakes n_marked into the kernel, a new kernel whenever it changes)
-            per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27) * R
+            per = dr.block_reduce(dr.ReduceOp.Add, pair_cost, 27)
             key = guide_level(dr.gather(mi.Float, table, marked), GUIDE_LEVELS)
-            budget = dr.opaque(mi.UInt32, _ray_cap(rays, shadow_rate))
-            keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
+            keep_m = budget_keep(key, per, dr.opaque(mi.UInt32, _ray_total(rays)), GUIDE_LEVELS)
             ok &= dr.gather(mi.Bool, keep_m, m)
             dr.eval(ok)
         keep = dr.compress(ok)
-        n_pairs = dr.width(keep)
-        if n_pairs == 0:
+        if dr.width(keep) == 0:
             return None
-        lane = dr.arange(mi.UInt32, n_pairs * R)
+        pair_probe = dr.gather(mi.UInt32, probe, keep)
+        pair_oct = dr.gather(mi.UInt32, oo, keep)
+        plan = self._host_rays(pair_probe, pair_oct, self._dir_irr, self._ok_irr, self._R_irr)
+        if self._dir_dist is not None:
+            self.distance_plan = self._host_rays(pair_probe, pair_oct, self._dir_dist, self._ok_dist, self._R_dist)
+        return plan
+
+    def _host_rays(self, pair_probe, pair_oct, dirs, dirs_ok, R: int) -> RayPlan:
+        """A ragged plan of the table rays of each (probe, octant) pair: ``dirs[o * R + r]`` where valid."""
+        lane = dr.arange(mi.UInt32, dr.width(pair_probe) * R)
         pair = lane // R
-        r = lane - pair * R
-        src = dr.gather(mi.UInt32, keep, pair)
-        d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(dr.gather(mi.UInt32, oo, src))
-        return sorted_plan(dr.gather(mi.UInt32, probe, src), d, None, vol.n_probes)
+        e = dr.gather(mi.UInt32, pair_oct, pair) * R + (lane - pair * R)
+        idx = dr.compress(dr.gather(mi.Bool, dirs_ok, e))
+        d = dr.gather(mi.Vector3f, dirs, dr.gather(mi.UInt32, e, idx))
+        return sorted_plan(dr.gather(mi.UInt32, pair_probe, dr.gather(mi.UInt32, pair, idx)), d, None,
+                           self.volume.n_probes)
 
     def _pairs(self, marked, m_ok, vin_dr):
         """Per (proxy octant ``marked[m]``, sub-probe ``s`` of its 27) lane ``27 m + s``: (probe, in V_in (and
@@ -464,33 +568,45 @@ class ADGIChainPlanner:
         dr.eval(probe, ok, oo)
         return probe, ok, oo, m
 
-    def _dynamic_masked(self, table, mark, vin_dr, rays, shadow_rate: float, rays_max, limit):
-        """The device path's dynamic plan (module docstring): the marked proxy octants packed on the device
-        (at most one per chain sample), their lanes, whole octants kept highest guide first while the cap
-        lasts (``limit`` rays' worth under a budget, the plan's width without one), packed into a masked plan
-        of :meth:`dynamic_capacity` lanes; no host read."""
+    def _dynamic_masked(self, table, mark, vin_dr, cost, rays, rays_max, limit):
+        """The device path's dynamic plans (module docstring): the marked proxy octants packed on the device (at
+        most one per chain), their (octant, probe) pairs, whole octants kept highest guide first while the cap
+        lasts (``limit`` rays under a budget, the plans' width without one), packed into masked plans of
+        :meth:`dynamic_capacity` pairs (the radiance rays; the distance rays in :attr:`distance_plan`); no host
+        read."""
         px, py, pz = self.proxies
         n_entries = px * py * pz * OCTANTS
-        E = max(min(n_entries, self.dynamic_state.n * self.dynamic.samples_per_chain), 1)
+        E = max(min(n_entries, self.dynamic_state.n), 1)
         marked, m_ok = compact(mark != 0, E)
         self.last_samples = dr.count(m_ok)
-        R = dr.width(self._strata.x)
         probe, ok, oo, m = self._pairs(marked, m_ok, vin_dr)
-        self._pending["dynamic"] = dr.count(ok) * R
-        width = self.dynamic_capacity(rays_max if rays is not None else None, shadow_rate)
-        per = dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27) * R
+        self._pending["dynamic"] = dr.count(ok)
+        pair_cost = dr.select(ok, dr.gather(mi.UInt32, cost, oo), 0)
+        self._pending["dynamic_wanted"] = dr.sum(pair_cost)
+        n_pairs = self.dynamic_capacity(rays_max if rays is not None else None, 0.0)
+        per = dr.block_reduce(dr.ReduceOp.Add, pair_cost, 27)
         key = guide_level(dr.select(m_ok, dr.gather(mi.Float, table, marked), 0.0), GUIDE_LEVELS)
-        budget = dr.opaque(mi.UInt32, width)     # evaluated values either way: one set of kernels
+        # whole octants, highest guide first, while the plans' width (pairs) and, under a budget, the rays last
+        keep_m = budget_keep(key, dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27),
+                             dr.opaque(mi.UInt32, n_pairs), GUIDE_LEVELS)
         if rays is not None:
-            budget = limit if limit is not None else dr.opaque(mi.UInt32, _ray_cap(rays, shadow_rate))
-        budget = dr.minimum(budget, dr.opaque(mi.UInt32, width))
-        keep_m = budget_keep(key, per, budget, GUIDE_LEVELS)
+            budget = limit if limit is not None else dr.opaque(mi.UInt32, _ray_total(rays))
+            keep_m &= budget_keep(key, per, budget, GUIDE_LEVELS)
         ok &= dr.gather(mi.Bool, keep_m, m)
-        pairs, p_ok = compact(ok, width // R + 1)       # a pair is R lanes
-        lane = dr.arange(mi.UInt32, dr.width(pairs) * R)
+        pairs, p_ok = compact(ok, n_pairs)
+        pair_probe = dr.gather(mi.UInt32, probe, pairs)
+        pair_oct = dr.gather(mi.UInt32, oo, pairs)
+        plan = self._masked_rays(pair_probe, pair_oct, p_ok, self._dir_irr, self._ok_irr, self._R_irr)
+        if self._dir_dist is not None:
+            self.distance_plan = self._masked_rays(pair_probe, pair_oct, p_ok, self._dir_dist, self._ok_dist,
+                                                   self._R_dist)
+        return plan
+
+    def _masked_rays(self, pair_probe, pair_oct, pair_ok, dirs, dirs_ok, R: int) -> RayPlan:
+        """A masked plan of ``R`` lanes per pair slot: ``dirs[o * R + r]`` where the pair and the entry are valid."""
+        lane = dr.arange(mi.UInt32, dr.width(pair_probe) * R)
         pair = lane // R
-        r = lane - pair * R
-        src = dr.gather(mi.UInt32, pairs, pair)
-        lane_ok = dr.gather(mi.Bool, p_ok, pair)
-        d = dr.gather(mi.Vector3f, self._strata, r) * octant_signs(dr.gather(mi.UInt32, oo, src))
-        return RayPlan.masked(dr.gather(mi.UInt32, probe, src), d, lane_ok, self.volume.n_probes)
+        e = dr.gather(mi.UInt32, pair_oct, pair) * R + (lane - pair * R)
+        lane_ok = dr.gather(mi.Bool, pair_ok, pair) & dr.gather(mi.Bool, dirs_ok, e)
+        return RayPlan.masked(dr.gather(mi.UInt32, pair_probe, pair), dr.gather(mi.Vector3f, dirs, e), lane_ok,
+                              self.volume.n_probes)

@@ -37,13 +37,17 @@ One frame, in the paper's stages (Table 4; ``stats['ms']`` keys ``P``, ``S``, ``
 * **D -- dynamic chains** (Sec. 4.9): ``dynamic_chains`` chains over 3x3x3 virtual
   proxies with 8 octant directions, target the max of ``f_d`` over the proxy's
   27 probes (alpha = 0), steps 3x (position) / 6x (direction) the static ones.
-  Every proxy octant a chain visits this frame (each at most once) traces, for
-  each of its probes in ``V_in``, ``dynamic_rays`` = 64 deterministic rays:
-  the centres of an 8x8 equal-area stratification of the octant
-  (``z = (i + 1/2) / 8``, ``phi = (j + 1/2) / 8 * pi / 2``; ours -- the paper
-  sends them through irradiance texel centres, but an octant of our 8x8
-  (6x6 interior) map holds only 3-6 texel centres, so 64 rays through them
-  would repeat directions), plus the shadow ray along ``-w`` each.
+  Each chain marks at most one proxy octant per frame, its last sample's (Sec. 4.9: "the first invocation
+  to update the octant marks it"; the stage's fixed bound, ``dynamic_chains`` octants); every marked octant
+  traces, for each of its probes in ``V_in``, one ray through each irradiance-texel centre of the octant
+  (``dynamic_rays`` = 0, the paper's "passing through the center of a texel"; an octant of the 8x8 map
+  holds 3-6 of the 36 centres, :func:`.planner.octant_texel_centres`) and one unshaded distance ray through
+  each distance-texel centre of the opposite octant (21-28 of the 196 at 16x16: the texels the ``-w`` rays
+  of the octant reach). A centre ray's radiance is one sample of its radiance texel's mean (the midpoint
+  rule; tests/techniques/adgi/test_dynamic_rays.py checks it against a stratified estimate of the texels),
+  and the convolution weights that texel by its solid angle x cosine, as every radiance texel; a distance
+  ray is one sample of its visibility texel. ``dynamic_rays`` = 16 / 64 / 256: the former rule (ours), that
+  many centres of an equal-area stratification of the octant, each with its ``-w`` ray.
   Dynamic updates use N_max = 10, static ones 63 (Table 3); a static sample in an octant with
   ``f_d > 0`` also merges into its radiance texel with N_max = 10 (``change_cap``; ours: the paper
   snaps such samples to texel centres "to avoid injecting sampling noise" but does not say which
@@ -147,7 +151,7 @@ v_in_clip, v_in_fc, v_out_clip, v_out_fc = 1.2, 0.75, 1.4, 0.5   Fig. 6b's label
 Marked settings (``Param(ours=True)``, issue 40; :mod:`dyngi.experiments.claims` builds the paper-literal and
 ablation rows from them): with a paper value ``change_cap`` (paper: false), ``cache_update`` (paper:
 'closest-entry') and the four Fig. 6b cuts (paper: their defaults); without one ``iterations``, ``burn_in``,
-``position_step``, ``dynamic_rays``, ``camera_threshold``, ``theta``, ``radiance_texels``, ``warmup``,
+``position_step``, ``camera_threshold``, ``theta``, ``radiance_texels``, ``warmup``,
 ``warmup_rays``, ``relocate``, ``classify``, ``cull_unused``, ``dynamic_share``, ``reclassify_interval``,
 ``guide_mip``.
 impl : str = 'auto'               'device' (no host read in a steady update) | 'host' | 'auto' (device on a
@@ -272,10 +276,11 @@ class ADGITechnique(_ProbeTechniqueBase):
                                 max=3.0),
         "dynamic_position_scale": Param(3.0, "dynamic/static position step ratio (Sec. 4.9)", min=0.1),
         "dynamic_direction_scale": Param(6.0, "dynamic/static direction step ratio (Sec. 4.9)", min=0.1),
-        "dynamic_rays": Param(64, "deterministic rays per probe octant of a sampled proxy (a square; ours: the "
-                              "paper sends them through the octant's irradiance texel centres, which an octant of "
-                              "our 8x8 map holds only 3-6 of, and gives no count)", choices=(16, 64, 256),
-                              ours=True),
+        "dynamic_rays": Param(0, "rays per probe octant of a sampled proxy: 0, the paper's (Sec. 4.9), one ray "
+                              "per irradiance-texel centre of the octant (3-6 at 8x8) and one distance ray per "
+                              "distance-texel centre of the opposite octant (21-28 at 16x16); 16, 64, 256: that "
+                              "many equal-area strata with their -w rays (ours, the former default 64)",
+                              choices=(0, 16, 64, 256)),
         "camera_threshold": Param(0.0, "k of Eq. 10 in world units (0: the 0.9 quantile of the camera "
                                   "distances of the probes in view; ours: the paper leaves k to the user, no "
                                   "value)", min=0.0, ours=True),
@@ -423,6 +428,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         without the warm-up or a relocation/classification pass reads nothing back to the host here (tests/
         techniques/adgi/test_device_path.py); the counts are read by :meth:`finish_frame`, after the image."""
         self._lights_begin(frame, t)        # lights=: the sampler's per-frame hook before the first probe ray
+        self.passes.scene = self.scene      # D's distance rays trace apart from the pipeline's passes
         return self.pipeline.step(self.scene, frame, t)
 
     def finish_frame(self, t: StageTimer, stats: dict, img, ind) -> FrameResult:
