@@ -146,3 +146,59 @@ def test_demo_options_and_bad_section(tmp_path):
 def test_reproduce_has_smoke_size():
     r = run("reproduce", "--help")
     assert r.returncode == 0 and "--smoke" in r.stdout
+
+
+# -- a user's own animated glTF scene (examples/animated_box.py writes it) --------------------------------
+def _box(tmp_path):
+    import runpy
+
+    ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    mod = runpy.run_path(os.path.join(ROOT, "examples", "animated_box.py"))
+    return mod["write"](str(tmp_path / "box.gltf"))
+
+
+def test_scene_flags_on_every_scene_command():
+    from dyngi.cli import build_parser
+
+    p = build_parser()
+    for argv in (["render", "s", "--out", "o"], ["reference", "s"], ["compare", "s", "--techniques", "path",
+                 "--out", "o"], ["sweep", "path", "s"], ["probe-view", "s", "--out", "o"], ["view", "s"]):
+        a = p.parse_args(argv + ["--fps", "24", "--camera", "cam", "--animation", "a.toml", "--loop"])
+        assert (a.fps, a.camera, a.animation, a.loop) == (24.0, "cam", "a.toml", True), argv[0]
+
+
+def test_gltf_render_moves_with_fps(tmp_path):
+    box = _box(tmp_path)
+    out = tmp_path / "out"
+    r = run("render", box, "--technique", "ddgi", "--frames", "3", "--fps", "4", "--res", "24x18", "--quiet",
+            "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "wrote 3 frame(s) of 'box'" in r.stdout
+    from dyngi.experiments.io import read_exr
+
+    f0, f2 = (read_exr(str(out / f"frame_{i:04d}.exr")) for i in (0, 2))
+    assert np.abs(f0 - f2).mean() > 1e-3        # at 4 fps, frame 2 is t = 0.5 s: the box has moved
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--animation", "{box}"], "--animation applies to Mitsuba XML"),
+    (["--camera", "nope"], "no camera named 'nope'; cameras: watch"),
+    (["--fps", "0"], "--fps must be a positive number"),
+])
+def test_gltf_bad_scene_flags_one_line(tmp_path, args, needle):
+    box = _box(tmp_path)
+    r = run("render", box, "--res", "8x6", "--out", str(tmp_path / "o"), *[a.format(box=box) for a in args])
+    assert r.returncode == 2, r.stderr
+    lines = [l for l in r.stderr.strip().splitlines() if l.strip()]
+    assert len(lines) == 1 and needle in lines[0], r.stderr
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_gltf_compare_writes_the_report(tmp_path):
+    box = _box(tmp_path)
+    out = tmp_path / "cmp"
+    r = run("compare", box, "--techniques", "ddgi,path", "--frames", "3", "--fps", "24", "--res", "24x18",
+            "--ref-spp", "4", "--metrics", "mse", "--quiet", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert (out / "report.html").exists() and (out / "metrics.csv").exists()

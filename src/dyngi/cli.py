@@ -41,6 +41,7 @@ from .experiments.reproductions.smcir_table import table_markdown
 from .experiments.runner import parse_res, run_sequence
 from .experiments.sweep import run_sweep
 from .scene import load_scene
+from .scene.loaders import scene_options
 from .scene.library import BUILTINS, builtin_names, make_builtin
 from .techniques.base import REGISTRY, create_technique, get_technique, parse_spec, split_spec_list, technique_names
 from .viewer.server import run_viewer
@@ -66,6 +67,26 @@ def _positive(name):
             raise argparse.ArgumentTypeError(f"{name} must be >= 1, got {v}")
         return v
     return conv
+
+
+def _fps(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--fps must be a number of frames per second, got '{text}'") from None
+    if not (v == v and 0 < v < 1e6):
+        raise argparse.ArgumentTypeError(f"--fps must be a positive number of frames per second, got '{text}'")
+    return v
+
+
+def _scene_opts(args) -> dict:
+    """``--fps``, ``--camera``, ``--animation``, ``--loop`` as :func:`~dyngi.scene.load_scene` keywords."""
+    return {"fps": getattr(args, "fps", None), "camera": getattr(args, "camera", None),
+            "animation": getattr(args, "animation", None), "loop": getattr(args, "loop", None) or None}
+
+
+def _load(args):
+    return load_scene(args.scene, **_scene_opts(args))
 
 
 def _frame_list(text, frames):
@@ -129,8 +150,9 @@ def cmd_render(args) -> int:
         params.setdefault("spp", args.spp)
     spec = spec.with_settings(params)             # --set checked against the technique's parameters here
     res = parse_res(args.res) if args.res is not None else None
-    summary = render_to_dir(args.scene, spec, args.out, frames=args.frames, res=res,
-                            seed=args.seed, t0=args.t0, quiet=args.quiet, denoise=args.denoise)
+    with scene_options(**_scene_opts(args)):
+        summary = render_to_dir(args.scene, spec, args.out, frames=args.frames, res=res,
+                                seed=args.seed, t0=args.t0, quiet=args.quiet, denoise=args.denoise)
     w, h = summary["res"]
     print(f"wrote {summary['frames']} frame(s) of '{summary['scene']}' at {w}x{h} with '{args.technique}' to "
           f"{args.out} ({summary['mean_ms']:.1f} ms/frame, {summary['mean_rays'] / 1e6:.2f} Mrays/frame)")
@@ -139,7 +161,7 @@ def cmd_render(args) -> int:
 
 def cmd_reference(args) -> int:
     _setup(args)
-    scene = load_scene(args.scene)
+    scene = _load(args)
     res = parse_res(args.res)
     kw = {} if args.spp is None else {"spp": args.spp}
 
@@ -227,6 +249,11 @@ def _report_failures(out) -> int:
 def cmd_compare(args) -> int:
     _setup(args)
     techs = parse_specs(split_spec_list(args.techniques))      # parsed once, here; passed down
+    with scene_options(**_scene_opts(args)):
+        return _compare(args, techs)
+
+
+def _compare(args, techs) -> int:
     out, bad = _cluster_run(args, lambda: run_compare(
         args.scene, techs, args.out, frames=args.frames, res=parse_res(args.res),
         budget=args.budget, seed=args.seed, ref_spp=args.ref_spp, quiet=args.quiet,
@@ -243,6 +270,11 @@ def cmd_sweep(args) -> int:
     _setup(args)
     out = args.out or os.path.join("out", "sweep", f"{args.technique}-"
                                    f"{os.path.splitext(os.path.basename(args.scene))[0]}")
+    with scene_options(**_scene_opts(args)):
+        return _sweep(args, out)
+
+
+def _sweep(args, out) -> int:
     out, bad = _cluster_run(args, lambda: run_sweep(
         args.technique, args.scene, args.grid, args.seeds, out, frames=args.frames, res=parse_res(args.res),
         ref_spp=args.ref_spp, ref_depth=args.ref_depth,
@@ -361,7 +393,7 @@ def cmd_probe_view(args) -> int:
     _setup(args)
     res = parse_res(args.res)
     check_writable(args.out)
-    scene = load_scene(args.scene)
+    scene = _load(args)
     tech = create_technique(args.technique, scene, _parse_sets(args.set))
     if not hasattr(tech, "debug_view"):
         raise DyngiError(f"technique '{args.technique}' has no probe volume to show; use ddgi, qddgi "
@@ -390,8 +422,9 @@ def _port(text):
 
 
 def cmd_view(args) -> int:
-    return run_viewer(args.scene, args.techniques, host=args.host, port=args.port, res=parse_res(args.res),
-                      device=args.device, ref_spp=args.ref_spp, token=not args.no_token)
+    with scene_options(**_scene_opts(args)):
+        return run_viewer(args.scene, args.techniques, host=args.host, port=args.port, res=parse_res(args.res),
+                          device=args.device, ref_spp=args.ref_spp, token=not args.no_token)
 
 
 def cmd_demo(args) -> int:
@@ -463,15 +496,28 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("techniques", help="list techniques and their parameters")
     s.set_defaults(fn=cmd_techniques)
 
+    def scene_flags(sp):
+        sp.add_argument("--fps", type=_fps, default=None,
+                        help="frames per second: frame i shows time i / FPS (default the scene's fps; 30 for glTF)")
+        sp.add_argument("--camera", default=None, metavar="NAME",
+                        help="the scene file's camera to use: a glTF camera (or its node) by name, a Mitsuba XML "
+                             "sensor by id (default the first)")
+        sp.add_argument("--animation", default=None, metavar="FILE",
+                        help="keyframe sidecar (TOML) animating a Mitsuba XML scene (default: scene.anim.toml "
+                             "beside scene.xml when present)")
+        sp.add_argument("--loop", action="store_true",
+                        help="glTF: animations wrap at the last keyframe (default: they hold it)")
+
     def common(sp, frames_default=1, res_default="320x240"):
         sp.add_argument("--frames", type=_positive("--frames"), default=frames_default,
-                        help=f"number of frames, at the scene's fps (default {frames_default})")
+                        help=f"number of frames, at the scene's fps or --fps (default {frames_default})")
         sp.add_argument("--res", default=res_default,
                         help=f"image size WxH (default {res_default})" if res_default else
                         "image size WxH (default: a scene file's film resolution; 320x240 for built-in scenes)")
         sp.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
                         help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
         sp.add_argument("--quiet", action="store_true", help="no progress bar")
+        scene_flags(sp)
 
     s = sub.add_parser("render", help="render a scene with a technique")
     s.add_argument("scene", help="built-in scene name or path to a scene file")
@@ -599,6 +645,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--no-token", action="store_true",
                    help="serve without the random token in the address (loopback --host only; the websocket "
                         "still refuses other sites' pages)")
+    scene_flags(s)
     s.set_defaults(fn=cmd_view)
 
     s = sub.add_parser("demo", help="the main job: a short tour of the five papers' techniques, each on its analog "
