@@ -40,7 +40,8 @@ Parsed with ``json`` + NumPy (trimesh ignores animations), following the glTF 2.
 Rigid or affine node motion becomes one :class:`~dyngi.scene.animation.AffineMotion` per mesh primitive
 (``transform(t)`` = the node's world matrix at ``t`` on the mesh's local vertices), so motion vectors are
 exact. Anything not supported raises one :class:`~dyngi.errors.DyngiError` line; a required extension we
-do not implement (e.g. ``KHR_draco_mesh_compression``) is named.
+do not implement (e.g. ``KHR_draco_mesh_compression``) is named. Extensions used but not required are
+ignored, as the spec allows, and listed in the scene's description. Only ``TEXCOORD_0`` is read.
 """
 from __future__ import annotations
 
@@ -127,6 +128,8 @@ class GltfFile:
             if ext not in SUPPORTED_EXTENSIONS:
                 raise _err(path, f"requires extension {ext}, which dyngi does not support "
                                  f"(supported: {', '.join(SUPPORTED_EXTENSIONS)})")
+        #: extensions the file uses that are not required and that we ignore (the spec allows it)
+        self.ignored = sorted(set(self.doc.get("extensionsUsed", [])) - set(SUPPORTED_EXTENSIONS))
         self._bin = bin_chunk
         self._buffers: dict[int, bytes] = {}
         self._acc: dict[int, np.ndarray] = {}
@@ -475,10 +478,6 @@ def _primitives(f: GltfFile, g: NodeGraph) -> list[Primitive]:
         mesh = f.get("meshes", nd["mesh"])
         for pi, pr in enumerate(mesh.get("primitives", [])):
             where = f"meshes[{nd['mesh']}].primitives[{pi}]"
-            for ext in pr.get("extensions", {}):
-                if ext not in SUPPORTED_EXTENSIONS:
-                    raise _err(f.path, f"{where} uses extension {ext}, which dyngi does not support "
-                                       f"(supported: {', '.join(SUPPORTED_EXTENSIONS)})")
             att = pr.get("attributes", {})
             if "POSITION" not in att:
                 raise _err(f.path, f"{where} has no POSITION attribute")
@@ -613,10 +612,6 @@ class Materials:
         """(RGBA float32 (H, W, 4) non-linear as stored, sampler dict) of a textureInfo, or None."""
         if not info:
             return None
-        for ext in info.get("extensions", {}):
-            if ext not in SUPPORTED_EXTENSIONS:
-                raise _err(self.f.path, f"a texture uses extension {ext}, which dyngi does not support "
-                                        f"(supported: {', '.join(SUPPORTED_EXTENSIONS)})")
         tex = self.f.get("textures", info["index"])
         if "source" not in tex:
             raise _err(self.f.path, f"textures[{info['index']}] has no source image (only PNG/JPEG sources "
@@ -872,7 +867,8 @@ def load_gltf(path: str, *, name: str | None = None, fps: float | None = None, c
         cam_path = CameraPath.fixed(_camera_from_bbox(mis))
     nm = name or os.path.splitext(os.path.basename(path))[0]
     desc = (f"loaded from {path} (glTF: {len(prims)} mesh primitive(s), {len(g.channels)} animation "
-            f"channel(s), {len(lights)} punctual light(s), {len(cams)} camera(s))")
+            f"channel(s), {len(lights)} punctual light(s), {len(cams)} camera(s)"
+            + (f"; ignored extensions: {', '.join(f.ignored)}" if f.ignored else "") + ")")
     sc = Scene(nm, mis, cam_path, animators, desc, duration=g.duration if g.duration > 0 else 4.0,
                fps=float(fps) if fps is not None else DEFAULT_FPS, probe_box=box, probe_counts=counts, source=path)
     sc.gltf_loop = loop
