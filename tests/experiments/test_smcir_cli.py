@@ -113,15 +113,17 @@ def test_untextured_scene_gets_a_new_content_hash(backend):
 def test_full_reproduction_runs_table1_at_its_real_size():
     """The command's default (no --quick) is Table 1 at its real size: every sequence at >= 160x90,
     >= 60 frames, >= 3 seeds, the paper's VPL counts and mir at 256:1 (no overrides), the paper's IR
-    (per-frame photons) with the fixed-photon variant and a k >= 8 smcir as their own rows."""
+    as Keller's QMC photons (``ir:photons=qmc``, the first ir row) with the per-frame and fixed-photon
+    variants, and both readings of Eq. 8 (the default and ``smcir:eq8=text``) as their own rows."""
     from dyngi.experiments.reproductions.smcir import SEQUENCES, SMCIR_FULL
 
     c = SMCIR_FULL
     assert set(c["scenes"]) == {s for s, _ in SEQUENCES}
     assert c["res"][0] >= 160 and c["res"][1] >= 90 and c["frames"] >= 60 and len(c["seeds"]) >= 3
     assert "mir" in c["specs"] and "ir" in c["specs"] and "smcir" in c["specs"] and "tcas" in c["specs"]
-    assert "ir:photons=fixed" in c["specs"]
-    assert any(s.startswith("smcir:density_k=") and int(s.split("=")[1]) >= 8 for s in c["specs"])
+    assert "ir:photons=fixed" in c["specs"] and "ir:photons=qmc" in c["specs"]
+    assert [s for s in c["specs"] if s.startswith("ir")][0] == "ir:photons=qmc"      # the paper's IR row
+    assert "smcir:eq8=text" in c["specs"]
     assert not any("vpls=" in s or "resampling_rate=" in s for s in c["specs"])
 
 
@@ -170,6 +172,8 @@ def _figs(scale):
         for i, lab in enumerate(SMCIR_FULL["specs"]):
             e = scale * (i + 1) * (1.0 + 0.1 * seed)
             d[lab] = {"E_tracked": e, "E_prime_tracked": e / 2, "E": e, "E_prime": e / 2, "brightness": 1.0 + i / 100,
+                      "E_prime_tracked_norm": e / 3, "E_prime_tracked_k1": e / 4, "floor_E_tracked": 1e-4,
+                      "floor_E_prime_tracked": 2e-4, "tracked_spp": 65536, "exposure": 2.0,
                       "vpls_used": 500, "vpl_budget": 512, "stage_ms": {"radiosity": 7.0 + seed}}
         out.append(d)
     return out
@@ -180,14 +184,14 @@ def test_table_rows_carry_each_methods_own_figures():
     paper's column order; a swap of labels, columns or of |E| and |E'| changes the text."""
     import re
 
-    from dyngi.experiments.reproductions.smcir import METHODS, SMCIR_FULL, TABLE1, _rows
+    from dyngi.experiments.reproductions.smcir import METHODS, SMCIR_FULL, TABLE1, _method_label, _rows
 
     specs = SMCIR_FULL["specs"]
     rows = {q: (p, o) for q, p, o in _rows({"maze": _figs(0.001)}, dict(SMCIR_FULL))}
     (pe, oe), = [v for q, v in rows.items() if q.startswith("maze (") and "|E|" in q]
     pd, od = rows["maze: |E'|, 8 px"]
     for m in METHODS:
-        i = specs.index(m)
+        i = specs.index(_method_label(specs, m))      # the method's Table 1 row (ir: ir:photons=qmc)
         want = 0.001 * (i + 1) * 1.05       # mean over the two seeds
         assert re.search(rf"\b{m} {want:.4f} \[", oe), (m, oe)
         assert re.search(rf"\b{m} {want / 2:.4f} \[", od), (m, od)
@@ -197,8 +201,11 @@ def test_table_rows_carry_each_methods_own_figures():
     other = rows["maze: other rows, |E| / |E'| (8 px)"][1]
     i = specs.index("ir:photons=fixed")
     assert f"ir:photons=fixed: {0.001 * (i + 1) * 1.05:.4f}" in other
-    bright = rows["maze: brightness (mean indirect / reference), Eq. 8 k = 1 vs larger k"][1]
-    assert "smcir: 1.040" in bright and "smcir:density_k=16: 1.050" in bright
+    bright = rows["maze: brightness (mean indirect / reference) of the smcir rows (Eq. 8's readings)"][1]
+    i, j = specs.index("smcir"), specs.index("smcir:eq8=text")
+    assert f"smcir: {1 + i / 100:.3f}" in bright and f"smcir:eq8=text: {1 + j / 100:.3f}" in bright
+    norm = [o for q, (p, o) in rows.items() if q.startswith("maze: |E'| brightness-normalised")][0]
+    assert f"smcir {0.001 * (i + 1) * 1.05 / 3:.4f} [" in norm and "floor |E| 0.0001, |E'| 0.0002 (65536 spp" in norm
     assert "Radiosity 7.5" in rows["maze: smcir ms per stage (Table 2, Maze)"][1]
 
 
@@ -206,13 +213,14 @@ def test_table_rows_carry_each_methods_own_figures():
 def test_tiny_reproduction_measures_against_the_indirect_reference(backend, tmp_path, monkeypatch):
     """A real (tiny) reproduction on the maze, two seeds: the table holds the runs' own figures (as each
     sub-folder's summary.json has them), the reference is the techniques' indirect light at their depth
-    (``mir`` and ``smcir:density_k=16`` come out within 20 % of its brightness; a full-light or
-    wrong-depth reference would not), ``mir``'s |E| is below per-frame ``ir``'s (as in every measured
+    (``mir`` and the default ``smcir`` come out within 20 % of its brightness; a full-light or
+    wrong-depth reference would not), the tracked pixels' reference has >= 65,536 spp and its own |E'|
+    floor lies below every technique's, ``mir``'s |E| is below per-frame ``ir``'s (as in every measured
     row of docs/techniques/smcir.md), and a second call reads the saved figures back instead of rerunning."""
     from dyngi.experiments.reproductions import smcir as rs
 
     monkeypatch.setenv("DYNGI_CACHE", str(tmp_path / "cache"))
-    specs = ("mir", "ir", "tcas:iterations=4", "smcir:warmup=5", "smcir:warmup=5:density_k=16")
+    specs = ("mir", "ir", "tcas:iterations=4", "smcir:warmup=5", "smcir:warmup=5:eq8=text")
     cfg = {"scenes": ("maze",), "res": (32, 18), "frames": 3, "ref_spp": 64, "seeds": (0, 1), "specs": specs}
     out = tmp_path / "r"
     rs.reproduce_smcir(str(out), config=cfg)
@@ -221,10 +229,12 @@ def test_tiny_reproduction_measures_against_the_indirect_reference(backend, tmp_
     for seed, run in zip(cfg["seeds"], runs):
         sub = _summary(out / "maze" / f"seed{seed}")
         for lab in specs:
-            for key in ("E_tracked", "E_prime_tracked", "E", "E_prime"):
+            for key in ("E", "E_prime"):
                 assert run[lab][key] == pytest.approx(sub[lab][key], rel=1e-6), (seed, lab, key)
+            assert run[lab]["tracked_spp"] >= 65536
+            assert run[lab]["floor_E_prime_tracked"] < run[lab]["E_prime_tracked"], (seed, lab)
     bright = {lab: np.mean([r[lab]["brightness"] for r in runs]) for lab in specs}
-    assert 0.8 < bright["mir"] < 1.2 and 0.8 < bright["smcir:warmup=5:density_k=16"] < 1.2, bright
+    assert 0.8 < bright["mir"] < 1.2 and 0.8 < bright["smcir:warmup=5"] < 1.2, bright
     e = {lab: np.mean([r[lab]["E_tracked"] for r in runs]) for lab in specs}
     assert e["mir"] < e["ir"], e
     calls = []

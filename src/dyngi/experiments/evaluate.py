@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import DyngiError
 from ..metrics import METRICS, temporal_errors
-from ..metrics.temporal import pick_tracked_pixels
+from ..metrics.temporal import auto_exposure, pick_tracked_pixels
 from .references.clamped import cached_clamped, clamped_indirect, clamped_reference_halves
 from .references.indirect import cached_indirect_reference
 from .references.path import reference_halves
@@ -233,6 +233,39 @@ def evaluate_sequence(label: str, seq, refs: list, names, images: list | None = 
         "failed": bool(failed),
     }
     return rows, summary
+
+
+# -- the SMC-IR table's tracked-pixel measurement (Sec. 5.2; issue 42) -----------------------------------------
+# Used by the SMC-IR reproduction only; evaluate_sequence above (every other comparison) is unchanged.
+
+def tracked_exposure(refs, exposure="auto") -> float:
+    """Reinhard's scale for the tracked pixels' |E|, |E'|: ``'auto'``, the key a / Lw of the whole *image*
+    reference sequence (Reinhard et al. 2002, Eqs. 1-2; as tests/techniques/smcir/test_flicker.py), or a
+    fixed number (1: the harness's default k)."""
+    return float(auto_exposure(list(refs))) if exposure == "auto" else float(exposure)
+
+
+def tracked_temporal(images, values, pixels, exposure: float, scale: float = 1.0) -> dict:
+    """|E| and |E'| (Eq. 10) of the 8 tracked ``pixels`` of ``images`` (T x H x W x 3, shown as
+    non-negative) against their per-pixel reference ``values`` (T x 8 x 3) at Reinhard scale ``exposure``;
+    ``scale`` multiplies the estimate first (1 / its brightness: the brightness-normalised |E'|, which a
+    dim method cannot lower by being dim)."""
+    pix = np.asarray(pixels)
+    est = np.stack([np.asarray(x, np.float64)[pix[:, 0], pix[:, 1]] for x in images])
+    if not np.all(np.isfinite(est)):          # a failed run (NaN/Inf): no figure, as evaluate_sequence
+        return {"E": float("nan"), "E_prime": float("nan")}
+    est = np.maximum(est, 0.0)
+    return temporal_errors(est[:, :, None, :] * float(scale), np.asarray(values, np.float64)[:, :, None, :],
+                           exposure=float(exposure))
+
+
+def tracked_reference_floor(half_a, half_b, exposure: float) -> dict:
+    """The tracked reference's own |E| and |E'| (its noise; a floor under any method's): half a measured
+    against half b (T x 8 x 3 each, independent, S / 2 samples), halved -- a - b has twice the standard
+    deviation of the S-sample mean's noise, in each frame and in each frame-to-frame difference."""
+    t = temporal_errors(np.asarray(half_a, np.float64)[:, :, None, :], np.asarray(half_b, np.float64)[:, :, None, :],
+                        exposure=float(exposure))
+    return {"E": 0.5 * float(t["E"]), "E_prime": 0.5 * float(t["E_prime"])}
 
 
 def noise_warning(summary: dict, ref_noise: dict, names) -> str | None:

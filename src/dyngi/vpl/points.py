@@ -225,6 +225,20 @@ def halton_photon_points(n_photons: int, bounces: int, start: int) -> np.ndarray
     return h.random(int(n_photons))
 
 
+def sobol_photon_points(n_photons: int, bounces: int, seed: int) -> np.ndarray:
+    """A scrambled Sobol' set of ``n_photons`` points in :func:`photon_dimensions` dimensions (SciPy's
+    linear matrix scrambling + digital shift, keyed by ``seed``): a randomised QMC set, a new scrambling per
+    ``seed``. A (n, d) float64 array. (N is rarely a power of 2: the set keeps most, not all, of its
+    stratification; SciPy's warning about it is silenced.)"""
+    import warnings
+
+    from scipy.stats import qmc   # not a dyngi module: loaded on first use
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return qmc.Sobol(d=photon_dimensions(bounces), scramble=True, seed=int(seed)).random(int(n_photons))
+
+
 def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 0x1A, frame: int = 0,
                   lights=None, points: np.ndarray | None = None):
     """Keller's instant radiosity: ``n_photons`` light paths, a VPL at each of the first ``bounces``
@@ -240,8 +254,9 @@ def trace_photons(scene, n_photons: int, bounces: int, seed: int, stream: int = 
     The random numbers come from ``(seed, frame, stream)`` (an opaque seed: a new ``frame`` compiles
     nothing): ``ir`` passes the frame index (a new photon set per frame, the paper's IR) or 0 (one
     fixed set for the whole sequence, ``photons='fixed'``). ``points``: an (n_photons,
-    :func:`photon_dimensions`) point set in [0, 1) used instead (``photons='qmc'``: Halton points,
-    :func:`halton_photon_points`); ``seed``, ``frame`` and ``stream`` are then unused.
+    :func:`photon_dimensions`) point set in [0, 1) used instead (``ir``'s ``photons='qmc'``: a scrambled
+    Sobol' set, :func:`sobol_photon_points`; ``'halton'``: Halton points, :func:`halton_photon_points`);
+    ``seed``, ``frame`` and ``stream`` are then unused.
     """
     mscene = _mscene(scene)
     sampler = make_sampler(n_photons, seed, frame, stream) if points is None else PointSetSampler(points)

@@ -1,14 +1,17 @@
-"""``ir:photons=qmc``: Keller's deterministic quasi-random photons, the paper's IR in the SMC-IR claims.
+"""``ir:photons=qmc`` (a scrambled Sobol' set per frame: the paper's IR in the SMC-IR claims) and
+``ir:photons=halton`` (Keller's deterministic set: frame f takes the next N Halton points).
 
-Frame f takes the next N points of the Halton sequence (a new prefix per frame); the estimator is the same
-as the random photon sets', so its mean indirect light must agree with theirs within the photon noise."""
+The estimator is the same as the random photon sets', so the mean indirect light must agree with theirs
+within the photon noise."""
 from __future__ import annotations
 
 import numpy as np
 
 from dyngi.scene import load_scene
 from dyngi.techniques import Frame, create_technique
-from dyngi.vpl.points import halton_photon_points, photon_dimensions
+import pytest
+
+from dyngi.vpl.points import halton_photon_points, photon_dimensions, sobol_photon_points
 
 
 def test_halton_prefixes_are_the_next_points_of_one_sequence():
@@ -24,7 +27,14 @@ def test_halton_prefixes_are_the_next_points_of_one_sequence():
         assert np.max(np.abs(x - (np.arange(200) + 0.5) / 200)) < 0.05, j
 
 
-def test_qmc_photons_are_deterministic_new_per_frame_and_agree_with_random_sets(backend):
+def test_sobol_sets_are_keyed_by_seed():
+    a, b = sobol_photon_points(170, 3, 1), sobol_photon_points(170, 3, 2)
+    assert a.shape == (170, 11) and np.array_equal(a, sobol_photon_points(170, 3, 1)) and not np.array_equal(a, b)
+    assert np.all((a >= 0) & (a < 1))
+
+
+@pytest.mark.parametrize("mode", ["qmc", "halton"])
+def test_qmc_photons_are_deterministic_new_per_frame_and_agree_with_random_sets(backend, mode):
     sc = load_scene("cornell-static")
     res = (32, 24)
     sc.at(0.0)
@@ -34,8 +44,8 @@ def test_qmc_photons_are_deterministic_new_per_frame_and_agree_with_random_sets(
         return np.array([float(tech.step(Frame(f, 0.0, sc.camera(0.0), res, seed=seed)).indirect.mean())
                          for f in range(frames)])
 
-    q = means("ir:photons=qmc", 4)
-    assert np.array_equal(q, means("ir:photons=qmc", 4))           # deterministic for a seed
+    q = means(f"ir:photons={mode}", 4)
+    assert np.array_equal(q, means(f"ir:photons={mode}", 4))       # deterministic for a seed
     assert len(set(q.tolist())) == 4                                # a new prefix every frame
     r = means("ir", 8, seed=3)
     # per-frame spread of the random sets ~3 % (measured): the means of 4 and 8 frames within 6 %

@@ -6,6 +6,12 @@ import pytest
 
 from dyngi.metrics.temporal import pick_tracked_pixels, temporal_errors
 
+TCAS_BRIGHTNESS_MIN = 0.25
+"""tcas carries a single bounce of the reference's three (Hedman et al. Sec. 5.2: "TCAS ... does not support
+multi-bounce"), and the quick run's 4 Metropolis iterations from a cold start over 4 frames leave its chains
+short of their target: measured 0.32 (maze) and 0.47 (corridor-walk) in the quick run, 0.48-0.63 at 160x90
+with 16 iterations (docs/techniques/smcir.md). Every other row: within 25 % of the reference."""
+
 
 def test_pick_tracked_pixels_one_lit_median_pixel_per_cell():
     rng = np.random.default_rng(0)
@@ -83,7 +89,11 @@ def test_reproduce_smcir_quick(backend, tmp_path):
             for label, f in figs.items():
                 assert np.isfinite(f["E_tracked"]) and np.isfinite(f["E_prime_tracked"]) and not f["failed"], \
                     (sc, label)
-                assert 0.2 < f["brightness"] < 5.0, (sc, label, f["brightness"])
+                # within 25 % of the reference; tcas carries one bounce of the reference's three (Barak et
+                # al.; Hedman et al. Sec. 5.2: "TCAS ... does not support multi-bounce"): its own lower bound
+                lo = TCAS_BRIGHTNESS_MIN if label.startswith("tcas") else 0.75
+                assert lo < f["brightness"] < 1.25, (sc, label, f["brightness"])
+                assert f["tracked_spp"] >= 65536 and f["floor_E_prime_tracked"] < f["E_prime_tracked"], (sc, label)
         assert set(d["ranking"][sc]) >= {"ranks", "ci95", "stable", "lowest"}
     quantities = [r["quantity"] for r in d["rows"]]
     assert "targets (the paper's ranking)" in quantities and any("Table 2" in q for q in quantities)

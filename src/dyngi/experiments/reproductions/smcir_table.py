@@ -3,7 +3,9 @@
 Reads ``OUT/SEQ/seedN/figures.json`` (:func:`dyngi.experiments.reproductions.smcir.run_pair`, written by
 ``dyngi reproduce smcir --out OUT``, whole or ``--only SEQ:SEEDS``), whatever seeds each sequence has, and
 gives per sequence |E| and |E'| of the 8 tracked pixels (mean [min-max] over its seeds) for every
-technique row beside the paper's Table 1, the brightness (mean indirect / the reference's), the steady ms
+technique row beside the paper's Table 1 (after Reinhard tone mapping at the key of the image reference
+sequence), the brightness-normalised |E'| (each estimate over its brightness) and the tracked reference's
+own |E|, |E'| floor (from its two independent halves), the brightness (mean indirect / the reference's), the steady ms
 per frame, smcir's |E'| rank per seed with the reproduction's stability verdict (one seed: not judged),
 each run's wall time, and smcir's stage ms (Table 2). ``dyngi reproduce smcir --out OUT --table`` prints it;
 docs/techniques/smcir.md records it.
@@ -52,7 +54,7 @@ def table_markdown(out: str) -> str:
         seeds = [s for s, _, _ in rr]
 
         def cell(lab, key, fmt="{:.4f}"):
-            v = np.array([f[lab][key] for f in figs], np.float64)
+            v = np.array([f[lab].get(key, np.nan) for f in figs], np.float64)
             m = fmt.format(v.mean())
             return m if len(v) == 1 else f"{m} [{fmt.format(v.min())}-{fmt.format(v.max())}]"
 
@@ -60,9 +62,9 @@ def table_markdown(out: str) -> str:
         me = {lab: np.mean([f[lab]["E_tracked"] for f in figs]) for lab in order}
         best = min(me[l] for l in labels if l != labels[3])
         verdict_e = f"smcir/best other {me[labels[3]] / best:.2f}x"
-        k16 = [l for l in order if l.startswith("smcir:density_k=")]
-        if k16:
-            verdict_e += f" (k=16: {me[k16[0]] / best:.2f}x)"
+        for l in order:
+            if l != labels[3] and l.startswith("smcir"):
+                verdict_e += f" ({l.split(':', 1)[1]}: {me[l] / best:.2f}x)"
         rk = ranking(figs, specs)
         st = {True: "stable", False: "NOT stable", None: "one seed: not judged"}[rk["stable"]]
         ci = "" if len(figs) < 2 else f"; vs {rk['best_other']} {rk['diff_mean']:+.4f} [{rk['ci95'][0]:+.4f}, {rk['ci95'][1]:+.4f}]"
@@ -72,6 +74,12 @@ def table_markdown(out: str) -> str:
               + f" | {' / '.join(f'{v:.4f}' for v in pe)} | {verdict_e} |")
         print(f"| | abs E' | " + " | ".join(cell(l, "E_prime_tracked") for l in order)
               + f" | {' / '.join(f'{v:.4f}' for v in pd)} | {verdict_d} |")
+        fl = [f[labels[3]].get("floor_E_prime_tracked", np.nan) for f in figs]
+        fe = [f[labels[3]].get("floor_E_tracked", np.nan) for f in figs]
+        spp = figs[0][labels[3]].get("tracked_spp", "?")
+        print(f"| | abs E' / brightness | " + " | ".join(cell(l, "E_prime_tracked_norm") for l in order)
+              + f" | | tracked reference's own floor: abs E {np.nanmean(fe) if np.isfinite(fe).any() else np.nan:.4f}, "
+              f"abs E' {np.nanmean(fl) if np.isfinite(fl).any() else np.nan:.4f} ({spp} spp) |")
         print(f"| | brightness | " + " | ".join(cell(l, "brightness", "{:.2f}") for l in order) + " | | |")
         print(f"| | ms/frame (steady, mean) | " + " | ".join(f"{np.mean([f[l]['ms_per_frame'] for f in figs]):.0f}"
                                                          for l in order)
