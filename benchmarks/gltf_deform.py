@@ -6,6 +6,8 @@ work (NumPy: the node matrix, or the per-vertex skin / morph blend) plus Mitsuba
 ``params.update()``. Prints ms per frame for each, and the static scene's ``at`` as the floor.
 
     .venv/bin/python benchmarks/gltf_deform.py --verts 100000 --frames 20
+
+Recorded in docs/scenes.md ("Cost of moving geometry").
 """
 from __future__ import annotations
 

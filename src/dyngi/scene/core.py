@@ -95,8 +95,8 @@ class Scene:
     animators: list[Animator] = field(default_factory=list)
     description: str = ""
     stands_for: str = ""
-    duration: float = 4.0
-    fps: float = 30.0
+    duration: float = 4.0    # seconds the animation lasts (glTF: its last keyframe)
+    fps: float = 30.0        # frame i shows time i / fps; every scene command's --fps sets it (load_scene(fps=))
     probe_box: tuple | None = None
     probe_counts: tuple | None = None
     source: str = "builtin"
