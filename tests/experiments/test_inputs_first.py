@@ -93,3 +93,31 @@ def test_a_spec_is_parsed_once_at_the_edge(backend, tmp_path, monkeypatch, capsy
     err = capsys.readouterr().err
     assert "unknown parameter 'bogus' for technique 'path'" in err and err.count("\n") == 1
     assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize("cmd", ["render", "reference", "compare", "sweep", "probe-view"])
+def test_scene_options_are_checked_before_work(backend, no_rendering, tmp_path, capsys, cmd):
+    """``--camera``, ``--animation`` and ``--fps`` on a glTF scene: one line, exit 2, nothing rendered or
+    written (the scene options reach every command that loads a scene)."""
+    import runpy
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    box = runpy.run_path(os.path.join(root, "examples", "animated_box.py"))["write"](str(tmp_path / "box.gltf"))
+    argv = {"render": ["render", box], "reference": ["reference", box],
+            "compare": ["compare", box, "--techniques", "ddgi"],
+            "sweep": ["sweep", "ddgi", box, "--grid", "hysteresis=0.9,0.97"],
+            "probe-view": ["probe-view", box]}[cmd] + SMALL
+    if cmd != "reference":
+        argv += ["--out", str(tmp_path / "o")]
+    for extra, needle in ((["--camera", "nope"], "no camera named 'nope'"),
+                          (["--animation", box], "--animation applies to Mitsuba XML"),
+                          (["--fps", "-2"], "--fps must be a positive number")):
+        before = sorted(os.listdir(tmp_path))
+        try:
+            rc = main(argv + extra)
+        except SystemExit as e:       # argparse's own check (--fps's type)
+            rc = e.code
+        assert rc == 2
+        err = capsys.readouterr().err
+        assert err.startswith("dyngi: error: ") and err.count("\n") == 1 and needle in err, (cmd, err)
+        assert sorted(os.listdir(tmp_path)) == before
