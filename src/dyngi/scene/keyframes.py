@@ -25,9 +25,13 @@ reloads the XML with that pass off (every other pass, ``merge_equivalent`` inclu
 sidecar names a shape that the loaded scene no longer has; the ids of emitters and of the sensor
 survive either way.
 
-The conventions are ours (no paper defines a sidecar): the sun's direction *towards the sun* is
-``(cos(el) sin(az), sin(el), cos(el) cos(az))`` in world space, +Y up (Mitsuba's ``sunsky`` frame),
-azimuth from +Z towards +X; rotations are right-handed, in degrees.
+The conventions are ours (no paper defines a sidecar): elevation and azimuth are measured in world
+space about the file's ``up`` axis (default +Y, as in the Mitsuba XML scenes we ship), azimuth from
+"north" (+Z for +Y up) towards "east" (+X), so the direction towards the sun is
+``(cos(el) sin(az), sin(el), cos(el) cos(az))`` (:func:`sun_vector`). Mitsuba 3.9's ``sunsky`` takes its
+``sun_direction`` in world space and has its own up at ``to_world`` applied to +Z (identity: +Z up), so a
+sunsky whose up is not the file's ``up`` is an error, as is one placed by date and time (its
+``sun_direction`` is read-only then). Rotations are right-handed, in degrees.
 """
 from __future__ import annotations
 
@@ -45,7 +49,7 @@ from .camera import Camera
 from .core import Scene, default_probe_grid, scene_bounds
 
 SIDECAR_SUFFIX = ".anim.toml"
-TOP_KEYS = ("fps", "loop", "interpolation", "shapes", "emitters", "camera")
+TOP_KEYS = ("fps", "loop", "interpolation", "up", "shapes", "emitters", "camera")
 SHAPE_TABLE = ("pivot", "axis", "interpolation", "keys")
 SHAPE_KEYS = ("t", "translate", "rotate", "scale")
 CAMERA_TABLE = ("interpolation", "keys")
@@ -166,17 +170,14 @@ class ScaleKeyframes(Animator):
 
 @dataclass
 class SunskyKeyframes(Animator):
-    """Writes a ``sunsky`` emitter's ``sun_direction`` (in its local frame) from world directions."""
+    """Writes a ``sunsky`` emitter's ``sun_direction`` (world space in Mitsuba 3.9, in the XML and in
+    ``mi.traverse`` alike; the sky's own up is its ``to_world`` applied to +Z)."""
 
     emitter: str
     direction: object                  # t -> unit world direction towards the sun
-    _inv: np.ndarray | None = field(default=None, repr=False)
-
-    def bind(self, params):
-        self._inv = np.linalg.inv(_matrix(params[f"{self.emitter}.to_world"])[:3, :3])
 
     def apply(self, params, t):
-        d = self._inv @ self.direction(t)
+        d = self.direction(t)
         params[f"{self.emitter}.sun_direction"] = mi.Vector3f(*(d / np.linalg.norm(d)).tolist())
 
     def signature(self, t):
@@ -205,13 +206,13 @@ class RotateKeyframes(Animator):
 
 
 class _SunDirection:
-    """t -> the unit direction towards the sun from elevation / azimuth tracks (degrees)."""
+    """t -> the unit direction towards the sun (times ``sign``) from elevation / azimuth tracks (degrees)."""
 
-    def __init__(self, elevation: Track, azimuth: Track, sign: float = 1.0):
-        self.elevation, self.azimuth, self.sign = elevation, azimuth, sign
+    def __init__(self, elevation: Track, azimuth: Track, up=(0.0, 1.0, 0.0), sign: float = 1.0):
+        self.elevation, self.azimuth, self.up, self.sign = elevation, azimuth, tuple(up), sign
 
     def __call__(self, t):
-        return self.sign * sun_vector(float(self.elevation(t)[0]), float(self.azimuth(t)[0]))
+        return self.sign * sun_vector(float(self.elevation(t)[0]), float(self.azimuth(t)[0]), self.up)
 
 
 @dataclass
@@ -227,17 +228,32 @@ class KeyframedCameraPath:
         return Camera(tuple(self.origin(t)), tuple(self.target(t)), tuple(self.up(t)), float(self.fov(t)[0]))
 
 
-def sun_vector(elevation_deg: float, azimuth_deg: float) -> np.ndarray:
-    """World direction towards the sun: ``(cos el sin az, sin el, cos el cos az)`` (+Y up)."""
+def sky_frame(up=(0.0, 1.0, 0.0)):
+    """(up, north, east): the unit frame elevation and azimuth are measured in. ``north`` is world +Z made
+    orthogonal to ``up`` (world +Y when ``up`` is along Z), ``east = up x north``; for the default
+    ``up = +Y`` that is north +Z, east +X."""
+    u = np.asarray(up, np.float64)
+    u = u / np.linalg.norm(u)
+    ref = np.array([0.0, 0.0, 1.0]) if abs(u[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    n = ref - (ref @ u) * u
+    n /= np.linalg.norm(n)
+    return u, n, np.cross(u, n)
+
+
+def sun_vector(elevation_deg: float, azimuth_deg: float, up=(0.0, 1.0, 0.0)) -> np.ndarray:
+    """World direction towards the sun: ``cos(el) (cos(az) north + sin(az) east) + sin(el) up``
+    (:func:`sky_frame`); for ``up = +Y``: ``(cos el sin az, sin el, cos el cos az)``."""
+    u, n, e = sky_frame(up)
     el, az = math.radians(elevation_deg), math.radians(azimuth_deg)
-    return np.array([math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)])
+    return math.cos(el) * (math.cos(az) * n + math.sin(az) * e) + math.sin(el) * u
 
 
-def sun_angles(d) -> tuple[float, float]:
+def sun_angles(d, up=(0.0, 1.0, 0.0)) -> tuple[float, float]:
     """(elevation, azimuth) in degrees of a direction towards the sun; the inverse of :func:`sun_vector`."""
+    u, n, e = sky_frame(up)
     d = np.asarray(d, np.float64) / np.linalg.norm(d)
-    return (math.degrees(math.asin(float(np.clip(d[1], -1, 1)))),
-            math.degrees(math.atan2(float(d[0]), float(d[2]))))
+    return (math.degrees(math.asin(float(np.clip(d @ u, -1, 1)))),
+            math.degrees(math.atan2(float(d @ e), float(d @ n))))
 
 
 def _matrix(T) -> np.ndarray:
@@ -427,6 +443,10 @@ def attach(scene: Scene, toml_path: str) -> Scene:
         prob.add("fps", f"must be a positive number, got {fps!r}")
         fps = scene.fps
     interp = _interp(prob, "top level", doc, "linear")
+    up = _table_vec(prob, "top level", doc, "up", (0.0, 1.0, 0.0))
+    if up is not None and np.linalg.norm(up) == 0:
+        prob.add("top level", "'up' must not be the zero vector")
+    up = (0.0, 1.0, 0.0) if up is None or np.linalg.norm(up) == 0 else tuple(up / np.linalg.norm(up))
     shapes_doc = doc.get("shapes", {})
     emitters_doc = doc.get("emitters", {})
     cam_doc = doc.get("camera")
@@ -505,18 +525,29 @@ def attach(scene: Scene, toml_path: str) -> Scene:
             else:
                 animators.append(ScaleKeyframes(keys, tr["scale"]))
         if "elevation" in tr or "azimuth" in tr:
+            T = _matrix(params[f"{prefix}.to_world"])
             if kind == "sunsky":
                 d0 = np.array(params[f"{prefix}.sun_direction"], np.float64).ravel()
-                d0 = _matrix(params[f"{prefix}.to_world"])[:3, :3] @ d0
+                sky_up = T[:3, 2] / np.linalg.norm(T[:3, 2])      # Mitsuba's sunsky: local +Z is up
+                if params.properties[f"{prefix}.sun_direction"][3] & mi.ParamFlags.ReadOnly:
+                    prob.add(where, f"the sunsky '{eid}' places its sun by date, time and location (Mitsuba then "
+                             "makes sun_direction read-only): give it a <vector name=\"sun_direction\" .../> "
+                             "in the XML to animate elevation / azimuth")
+                    continue
+                if float(sky_up @ np.asarray(up)) < 0.999:
+                    prob.add(where, f"the sunsky's up axis (its to_world applied to +Z) is "
+                             f"{np.round(sky_up, 3).tolist()}, the sidecar's 'up' is {np.round(up, 3).tolist()}: "
+                             f"set up = {np.round(sky_up, 3).tolist()} at the top of the file")
+                    continue
             else:
-                d0 = -_matrix(params[f"{prefix}.to_world"])[:3, 2]
-            el0, az0 = sun_angles(d0)
+                d0 = -T[:3, 2]
+            el0, az0 = sun_angles(d0, up)
             el = tr.get("elevation", Track.constant([el0]))
             az = tr.get("azimuth", Track.constant([az0]))
             if kind == "sunsky":
-                animators.append(SunskyKeyframes(prefix, _SunDirection(el, az)))
+                animators.append(SunskyKeyframes(prefix, _SunDirection(el, az, up)))
             else:
-                animators.append(SunMotion(prefix, _SunDirection(el, az, -1.0)))
+                animators.append(SunMotion(prefix, _SunDirection(el, az, up, -1.0)))
         if "rotate" in tr and axis is not None:
             animators.append(RotateKeyframes(prefix, tuple(axis), tr["rotate"]))
 
