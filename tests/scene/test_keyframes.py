@@ -281,6 +281,12 @@ keys = [
     c = a.camera(0.5)
     assert np.allclose(c.origin, (2.0, 2.0, 2.0)) and np.allclose(c.target, 0.0) and c.fov == pytest.approx(50.0)
     assert a.duration == 1.0 and a.is_animated and a.state_hash(0.0) != a.state_hash(0.5)
+    # position alone: the XML camera's view direction is kept
+    b = attach(sc, _write(tmp_path, "pan.anim.toml", "[camera]\nkeys = [{ t = 0.0, position = [0.0, 2.6, 3.6] }, "
+                                                     "{ t = 1.0, position = [1.0, 2.6, 3.6] }]\n"))
+    c0, c1 = sc.camera(0.0), b.camera(1.0)
+    assert np.allclose(np.subtract(c1.target, c1.origin), np.subtract(c0.target, c0.origin))
+    assert np.allclose(c1.origin, (1.0, 2.6, 3.6))
 
 
 def test_example_sidecars_load(backend):

@@ -220,12 +220,15 @@ class KeyframedCameraPath:
     """A camera path whose position, target, up and fov each follow a track (``CameraPath``'s interface)."""
 
     origin: Track
-    target: Track
+    target: Track | None    # None: the XML camera's view direction kept, ``target = origin(t) + view``
     up: Track
     fov: Track
+    view: tuple = (0.0, 0.0, 1.0)
 
     def __call__(self, t: float) -> Camera:
-        return Camera(tuple(self.origin(t)), tuple(self.target(t)), tuple(self.up(t)), float(self.fov(t)[0]))
+        o = self.origin(t)
+        target = self.target(t) if self.target is not None else o + np.asarray(self.view, np.float64)
+        return Camera(tuple(o), tuple(target), tuple(self.up(t)), float(self.fov(t)[0]))
 
 
 def sky_frame(up=(0.0, 1.0, 0.0)):
@@ -572,9 +575,10 @@ def attach(scene: Scene, toml_path: str) -> Scene:
     if cam_tracks:
         c0 = scene.camera_path(0.0)
         cam_path = KeyframedCameraPath(cam_tracks.get("position", Track.constant(c0.origin)),
-                                       cam_tracks.get("target", Track.constant(c0.target)),
+                                       cam_tracks.get("target"),
                                        cam_tracks.get("up", Track.constant(c0.up)),
-                                       cam_tracks.get("fov", Track.constant([c0.fov])))
+                                       cam_tracks.get("fov", Track.constant([c0.fov])),
+                                       tuple(np.subtract(c0.target, c0.origin)))
         for t in np.unique(np.concatenate([tr.times for tr in cam_tracks.values()])):
             try:
                 cam_path(float(t)).frame()
