@@ -36,6 +36,7 @@ from ...probes.rays import compact
 from ...probes.trace import ProbeRayResults
 from .moving_average import Algorithm3Accumulator
 from .radiance import RadianceUpdate
+from .sparse import SparseKeys, merge_distance_sparse
 
 
 class ADGIAccumulator:
@@ -55,11 +56,12 @@ class ADGIAccumulator:
         self.acc_static = Algorithm3Accumulator(p["n_max_static"])
         self.acc_dynamic = Algorithm3Accumulator(p["n_max_dynamic"])
         self._mean = MeanAccumulator()
-        self.est_dist = ScatterEstimator(p["distance_power"], "bin")
+        self.dist_keys = SparseKeys(volume.n_probes * (volume.distance_texels - 2) ** 2)   # (.sparse)
         self.est_irr = ScatterEstimator(p["distance_power"], "bin")     # closest-entry: one texel per sample
         n = volume.n_probes
         volume.add_radiance_layer(p["radiance_texels"])      # the volume's third atlas (kept if already there)
         self.radiance = RadianceUpdate(volume)
+        self.radiance.device = self.device
         self._updated = np.zeros(n, bool)                 # probes merged this frame (host path)
         self._updated_dev = dr.zeros(mi.UInt32, n)        # probes merged this frame (device path)
         self._slots_merged = 0                            # slots merged this frame (device: the convolve width)
@@ -103,20 +105,25 @@ class ADGIAccumulator:
             self.radiance.merge(irr_res, n_max, lane_cap)
         dres = dist_res if dist_res is not None else irr_res
         dplan = dres.plan                # the distance rays' own plan (D's: apart from the radiance rays')
-        est_d = self.est_dist.distance(vol, dres)
-        if dplan.weight is not None:     # the static plan's weight is a multiplicity: m samples of one ray
-            est_d = dataclasses.replace(est_d, count=mi.UInt32(dr.round(est_d.weight)))
+        # the distances: Algorithm 3 on the visibility texels that received samples (.sparse); the probes'
+        # update counts as the dense merge's (one per probe with a ray)
         if self.device:
             slot_probe, slot_valid = self._slots(dplan)
-            pipeline.merge_slots(None, est_d, slot_probe, slot_valid, accumulator=acc, encoding=self.encoding)
+            history = pipeline.history
+            merge_distance_sparse(self.dist_keys, vol, dres, acc, self.encoding, history, device=True)
+            dr.scatter_reduce(dr.ReduceOp.Add, history, mi.UInt32(1), slot_probe, slot_valid,
+                              mode=dr.ReduceMode.Local)
+            dr.eval(history)
             dr.scatter(self._updated_dev, mi.UInt32(1), slot_probe, slot_valid)
             self._slots_merged += dr.width(slot_probe)
             if dplan.probe is not plan.probe:       # D's two plans: their probes are the same set
                 slot_probe, slot_valid = self._slots(plan)
                 dr.scatter(self._updated_dev, mi.UInt32(1), slot_probe, slot_valid)
             return
-        pipeline.merge(None, est_d, dplan.probe_ids, dplan.counts, accumulator=acc, encoding=self.encoding)
-        self._updated[dplan.probe_ids[dplan.counts > 0]] = True
+        merge_distance_sparse(self.dist_keys, vol, dres, acc, self.encoding)
+        traced = dplan.probe_ids[dplan.counts > 0]
+        vol.state.updates[traced] += 1
+        self._updated[traced] = True
         self._updated[plan.probe_ids[plan.counts > 0]] = True
 
     @staticmethod

@@ -37,10 +37,11 @@ import numpy as np
 from ...backend import dr, mi
 from ...errors import DyngiError
 from ...probes.arrays import upload
-from ...probes.estimator import TexelEstimate, fixed_point_sum, is_cpu_backend
+from ...probes.estimator import TexelEstimate, is_cpu_backend
 from ...probes.trace import vector_to_numpy
 from ...sampling.octahedral import texel_directions, texel_solid_angles
 from .moving_average import batch_update
+from .sparse import SparseKeys
 
 
 def _ids(probe_ids):
@@ -76,6 +77,8 @@ class RadianceUpdate:
         W = np.maximum(wr @ nt.T, 0.0) * om[:, None]
         self.W = (W / W.sum(axis=0, keepdims=True)).astype(np.float32)     # (n_tex, (Ti-2)^2)
         self._W_dr = upload(np.ascontiguousarray(self.W).ravel(), mi.Float)  # W[r, t] at r * (Ti-2)^2 + t
+        self.keys = SparseKeys(self.P * self.n_tex)      # the merges' (probe, texel) keys (.sparse)
+        self.device = False          # the device path: merges read nothing back (set by the accumulator)
 
     # the volume's radiance atlas (device arrays; a Dr.Jit scatter writes into them in place)
     @property
@@ -99,41 +102,40 @@ class RadianceUpdate:
         return self.volume.radiance_texel_of(w)
 
     def merge(self, results, n_max: int, n_max_lane=None) -> None:
-        """Bin the front-face hits of ``results`` (a ProbeRayResults) into their texels; Algorithm 3 batch rule.
-        ``n_max_lane`` (UInt32 per ray, optional): a per-sample N_max; a texel takes the smallest of its
-        samples' (and of ``n_max``)."""
+        """Bin the front-face hits of ``results`` (a ProbeRayResults) into their texels; Algorithm 3 batch rule,
+        on the texels that received samples only (:class:`.sparse.SparseKeys`: the (probe, texel) keys
+        compacted and reduced). ``n_max_lane`` (UInt32 per ray, optional): a per-sample N_max; a texel takes
+        the smallest of its samples' (and of ``n_max``)."""
         plan = results.plan
-        Pt = len(plan.probe_ids)
-        if Pt == 0 or plan.n_rays == 0:
+        if plan.n_rays == 0 or (not plan.is_masked and len(plan.probe_ids) == 0):
             return
-        n = Pt * self.n_tex
-        entry = plan.slot * self.n_tex + self.texel_of(plan.direction)
         L = results.radiance
         front = results.distance >= 0.0        # back faces: no radiance sample (as the estimator)
         if plan.valid is not None:             # a masked plan: its invalid lanes are no samples
             front &= plan.valid
-        wt = mi.Float(1.0) if plan.weight is None else plan.weight      # the plan's weight: a multiplicity
-        sums, sw, cnt = fixed_point_sum([L.x, L.y, L.z], wt + dr.zeros(mi.Float, plan.n_rays), entry, n, front)
+        wt = (mi.Float(1.0) if plan.weight is None else plan.weight) + dr.zeros(mi.Float, plan.n_rays)
+        key = plan.probe * self.n_tex + self.texel_of(plan.direction)
+        ukey, u_ok, sums, sw, cnt, slot = self.keys.reduce(key, [L.x, L.y, L.z], wt, front,
+                                                           device=self.device or plan.is_masked)
+        U = dr.width(ukey)
+        if U == 0:
+            return
         if plan.weight is not None:      # a sample of multiplicity m counts as m samples (Algorithm 3)
             cnt = mi.UInt32(dr.round(mi.Float(sw)))
-        k = dr.arange(mi.UInt32, n)
-        slot = k // self.n_tex
-        t = k - slot * self.n_tex
-        probe = dr.gather(mi.UInt32, _ids(plan.probe_ids), slot)
-        gidx = probe * self.n_tex + t
-        old = dr.gather(mi.Color3f, self.value, gidx)
-        n_old = dr.gather(mi.UInt32, self.count, gidx)
+        old = dr.gather(mi.Color3f, self.value, ukey, u_ok)
+        n_old = dr.gather(mi.UInt32, self.count, ukey, u_ok)
         s = mi.Color3f(*[mi.Float(x) for x in sums])
         cap = int(n_max)
         if n_max_lane is not None:
-            cap = dr.full(mi.UInt32, int(n_max), n)
-            # Local mode: Auto would expand (baking n, which follows the traced probes, into the kernel)
-            dr.scatter_reduce(dr.ReduceOp.Min, cap, mi.UInt32(n_max_lane), entry, front, mode=dr.ReduceMode.Local)
+            cap = dr.full(mi.UInt32, int(n_max), U)
+            # Local mode: Auto would expand (baking U, which follows the samples, into the kernel)
+            dr.scatter_reduce(dr.ReduceOp.Min, cap, mi.UInt32(n_max_lane), slot,
+                              front & (wt > 0.0), mode=dr.ReduceMode.Local)
         V, N = batch_update(old, n_old, s, cnt, cap)
-        hit = cnt > 0
+        hit = u_ok & (cnt > 0)
         dr.eval(V, N, hit)
-        dr.scatter(self.value, V, gidx, hit)
-        dr.scatter(self.count, N, gidx, hit)
+        dr.scatter(self.value, V, ukey, hit)
+        dr.scatter(self.count, N, ukey, hit)
         dr.eval(self.value, self.count)
 
     def cap_counts(self, probe_mask: np.ndarray, cap: int) -> None:

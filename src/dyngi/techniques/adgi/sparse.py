@@ -1,0 +1,161 @@
+"""ADGI's sparse merges: a pass's samples reduced per (probe, texel) key, and Algorithm 3 applied only to the
+texels that received samples (Datta et al. 2022, Algorithms 2-4: each sample updates "the closest entry";
+Algorithm 4 does it with atomics on the device).
+
+Why: an S-stage probe holds 1-3 samples of a frame, but a dense merge builds a table over every texel of
+every traced probe (36 radiance texels, 256 bordered distance texels each) and runs Algorithm 3 through the
+encoding on all of them. Here the work follows the samples:
+
+1. **keys compacted** (:meth:`SparseKeys.reduce`): each sample's key ``probe * T2 + texel`` claims an owner
+   lane in a persistent per-key table by an atomic minimum (``dr.scatter_reduce(Min)``, Algorithm 4's atomic on
+   the device); the owners are compacted (the frame's unique keys, ``U`` of them: ``dr.compress`` on the host
+   path, :func:`~dyngi.probes.rays.compact` to a fixed width on the device path), each key's table entry is
+   set to its unique index, and the samples are **reduced** into ``U`` slots with the deterministic fixed-point
+   sums of :func:`~dyngi.probes.estimator.fixed_point_sum` (the same bits whatever the order of the atomics);
+   the table entries are reset to "no owner" afterwards (``U`` lanes), so the table is never cleared whole;
+2. **Algorithm 3 on the U texels** (:mod:`.moving_average`'s batch rule): the radiance layer's texels
+   (:meth:`.radiance.RadianceUpdate.merge`) and the visibility texels through the volume's encoding, each
+   written to its interior texel and to the border texels that copy it (:func:`border_copies`), and the
+   probes' update counts raised as the dense merge does (:func:`merge_distance_sparse`).
+
+The result equals the dense merge's (the same sums, the same per-texel rule; tests/techniques/adgi/
+test_sparse_merge.py), at a cost that follows the samples instead of the traced probes' texels. Memory: one
+UInt32 owner per key (``P x (T-2)^2`` per table: 0.8 MB per 1k probes for the 14x14 visibility interior).
+"""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from ...backend import dr, mi
+from ...probes.arrays import upload
+from ...probes.accumulator import pull_from
+from ...probes.estimator import fixed_point_sum
+from ...probes.rays import compact
+from ...sampling.octahedral import border_source_index, direction_to_texel_coords
+
+NO_OWNER = 0xFFFFFFFF
+
+
+def texel_of(direction, texels: int):
+    """Interior texel (row-major in the ``(T-2)^2`` interior) of an octahedral map that ``direction`` falls in
+    (the binned estimator's rule: directions on the border clamp to the nearest interior texel)."""
+    c = direction_to_texel_coords(direction, texels)
+    ix = dr.clip(mi.Int32(dr.floor(c.x)) - 1, 0, texels - 3)
+    iy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, texels - 3)
+    return mi.UInt32(iy * (texels - 2) + ix)
+
+
+@functools.lru_cache(maxsize=None)
+def border_copies(texels: int) -> tuple[int, "mi.UInt32"]:
+    """Per interior texel ``t`` (row-major) the bordered texels (``y * T + x``) that hold its value: the texel
+    itself and the border texels that copy it (:func:`~dyngi.sampling.octahedral.border_source_index`), as a
+    flat table of ``K`` entries per interior texel (``K`` = the most copies; short rows repeat the texel
+    itself, which writes the same value twice). Returns ``(K, table)``."""
+    T = int(texels)
+    src = border_source_index(T).ravel()
+    sy, sx = src // T, src % T
+    interior = (sy - 1) * (T - 2) + (sx - 1)
+    rows = [[] for _ in range((T - 2) ** 2)]
+    for b, t in enumerate(interior):
+        rows[t].append(b)
+    K = max(len(r) for r in rows)
+    table = np.array([r + [r[0]] * (K - len(r)) for r in rows], np.uint32)
+    return K, upload(table.ravel(), mi.UInt32)
+
+
+class SparseKeys:
+    """The frame's (probe, texel) keys of one table (``n_keys`` = probes x interior texels) compacted and
+    reduced (module docstring, step 1)."""
+
+    def __init__(self, n_keys: int):
+        self.n_keys = int(n_keys)
+        self._owner = None
+
+    @property
+    def owner(self):
+        if self._owner is None:         # allocated on first use (a technique without merges needs none)
+            self._owner = dr.full(mi.UInt32, NO_OWNER, self.n_keys)
+        return self._owner
+
+    def reduce(self, key, values, weight, active, device: bool = False):
+        """Per unique key of the active lanes: ``(ukey, u_ok, sums, sw, cnt, slot)`` -- the keys (UInt32, ``U``
+        lanes; with ``device`` (no host read) the lanes' width, ``u_ok`` marking the used ones), the
+        fixed-point sums of ``weight * value`` per channel and of ``weight`` (Float64), the sample counts
+        (UInt32), and per lane its key's unique index ``slot`` (valid where active)."""
+        owner = self.owner
+        n = dr.width(key)
+        lane = dr.arange(mi.UInt32, n)
+        active = active & (weight > 0.0)
+        # -- each key's lowest active lane owns it (an atomic minimum: Algorithm 4's atomics) --
+        dr.scatter_reduce(dr.ReduceOp.Min, owner, lane, key, active, mode=dr.ReduceMode.Local)
+        head = active & (dr.gather(mi.UInt32, owner, key, active) == lane)
+        if device:
+            heads, u_ok = compact(head, max(n, 1))
+        else:
+            heads = dr.compress(head)
+            u_ok = mi.Bool(True) | dr.zeros(mi.Bool, dr.width(heads))
+        U = dr.width(heads)
+        ukey = dr.gather(mi.UInt32, key, heads, u_ok)
+        # -- the owner entry becomes the key's unique index; the samples reduce into the U slots --
+        dr.scatter(owner, dr.arange(mi.UInt32, U), ukey, u_ok)
+        slot = dr.gather(mi.UInt32, owner, key, active)
+        sums, sw, cnt = fixed_point_sum(values, weight, slot, U, active)
+        dr.eval(ukey, u_ok, sw, cnt, slot, *sums)
+        dr.scatter(owner, mi.UInt32(NO_OWNER), ukey, u_ok)          # reset: U lanes, never the whole table
+        dr.eval(owner)
+        return ukey, u_ok, sums, sw, cnt, slot
+
+
+def merge_distance_sparse(keys: SparseKeys, volume, results, accumulator, encoding, history=None,
+                          device: bool = False) -> None:
+    """The distances of ``results`` (a ProbeRayResults along ``-w``) into the visibility texels they fall in:
+    moments ``(|d| clamped to the volume's max distance, its square)`` reduced per (probe, texel) key, then
+    the accumulator (Algorithm 3) through ``encoding`` on those texels only, written to each texel and its
+    border copies. ``history`` (device UInt32 per probe): the device path's update counts (a probe with 0 has
+    no history; each probe with a sample adds 1), else the host's (``volume.state.updates``). A sample of
+    weight ``m`` (the static plan's multiplicity) counts ``m`` times, as the dense merge's. ``device``: no host
+    read (the keys compacted to a fixed width)."""
+    plan = results.plan
+    if plan.n_rays == 0:
+        return
+    T = volume.distance_texels
+    T2 = (T - 2) ** 2
+    d = dr.minimum(dr.abs(results.distance), dr.opaque(mi.Float, volume.max_distance))
+    active = mi.Bool(True) if plan.valid is None else plan.valid
+    active = active & (d >= 0.0)
+    w = (mi.Float(1.0) if plan.weight is None else plan.weight) + dr.zeros(mi.Float, plan.n_rays)
+    key = plan.probe * T2 + texel_of(plan.direction, T)
+    ukey, u_ok, (s1, s2), sw, cnt, _ = keys.reduce(key, [d, d * d], w, active, device=device or plan.is_masked)
+    if dr.width(ukey) == 0:
+        return
+    probe = ukey // T2
+    t = ukey - probe * T2
+    inv = dr.select(sw > 0.0, dr.rcp(sw), 0.0)
+    new = mi.Vector2f(mi.Float(s1 * inv), mi.Float(s2 * inv))
+    m = cnt if plan.weight is None else mi.UInt32(dr.round(mi.Float(sw)))
+    K, copies = border_copies(T)
+    TT = T * T
+    centre = probe * TT + dr.gather(mi.UInt32, copies, t * K)       # the interior texel itself (row's first)
+    dev = volume.device
+    old = dr.gather(mi.Vector2f, dev.distance, centre, u_ok)
+    n_old = dr.gather(mi.UInt32, dev.distance_count, centre, u_ok)
+    if history is not None:
+        fresh = dr.gather(mi.UInt32, history, probe, u_ok) == 0
+    else:
+        fresh = dr.gather(mi.UInt32, upload((volume.state.updates == 0).astype(np.uint32), mi.UInt32),
+                          probe, u_ok) != 0
+    val, c = accumulator.distance(old, new, n_old, m, fresh, int(encoding.count_max))
+    ref = dr.select(fresh, val, old) if getattr(accumulator, "keeps_history", True) else None
+    val, c = encoding.roundtrip_distance(val, c, dr.opaque(mi.Float, volume.grid.cell_diagonal), ref)
+    ok = u_ok & dr.all(dr.isfinite(new))
+    val = dr.select(ok, val, old)
+    c = dr.select(ok, mi.UInt32(c), n_old)
+    dr.eval(val, c, ok)
+    for k in range(K):
+        g = probe * TT + dr.gather(mi.UInt32, copies, t * K + k)
+        dr.scatter(dev.distance, val, g, ok)
+        dr.scatter(dev.distance_count, c, g, ok)
+    dr.eval(dev.distance, dev.distance_count)
+    volume.state.device_is_newer(pull_from(dev))
