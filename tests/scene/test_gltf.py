@@ -557,3 +557,44 @@ def test_bad_files_give_one_clear_line(tmp_path):
     _one_line(tmp_path / "v1.gltf", "version", "2.x")
     _one_line(path, "--animation", "XML", animation=str(path))
     _one_line(path, "--fps", fps=-1.0)
+
+
+# -- normal maps --------------------------------------------------------------------------------------------
+def _normal_floor(tmp_path, rgb, light_dir):
+    """A floor (normal +y; u along +x, v along +z, so the image's up is -z) with a constant normal map, lit by a
+    directional light travelling along ``light_dir``; the mean radiance the camera above it sees."""
+    from PIL import Image
+
+    Image.fromarray(np.full((4, 4, 3), rgb, np.uint8)).save(tmp_path / "n.png")
+    w = Writer()
+    d = w.doc
+    d["images"] = [{"uri": "n.png"}]
+    d["textures"] = [{"source": 0}]
+    d["materials"] = [{"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0},
+                       "normalTexture": {"index": 0}}]
+    UV = (FLOOR_V[:, [0, 2]] + 2) / 4
+    d["nodes"] = [{"mesh": w.mesh(FLOOR_V, FLOOR_F, 0, N=np.tile([0, 1, 0], (4, 1)), UV=UV)},
+                  {"camera": 0, "translation": [0, 3, 0], "rotation": list(quat_x(-90))},
+                  {"rotation": list(Rotation.align_vectors([light_dir], [[0, 0, -1]])[0].as_quat()),
+                   "extensions": {"KHR_lights_punctual": {"light": 0}}}]
+    d["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.5, "aspectRatio": 1.0}}]
+    d["extensions"] = {"KHR_lights_punctual": {"lights": [{"type": "directional", "intensity": 683.0}]}}
+    sc = load_scene(str(w.save(tmp_path / "nm.gltf")))
+    sc.at(0.0)
+    return float(_renders(sc.mi_scene, sc.camera(0.0).to_sensor((8, 8), SPP), [0]).mean())
+
+
+def test_normal_map_tilts_follow_gltf_axes(tmp_path):
+    """glTF tangent space: red = +U (world +x here), green = up in the image (world -z here). A normal tilted
+    30 degrees towards a light 45 degrees up is brighter than the flat one, tilted away darker."""
+    tilt = np.round(127.5 + 127.5 * np.sin(np.radians(30))).astype(np.uint8)
+    flat_c = np.round(127.5 + 127.5 * np.cos(np.radians(30))).astype(np.uint8)
+    s = np.sqrt(0.5)
+    for light_from, rgb_towards, rgb_away in (
+            ([1, 0, 0], [tilt, 128, flat_c], [255 - tilt, 128, flat_c]),      # red: +x
+            ([0, 0, -1], [128, tilt, flat_c], [128, 255 - tilt, flat_c])):    # green: image up = -z
+        travel = -(np.array([0, 1, 0]) + np.asarray(light_from)) * s
+        flat = _normal_floor(tmp_path, [128, 128, 255], travel)
+        towards = _normal_floor(tmp_path, rgb_towards, travel)
+        away = _normal_floor(tmp_path, rgb_away, travel)
+        assert towards > 1.2 * flat and away < 0.6 * flat, (light_from, towards, flat, away)

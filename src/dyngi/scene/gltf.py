@@ -26,7 +26,8 @@ Parsed with ``json`` + NumPy (trimesh ignores animations), following the glTF 2.
 * **Materials** (Sec. 3.9): metallic-roughness -> Mitsuba ``principled`` (base colour sRGB-decoded
   texture x factor, metallic = B channel, roughness = G channel of ``metallicRoughnessTexture`` x
   factors; ``specular`` 0.5 gives glTF's dielectric F0 = 0.04); ``normalTexture`` -> ``normalmap`` (Mitsuba's
-  tangent frame from the UV derivatives; the file's ``TANGENT`` is not read; approximate);
+  tangent frame: x along ``dp_du``, y = n x x, which is glTF's +Y, up in the image, for an unmirrored UV
+  layout; the file's ``TANGENT`` is not read; approximate);
   ``doubleSided`` -> ``twosided`` (else black from behind); ``alphaMode`` MASK -> ``mask`` with opacity
   ``alpha >= alphaCutoff``, BLEND -> ``mask`` with opacity ``alpha`` (stochastic transparency), OPAQUE
   ignores alpha; emissive (x ``KHR_materials_emissive_strength``) -> ``area`` emitter with that
@@ -655,12 +656,11 @@ class Materials:
             metallic, roughness = metal, rough
         bsdf = {"type": "principled", "base_color": base, "metallic": metallic, "roughness": roughness}
         t = self._texture(m.get("normalTexture"))
-        if t is not None:     # tangent space, +Y up in the image: Mitsuba's dp_dv runs down the image
+        if t is not None:     # tangent space: x along dp_du, y = n x s (up in the image, as glTF's +Y)
             img, opts = t
             s = float(m["normalTexture"].get("scale", 1.0))
             n = img[..., :3] * 2.0 - 1.0
             n[..., :2] *= s
-            n[..., 1] = -n[..., 1]
             n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
             bsdf = {"type": "normalmap", "normalmap": self._bitmap(n * 0.5 + 0.5, opts), "bsdf": bsdf}
         if m.get("doubleSided", False):
