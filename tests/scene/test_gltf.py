@@ -598,3 +598,35 @@ def test_normal_map_tilts_follow_gltf_axes(tmp_path):
         towards = _normal_floor(tmp_path, rgb_towards, travel)
         away = _normal_floor(tmp_path, rgb_away, travel)
         assert towards > 1.2 * flat and away < 0.6 * flat, (light_from, towards, flat, away)
+
+
+# -- alpha modes and double-sided ---------------------------------------------------------------------------
+def _quad_under_sky(tmp_path, material, behind=False):
+    """The mean radiance of a quad (facing +z) filling the view, under the white sky added to
+    unlit files; seen from the front, or from ``behind``."""
+    w = Writer()
+    d = w.doc
+    V = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64)
+    d["materials"] = [material]
+    d["nodes"] = [{"mesh": w.mesh(V, [[0, 1, 2], [0, 2, 3]], 0)},
+                  {"camera": 0, "translation": [0, 0, -2.0 if behind else 2.0],
+                   "rotation": list(quat_y(180 if behind else 0))}]
+    d["cameras"] = [{"type": "perspective", "perspective": {"yfov": 0.3, "aspectRatio": 1.0}}]
+    sc = load_scene(str(w.save(tmp_path / "q.gltf")))
+    sc.at(0.0)
+    return float(_renders(sc.mi_scene, sc.camera(0.0).to_sensor((6, 6), SPP), range(4)).mean())
+
+
+def test_alpha_modes_and_double_sided(tmp_path):
+    pbr = lambda a: {"baseColorFactor": [0.5, 0.5, 0.5, a], "metallicFactor": 0.0}   # noqa: E731
+    opaque = _quad_under_sky(tmp_path, {"pbrMetallicRoughness": pbr(0.3)})
+    assert 0.05 < opaque < 0.9                                   # OPAQUE ignores alpha: the grey quad
+    assert _quad_under_sky(tmp_path, {"pbrMetallicRoughness": pbr(0.3), "alphaMode": "MASK"}) == \
+        pytest.approx(1.0, abs=1e-4)                             # below the 0.5 cut-off: the sky shows
+    assert _quad_under_sky(tmp_path, {"pbrMetallicRoughness": pbr(0.7), "alphaMode": "MASK"}) == \
+        pytest.approx(opaque, rel=0.1)
+    blend = _quad_under_sky(tmp_path, {"pbrMetallicRoughness": pbr(0.5), "alphaMode": "BLEND"})
+    assert blend == pytest.approx(0.5 * opaque + 0.5, rel=0.1)   # stochastic transparency: the mix on average
+    assert _quad_under_sky(tmp_path, {"pbrMetallicRoughness": pbr(1.0)}, behind=True) < 1e-6
+    assert _quad_under_sky(tmp_path, {"pbrMetallicRoughness": pbr(1.0), "doubleSided": True},
+                           behind=True) == pytest.approx(opaque, rel=0.1)
