@@ -630,3 +630,56 @@ def test_alpha_modes_and_double_sided(tmp_path):
     assert _quad_under_sky(tmp_path, {"pbrMetallicRoughness": pbr(1.0)}, behind=True) < 1e-6
     assert _quad_under_sky(tmp_path, {"pbrMetallicRoughness": pbr(1.0), "doubleSided": True},
                            behind=True) == pytest.approx(opaque, rel=0.1)
+
+
+# -- spot light, and the reference cache's key ------------------------------------------------------------
+def test_spot_light_cone_and_intensity(tmp_path):
+    """A spot 2 m above a floor pointing down (its node's -Z): inside the inner cone the floor is lit as by a
+    point light of the same intensity (candela / 683) that this test builds; beyond the outer cone it is dark."""
+    w = Writer()
+    d = w.doc
+    V = FLOOR_V * 2
+    d["materials"] = [{"pbrMetallicRoughness": {"baseColorFactor": [0.6, 0.6, 0.6, 1], "metallicFactor": 0.0}}]
+    d["nodes"] = [{"mesh": w.mesh(V, FLOOR_F, 0)},
+                  {"camera": 0, "translation": [0, 3, 0], "rotation": list(quat_x(-90))},
+                  {"translation": [0, 2, 0], "rotation": list(quat_x(-90)),
+                   "extensions": {"KHR_lights_punctual": {"light": 0}}}]
+    d["cameras"] = [{"type": "perspective", "perspective": {"yfov": 1.2, "aspectRatio": 1.0}}]
+    d["extensions"] = {"KHR_lights_punctual": {"lights": [
+        {"type": "spot", "intensity": 683.0 * 5, "spot": {"innerConeAngle": 0.3, "outerConeAngle": 0.4}}]}}
+    sc = load_scene(str(w.save(tmp_path / "spot.gltf")))
+    sc.at(0.0)
+    res = (32, 32)
+    ours = _renders(sc.mi_scene, sc.camera(0.0).to_sensor(res, SPP), range(K))
+    pt = mi.load_dict({"type": "scene", "floor": _mesh("floor", V, FLOOR_F, {
+        "type": "principled", "base_color": {"type": "rgb", "value": [0.6, 0.6, 0.6]}, "metallic": 0.0,
+        "roughness": 1.0}), "p": {"type": "point", "position": [0, 2, 0], "intensity": {"type": "rgb", "value": [5, 5, 5]}}})
+    C = affine(Rotation.from_quat(quat_x(-90)).as_matrix(), [0, 3, 0])
+    theirs = _renders(pt, _sensor(C, 1.2, res, SPP), range(100, 100 + K))
+    # pixel centres -> floor points: the camera 3 m up sees 3 tan(0.6) m either side
+    x = (np.arange(res[0]) + 0.5) / res[0] * 2 - 1
+    r = np.hypot(*np.meshgrid(x, x)) * 3 * np.tan(0.6)
+    ang = np.arctan(r / 2.0)
+    inner, outer = ang < 0.3 - 0.05, ang > 0.4 + 0.05
+    assert inner.sum() > 20 and outer.sum() > 20
+    ok, info = z_test_images(ours[:, inner][:, :, None, :], theirs[:, inner][:, :, None, :])     # (K, n, 1, 3)
+    assert ok, info
+    assert ours[:, outer].max() == 0.0 and theirs[:, outer].mean() > 0.01
+
+
+def test_reference_key_includes_the_animation(tmp_path):
+    path, _ = write_rig(tmp_path / "rig.gltf")
+    doc = json.loads(path.read_text())
+    a = load_scene(str(path))
+    doc2 = json.loads(path.read_text())
+    # the same file with the rig's last translation key moved: the same first pose, another animation
+    w = Writer()
+    w.blob = bytearray(base64.b64decode(doc["buffers"][0]["uri"].split(",", 1)[1]))
+    w.doc = doc2
+    k = doc2["animations"][0]["samplers"][0]["output"]
+    doc2["animations"][0]["samplers"][0]["output"] = w.acc([[0, 0, 0], [0.5, 0, 0], [0.9, 0, -0.5]], "VEC3")
+    assert k != doc2["animations"][0]["samplers"][0]["output"]
+    b = load_scene(str(w.save(tmp_path / "rig2.gltf")))
+    assert a.state_hash(0.5) == load_scene(str(path)).state_hash(0.5)
+    assert a.state_hash(1.7) != b.state_hash(1.7)
+    assert load_scene(str(path), loop=True).state_hash(3.0) != a.state_hash(3.0)     # wrapped vs held
