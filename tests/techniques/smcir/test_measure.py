@@ -128,3 +128,37 @@ def test_clamped_path_tracing_reference(backend):
     e_clamped = np.mean((ind - clamped) ** 2) / np.mean(clamped ** 2)
     e_free = np.mean((ind - free) ** 2) / np.mean(free ** 2)
     assert e_clamped < e_free, (e_clamped, e_free)
+
+
+def test_tracked_reference_floor_estimates_the_references_own_flicker():
+    """Two independent halves of a noisy reference: half their |E|, |E'| against each other equals the |E|,
+    |E'| of the full reference (their mean) against the truth, within the sampling error (synthetic:
+    Gaussian noise on a smooth truth, 400 frames x 8 pixels)."""
+    from dyngi.experiments.evaluate import tracked_reference_floor
+
+    rng = np.random.default_rng(7)
+    T, n = 400, 8
+    truth = 0.3 + 0.1 * np.sin(np.linspace(0, 6, T))[:, None, None] * np.ones((T, n, 3))
+    sd_half = 0.004
+    a = truth + rng.normal(0, sd_half, truth.shape)
+    b = truth + rng.normal(0, sd_half, truth.shape)
+    fl = tracked_reference_floor(a, b, exposure=1.0)
+    want = temporal_errors(0.5 * (a + b)[:, :, None, :], truth[:, :, None, :], exposure=1.0)
+    assert fl["E"] == pytest.approx(want["E"], rel=0.1) and fl["E_prime"] == pytest.approx(want["E_prime"], rel=0.1)
+    # a noiseless pair has no floor
+    assert tracked_reference_floor(truth, truth, 1.0)["E_prime"] == 0.0
+
+
+def test_tracked_temporal_normalises_brightness_and_skips_failed_runs():
+    from dyngi.experiments.evaluate import tracked_temporal
+
+    rng = np.random.default_rng(3)
+    pix = np.array([[0, 0], [1, 2], [3, 3]])
+    imgs = [rng.random((4, 4, 3)) for _ in range(5)]
+    vals = np.stack([x[pix[:, 0], pix[:, 1]] for x in imgs])
+    assert tracked_temporal(imgs, vals, pix, 1.0)["E_prime"] == 0.0
+    twice = [2.0 * x for x in imgs]
+    assert tracked_temporal(twice, vals, pix, 1.0)["E_prime"] > 0.0
+    assert tracked_temporal(twice, vals, pix, 1.0, scale=0.5)["E_prime"] == pytest.approx(0.0, abs=1e-12)
+    imgs[2][1, 2, 0] = np.nan
+    assert np.isnan(tracked_temporal(imgs, vals, pix, 1.0)["E"])
