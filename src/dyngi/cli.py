@@ -503,8 +503,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="the scene file's camera to use: a glTF camera (or its node) by name, a Mitsuba XML "
                              "sensor by id (default the first)")
         sp.add_argument("--animation", default=None, metavar="FILE",
-                        help="keyframe sidecar (TOML) animating a Mitsuba XML scene (default: scene.anim.toml "
-                             "beside scene.xml when present)")
+                        help="keyframe sidecar (TOML) animating a Mitsuba XML scene (default: NAME.anim.toml "
+                             "beside NAME.xml when present)")
         sp.add_argument("--loop", action="store_true",
                         help="glTF: animations wrap at the last keyframe (default: they hold it)")
 

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from dyngi.backend import dr, mi
+from dyngi.backend import mi
 from dyngi.errors import DyngiError
 from dyngi.scene import load_scene
 from stats import z_test_images

@@ -165,3 +165,48 @@ def test_bounds_include_shapes_mitsuba_merged(backend, tmp_path):
     lo, hi = load_scene(str(p)).meta.bounds
     assert lo[0] == pytest.approx(-2.0, abs=1e-5) and hi[0] == pytest.approx(2.0, abs=1e-5)
     assert lo[2] == pytest.approx(-2.0, abs=1e-5) and hi[1] == pytest.approx(4.0, abs=1e-5)
+
+
+# -- keyframe sidecars of XML scenes (dyngi.scene.keyframes), found or given ---------------------------------
+XML = """<scene version="3.0.0">
+  <shape type="rectangle" id="floor"><transform name="to_world"><rotate x="1" angle="-90"/><scale value="3"/></transform>
+    <bsdf type="diffuse"/></shape>
+  <shape type="cube" id="box"><transform name="to_world"><scale value="0.3"/><translate y="0.3"/></transform>
+    <bsdf type="diffuse"/></shape>
+  <emitter type="constant"/>
+  <sensor type="perspective" id="cam"><float name="fov" value="50"/>
+    <transform name="to_world"><lookat origin="0, 2, 5" target="0, 0, 0" up="0, 1, 0"/></transform></sensor>
+</scene>
+"""
+TOML = """[shapes.box]
+keys = [ { t = 0.0, translate = [0.0, 0.0, 0.0] }, { t = 1.0, translate = [%s, 0.0, 0.0] } ]
+"""
+
+
+def test_xml_sidecar_found_beside_the_file_or_given(tmp_path, capsys):
+    xml = tmp_path / "room.xml"
+    xml.write_text(XML)
+    sc = load_scene(str(xml))
+    assert not sc.is_animated and "animation:" not in capsys.readouterr().out
+    (tmp_path / "room.anim.toml").write_text(TOML % "1.0")
+    sc = load_scene(str(xml), fps=12)
+    assert capsys.readouterr().out.strip() == f"animation: {tmp_path / 'room.anim.toml'}"
+    assert sc.is_animated and sc.fps == 12 and sc.frame_time(6) == 0.5
+    x0 = np.asarray(sc.at(0.0).params["box.vertex_positions"]).reshape(-1, 3)[:, 0].mean()
+    x1 = np.asarray(sc.at(1.0).params["box.vertex_positions"]).reshape(-1, 3)[:, 0].mean()
+    assert x1 - x0 == pytest.approx(1.0, abs=1e-5)
+    other = tmp_path / "other.toml"
+    other.write_text(TOML % "-2.0")
+    sc = load_scene(str(xml), animation=str(other))
+    assert "animation:" not in capsys.readouterr().out       # given, not found: nothing to announce
+    x1 = np.asarray(sc.at(1.0).params["box.vertex_positions"]).reshape(-1, 3)[:, 0].mean()
+    assert x1 - x0 == pytest.approx(-2.0, abs=1e-5)
+    _raises_kw(str(xml), "does not exist", animation=str(tmp_path / "nope.toml"))
+    _raises_kw(str(xml), "no sensor with id 'x'", camera="x")
+    _raises_kw("cornell-static", "--animation applies to Mitsuba XML", animation=str(other))
+
+
+def _raises_kw(target, fragment, **kw):
+    with pytest.raises(DyngiError) as ei:
+        load_scene(target, **kw)
+    assert "\n" not in str(ei.value).strip() and fragment in str(ei.value), str(ei.value)

@@ -110,6 +110,15 @@ class Camera:
         })
 
 
+def camera_from_bounds(lo, hi) -> Camera:
+    """A camera looking at the box ``[lo, hi]`` from its +z side, a little above (45 degrees, horizontal): the
+    default of a scene file without a camera."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    c = 0.5 * (lo + hi)
+    r = 0.5 * np.linalg.norm(hi - lo)
+    return Camera(tuple(c + [0.0, 0.2 * r, 2.2 * r]), tuple(c), (0, 1, 0), 45.0)
+
+
 @dataclass
 class CameraPath:
     """Camera animated by origin/target tracks (fov and up fixed)."""

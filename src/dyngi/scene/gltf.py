@@ -61,8 +61,8 @@ import numpy as np
 from ..backend import mi
 from ..errors import DyngiError
 from .animation import AffineMotion, Animator
-from .camera import Camera, CameraPath, PoseCameraPath
-from .core import Scene, default_probe_grid
+from .camera import CameraPath, PoseCameraPath, camera_from_bounds
+from .core import Scene, default_probe_grid, scene_bounds
 
 SUPPORTED_EXTENSIONS = ("KHR_lights_punctual", "KHR_materials_emissive_strength")
 """Extensions read; any other one listed in ``extensionsRequired`` is an error naming it."""
@@ -863,8 +863,7 @@ def load_gltf(path: str, *, name: str | None = None, fps: float | None = None, c
     lo, hi = _animation_bounds(mis, g, moving_prims)
     box, counts = default_probe_grid(lo, hi)
     if cam_path is None:
-        from .loaders import _camera_from_bbox    # noqa: PLC0415 (loaders imports this module)
-        cam_path = CameraPath.fixed(_camera_from_bbox(mis))
+        cam_path = CameraPath.fixed(camera_from_bounds(*scene_bounds(mis)))
     nm = name or os.path.splitext(os.path.basename(path))[0]
     desc = (f"loaded from {path} (glTF: {len(prims)} mesh primitive(s), {len(g.channels)} animation "
             f"channel(s), {len(lights)} punctual light(s), {len(cams)} camera(s)"
@@ -879,8 +878,6 @@ def _animation_bounds(mis, g: NodeGraph, moving) -> tuple[np.ndarray, np.ndarray
     """Bounds of the scene over the animation: every keyframe time and :data:`BOUND_SAMPLES` times in between,
     each moving mesh's box grown by the largest step of its corners (vertices) between consecutive samples, so
     a curve (slerp, a cubic spline) bulging between samples stays inside."""
-    from .core import scene_bounds
-
     lo, hi = scene_bounds(mis)
     if not moving:
         return lo, hi

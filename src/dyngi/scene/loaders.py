@@ -24,9 +24,11 @@ import numpy as np
 
 from ..backend import mi
 from ..errors import DyngiError
-from .camera import Camera, CameraPath
+from . import keyframes
+from .camera import Camera, CameraPath, camera_from_bounds
 from .core import Scene, scene_bounds
 from .geometry import diffuse
+from .gltf import load_gltf
 from .library import BUILTINS, builtin_names, make_builtin
 
 EXTENSIONS = (".xml", ".obj", ".ply", ".gltf", ".glb")
@@ -66,8 +68,8 @@ def load_scene(name_or_path: str, *, fps: float | None = None, camera: str | Non
 
     ``fps``: frames per second (time of frame i is ``i / fps``; default the scene's own ``fps``).
     ``camera``: a camera by name (glTF camera or its node; Mitsuba XML sensor id); default the first.
-    ``animation``: a keyframe sidecar (TOML) for a Mitsuba XML scene; without it, ``scene.anim.toml``
-    beside ``scene.xml`` is used when present (``animation: FILE`` is printed).
+    ``animation``: a keyframe sidecar (TOML) for a Mitsuba XML scene; without it, ``NAME.anim.toml``
+    beside ``NAME.xml`` is used when present (``animation: FILE`` is printed).
     ``loop``: glTF animations wrap at the last keyframe instead of holding it.
     Keywords left ``None`` fall back to :func:`scene_options`."""
     amb = _ambient_options()
@@ -109,7 +111,6 @@ def load_scene(name_or_path: str, *, fps: float | None = None, camera: str | Non
         elif ext in (".obj", ".ply"):
             sc = _load_mesh_file(path, ext)
         else:
-            from .gltf import load_gltf
             sc = load_gltf(path, name=_name(path), fps=fps, camera=camera, loop=loop)
     except DyngiError:
         raise
@@ -126,13 +127,7 @@ def load_scene(name_or_path: str, *, fps: float | None = None, camera: str | Non
 
 def _attach_keyframes(sc: Scene, path: str, animation: str | None) -> Scene:
     """The keyframe sidecar (:mod:`dyngi.scene.keyframes`) of an XML scene: ``animation`` or the one found
-    beside ``path``. Skipped when that module is not there."""
-    try:
-        from . import keyframes
-    except ImportError:
-        if animation is not None:
-            raise DyngiError("--animation needs dyngi.scene.keyframes, which this installation lacks") from None
-        return sc
+    beside ``path``."""
     if animation is None:
         animation = keyframes.sidecar_for(path)
         if animation is None:
@@ -152,10 +147,7 @@ def _check_meshes(sc: Scene, path: str) -> None:
 
 
 def _camera_from_bbox(mi_scene) -> Camera:
-    lo, hi = scene_bounds(mi_scene)
-    c = 0.5 * (lo + hi)
-    r = 0.5 * np.linalg.norm(hi - lo)
-    return Camera(tuple(c + [0.0, 0.2 * r, 2.2 * r]), tuple(c), (0, 1, 0), 45.0)
+    return camera_from_bounds(*scene_bounds(mi_scene))
 
 
 def _name(path: str) -> str:
