@@ -98,3 +98,53 @@ def test_sparse_merges_equal_the_dense_ones(backend, device):
         assert np.array_equal(cnt.astype(np.int64), ref_n), frame
     # the owner table is left clean: every key free again
     assert np.all(np.asarray(keys.owner) == 0xFFFFFFFF)
+
+
+def test_lazy_outer_cap_equals_the_eager_cap(backend):
+    """Sec. 4.8's ``N <- min(N, 16)`` for the probes of V_out - V_in after each frame's updates, applied lazily
+    at merge (:class:`~dyngi.techniques.adgi.sparse.LazyCountCap`): over 8 frames of random radiance merges
+    (N_max 63, several samples per texel, counts that reach the cap and pass it) and random outer probe sets,
+    the radiance layer's values equal a NumPy reference that caps every outer probe's counts at once at the
+    end of each frame, and the counts as the merges read them equal the reference's counts."""
+    from dyngi.probes import ProbeGrid, ProbeVolume
+    from dyngi.probes.arrays import upload
+    from dyngi.probes.trace import ProbeRayResults
+    from dyngi.techniques.adgi.radiance import RadianceUpdate
+    from dyngi.techniques.adgi.sparse import LazyCountCap
+
+    vol = ProbeVolume(ProbeGrid((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (3, 3, 2)), 8, 16)
+    vol.add_radiance_layer(8)
+    P = vol.n_probes
+    ru = RadianceUpdate(vol)
+    lazy = LazyCountCap(P, P * 36, 16)
+    rng = np.random.default_rng(21)
+    ref_v = np.zeros((P, 36, 3))
+    ref_n = np.zeros((P, 36), np.int64)
+    n_max = 63
+    for frame in range(8):
+        plan = _plan(rng, P, 3000, weighted=False)
+        n = plan.n_rays
+        rad = rng.uniform(0.0, 2.0, (n, 3)).astype(np.float32)
+        res = ProbeRayResults(mi.Color3f(*[upload(np.ascontiguousarray(rad[:, c])) for c in range(3)]),
+                              upload(np.ones(n, np.float32)), plan)
+        ru.merge(res, n_max, lazy_cap=lazy, frame=frame)
+        tex = np.asarray(vol.radiance_texel_of(plan.direction))
+        key = np.repeat(plan.probe_ids, plan.counts) * 36 + tex
+        m = np.bincount(key, minlength=P * 36).reshape(P, 36)
+        s = np.stack([np.bincount(key, weights=rad[:, c], minlength=P * 36) for c in range(3)], -1).reshape(P, 36, 3)
+        hit = m > 0
+        nn = ref_n.astype(np.float64)
+        j = np.minimum(m, n_max - np.minimum(ref_n, n_max))
+        r = np.where(j > 0, nn / np.maximum(nn + j, 1.0), 1.0) * (n_max / (n_max + 1.0)) ** (m - j)
+        ref_v = np.where(hit[..., None], r[..., None] * ref_v + (1.0 - r[..., None]) * (s / np.maximum(m, 1)[..., None]),
+                         ref_v)
+        ref_n = np.where(hit, np.minimum(ref_n + m, n_max), ref_n)
+        outer = np.flatnonzero(rng.random(P) < 0.4)
+        lazy.mark_outer(outer, frame)                 # the eager cap: after the frame's updates
+        ref_n[outer] = np.minimum(ref_n[outer], 16)
+        val, cnt = vol.radiance_host()
+        assert np.allclose(val, ref_v, rtol=1e-4, atol=1e-5), frame
+        k = dr.arange(mi.UInt32, P * 36)
+        seen = np.asarray(lazy.count(mi.UInt32(cnt.ravel()), k, k // 36, mi.Bool(True)))
+        assert np.array_equal(seen.reshape(P, 36), ref_n), frame
+    assert ref_n.max() > 16 and (ref_n == 16).any()      # the cap bound some texels, others grew past it

@@ -36,7 +36,7 @@ from ...probes.rays import compact
 from ...probes.trace import ProbeRayResults
 from .moving_average import Algorithm3Accumulator
 from .radiance import RadianceUpdate
-from .sparse import SparseKeys, merge_distance_sparse
+from .sparse import LazyCountCap, SparseKeys, merge_distance_sparse
 
 
 class ADGIAccumulator:
@@ -56,7 +56,13 @@ class ADGIAccumulator:
         self.acc_static = Algorithm3Accumulator(p["n_max_static"])
         self.acc_dynamic = Algorithm3Accumulator(p["n_max_dynamic"])
         self._mean = MeanAccumulator()
-        self.dist_keys = SparseKeys(volume.n_probes * (volume.distance_texels - 2) ** 2)   # (.sparse)
+        n = volume.n_probes
+        n_dist = n * (volume.distance_texels - 2) ** 2
+        self.dist_keys = SparseKeys(n_dist)          # the distance merges' (probe, texel) keys (.sparse)
+        # Sec. 4.8's outer count cap, lazily at merge (.sparse.LazyCountCap)
+        self.cap_rad = LazyCountCap(n, n * volume.radiance_interior, p["outer_count_cap"])
+        self.cap_dist = LazyCountCap(n, n_dist, p["outer_count_cap"])
+        self.frame = 0                               # the frame being merged (set by the technique)
         self.est_irr = ScatterEstimator(p["distance_power"], "bin")     # closest-entry: one texel per sample
         n = volume.n_probes
         volume.add_radiance_layer(p["radiance_texels"])      # the volume's third atlas (kept if already there)
@@ -69,7 +75,7 @@ class ADGIAccumulator:
     # -- the pipeline's calls -----------------------------------------------------------------------
     def end_warmup(self, pipeline, results) -> None:
         """The warm-up's last rays seed the radiance texels (N_max static)."""
-        self.radiance.merge(results, self.params["n_max_static"])
+        self.radiance.merge(results, self.params["n_max_static"], lazy_cap=self.cap_rad, frame=self.frame)
 
     def accumulate(self, pipeline, probe_pass, results, distance_results):
         """One pass into the texels: ``'pilot'`` (when its ``merge`` option is set), ``'static'`` and
@@ -79,7 +85,7 @@ class ADGIAccumulator:
         o = probe_pass.options
         p = self.params
         if probe_pass.name == "finish":
-            self.cap_outer(o["outer"], o["cap"])
+            self.cap_outer(o["outer"])
             return self.convolve_updated(pipeline)
         if probe_pass.name == "pilot":
             if o.get("merge"):
@@ -102,7 +108,7 @@ class ADGIAccumulator:
         if self.params["cache_update"] == "closest-entry":
             self._merge_closest(pipeline, irr_res, acc, lane_cap)
         else:
-            self.radiance.merge(irr_res, n_max, lane_cap)
+            self.radiance.merge(irr_res, n_max, lane_cap, lazy_cap=self.cap_rad, frame=self.frame)
         dres = dist_res if dist_res is not None else irr_res
         dplan = dres.plan                # the distance rays' own plan (D's: apart from the radiance rays')
         # the distances: Algorithm 3 on the visibility texels that received samples (.sparse); the probes'
@@ -110,7 +116,8 @@ class ADGIAccumulator:
         if self.device:
             slot_probe, slot_valid = self._slots(dplan)
             history = pipeline.history
-            merge_distance_sparse(self.dist_keys, vol, dres, acc, self.encoding, history, device=True)
+            merge_distance_sparse(self.dist_keys, vol, dres, acc, self.encoding, history, device=True,
+                                  lazy_cap=self.cap_dist, frame=self.frame)
             dr.scatter_reduce(dr.ReduceOp.Add, history, mi.UInt32(1), slot_probe, slot_valid,
                               mode=dr.ReduceMode.Local)
             dr.eval(history)
@@ -120,7 +127,8 @@ class ADGIAccumulator:
                 slot_probe, slot_valid = self._slots(plan)
                 dr.scatter(self._updated_dev, mi.UInt32(1), slot_probe, slot_valid)
             return
-        merge_distance_sparse(self.dist_keys, vol, dres, acc, self.encoding)
+        merge_distance_sparse(self.dist_keys, vol, dres, acc, self.encoding, lazy_cap=self.cap_dist,
+                              frame=self.frame)
         traced = dplan.probe_ids[dplan.counts > 0]
         vol.state.updates[traced] += 1
         self._updated[traced] = True
@@ -176,20 +184,28 @@ class ADGIAccumulator:
             pipeline.merge(est, None, ids, accumulator=self._mean, encoding=self.encoding)
         return len(ids)
 
-    def cap_outer(self, mask: np.ndarray, cap: int) -> None:
-        """``N <- min(N, cap)`` for the texels of probes in ``mask`` (V_out - V_in, Sec. 4.8)."""
-        if not mask.any():
+    def cap_outer(self, mask: np.ndarray) -> None:
+        """``N <- min(N, outer_count_cap)`` for the texels of probes in ``mask`` (V_out - V_in, Sec. 4.8), after
+        the frame's updates: recorded per probe and applied lazily by the next merges of their texels
+        (:class:`.sparse.LazyCountCap`; work over the probes of the mask, not the grid's texels). With
+        ``cache_update='closest-entry'`` the irradiance texels' counts (Algorithm 3 there, the dense merge)
+        are capped at once."""
+        ids = np.flatnonzero(mask).astype(np.uint32)
+        if not len(ids):
             return
-        self.radiance.cap_counts(mask, cap)
+        self.cap_rad.mark_outer(ids, self.frame)
+        self.cap_dist.mark_outer(ids, self.frame)
+        if self.params["cache_update"] != "closest-entry":
+            return
         vol = self.volume
         dev = vol.device
-        m = upload(mask.astype(np.uint32), mi.UInt32) != 0
-        capd = dr.opaque(mi.UInt32, int(cap))
-        for name, T in (("irradiance_count", vol.irradiance_texels), ("distance_count", vol.distance_texels)):
-            c = getattr(dev, name)
-            k = dr.arange(mi.UInt32, dr.width(c))
-            sel = dr.gather(mi.Bool, m, k // (T * T))
-            new = dr.select(sel, dr.minimum(c, capd), c)
-            dr.eval(new)
-            setattr(dev, name, new)
+        T = vol.irradiance_texels
+        cap = dr.opaque(mi.UInt32, int(self.params["outer_count_cap"]))
+        k = dr.arange(mi.UInt32, len(ids) * T * T)
+        slot = k // (T * T)
+        g = dr.gather(mi.UInt32, upload(ids, mi.UInt32), slot) * (T * T) + (k - slot * (T * T))
+        c = dr.minimum(dr.gather(mi.UInt32, dev.irradiance_count, g), cap)
+        dr.eval(c)
+        dr.scatter(dev.irradiance_count, c, g)
+        dr.eval(dev.irradiance_count)
         vol.state.device_is_newer(pull_from(dev))

@@ -141,8 +141,7 @@ class ADGIPasses:
         # -- D: dynamic chains on proxies (Sec. 4.9), then the outer cap and the convolution --
         with t.stage("D"):
             stats["dynamic_proxy_octants"] = yield from self._dynamic(frame, samp_dr, fd, t)
-            stats["probes_updated"] = yield ProbePass("finish", options={"outer": v_out & ~v_in,
-                                                                         "cap": p["outer_count_cap"]})
+            stats["probes_updated"] = yield ProbePass("finish", options={"outer": v_out & ~v_in})
         stats["v_in"], stats["v_out"] = int(v_in.sum()), int(v_out.sum())
         stats["static_chains_run"] = self.chains.n_run
         return stats

@@ -101,11 +101,12 @@ class RadianceUpdate:
         """Interior radiance texel (row-major) that direction ``w`` falls in (the volume's layout)."""
         return self.volume.radiance_texel_of(w)
 
-    def merge(self, results, n_max: int, n_max_lane=None) -> None:
+    def merge(self, results, n_max: int, n_max_lane=None, lazy_cap=None, frame: int = 0) -> None:
         """Bin the front-face hits of ``results`` (a ProbeRayResults) into their texels; Algorithm 3 batch rule,
         on the texels that received samples only (:class:`.sparse.SparseKeys`: the (probe, texel) keys
         compacted and reduced). ``n_max_lane`` (UInt32 per ray, optional): a per-sample N_max; a texel takes
-        the smallest of its samples' (and of ``n_max``)."""
+        the smallest of its samples' (and of ``n_max``). ``lazy_cap`` (:class:`.sparse.LazyCountCap` over the
+        radiance texel keys): Sec. 4.8's outer count cap on the counts read, the keys stamped with ``frame``."""
         plan = results.plan
         if plan.n_rays == 0 or (not plan.is_masked and len(plan.probe_ids) == 0):
             return
@@ -124,6 +125,8 @@ class RadianceUpdate:
             cnt = mi.UInt32(dr.round(mi.Float(sw)))
         old = dr.gather(mi.Color3f, self.value, ukey, u_ok)
         n_old = dr.gather(mi.UInt32, self.count, ukey, u_ok)
+        if lazy_cap is not None:
+            n_old = lazy_cap.count(n_old, ukey, ukey // self.n_tex, u_ok)
         s = mi.Color3f(*[mi.Float(x) for x in sums])
         cap = int(n_max)
         if n_max_lane is not None:
@@ -134,17 +137,11 @@ class RadianceUpdate:
         V, N = batch_update(old, n_old, s, cnt, cap)
         hit = u_ok & (cnt > 0)
         dr.eval(V, N, hit)
+        if lazy_cap is not None:
+            lazy_cap.touched(ukey, hit, frame)
         dr.scatter(self.value, V, ukey, hit)
         dr.scatter(self.count, N, ukey, hit)
         dr.eval(self.value, self.count)
-
-    def cap_counts(self, probe_mask: np.ndarray, cap: int) -> None:
-        """``N <- min(N, cap)`` for the texels of the probes in ``probe_mask`` (Sec. 4.8)."""
-        m = upload(np.asarray(probe_mask, np.uint32), mi.UInt32) != 0
-        k = dr.arange(mi.UInt32, self.P * self.n_tex)
-        sel = dr.gather(mi.Bool, m, k // self.n_tex)
-        self.count = dr.select(sel, dr.minimum(self.count, dr.opaque(mi.UInt32, int(cap))), self.count)
-        dr.eval(self.count)
 
     def irradiance_estimate(self, probe_ids: np.ndarray) -> TexelEstimate:
         """The convolution pass for ``probe_ids``: :meth:`irradiance_estimate_device` on a GPU backend,

@@ -109,14 +109,15 @@ class SparseKeys:
 
 
 def merge_distance_sparse(keys: SparseKeys, volume, results, accumulator, encoding, history=None,
-                          device: bool = False) -> None:
+                          device: bool = False, lazy_cap=None, frame: int = 0) -> None:
     """The distances of ``results`` (a ProbeRayResults along ``-w``) into the visibility texels they fall in:
     moments ``(|d| clamped to the volume's max distance, its square)`` reduced per (probe, texel) key, then
     the accumulator (Algorithm 3) through ``encoding`` on those texels only, written to each texel and its
     border copies. ``history`` (device UInt32 per probe): the device path's update counts (a probe with 0 has
     no history; each probe with a sample adds 1), else the host's (``volume.state.updates``). A sample of
     weight ``m`` (the static plan's multiplicity) counts ``m`` times, as the dense merge's. ``device``: no host
-    read (the keys compacted to a fixed width)."""
+    read (the keys compacted to a fixed width). ``lazy_cap`` (:class:`LazyCountCap` over the interior distance
+    texel keys): the outer count cap, applied to the counts read and stamped with ``frame``."""
     plan = results.plan
     if plan.n_rays == 0:
         return
@@ -141,6 +142,8 @@ def merge_distance_sparse(keys: SparseKeys, volume, results, accumulator, encodi
     dev = volume.device
     old = dr.gather(mi.Vector2f, dev.distance, centre, u_ok)
     n_old = dr.gather(mi.UInt32, dev.distance_count, centre, u_ok)
+    if lazy_cap is not None:
+        n_old = lazy_cap.count(n_old, ukey, probe, u_ok)
     if history is not None:
         fresh = dr.gather(mi.UInt32, history, probe, u_ok) == 0
     else:
@@ -153,9 +156,46 @@ def merge_distance_sparse(keys: SparseKeys, volume, results, accumulator, encodi
     val = dr.select(ok, val, old)
     c = dr.select(ok, mi.UInt32(c), n_old)
     dr.eval(val, c, ok)
+    if lazy_cap is not None:
+        lazy_cap.touched(ukey, ok, frame)
     for k in range(K):
         g = probe * TT + dr.gather(mi.UInt32, copies, t * K + k)
         dr.scatter(dev.distance, val, g, ok)
         dr.scatter(dev.distance_count, c, g, ok)
     dr.eval(dev.distance, dev.distance_count)
     volume.state.device_is_newer(pull_from(dev))
+
+
+class LazyCountCap:
+    """Sec. 4.8's ``N <- min(N, cap)`` for the probes of ``V_out - V_in``, applied lazily at merge: per probe
+    the last frame it was in ``V_out - V_in`` (``outer``, frame + 1; 0: never), per texel key the frame of its
+    last update (``stamp``, frame + 1). A merge reads a texel's count as ``min(N, cap)`` where the probe was
+    in ``V_out - V_in`` on or after the frame of the texel's last update (the eager cap runs after a frame's
+    updates, so a frame's own cap counts for texels updated in it), which is what an eager cap of every such
+    probe's texels at the end of every frame would have stored. The frame's work: a scatter over the probes of
+    ``V_out - V_in`` and two gathers per merged key, instead of passes over every texel of the grid. Readers
+    other than the merges (the convolution's counts) see the uncapped N; only the merges' Algorithm 3 uses
+    it."""
+
+    def __init__(self, n_probes: int, n_keys: int, cap: int):
+        self.cap = int(cap)
+        self.outer = dr.zeros(mi.UInt32, int(n_probes))
+        self.stamp = dr.zeros(mi.UInt32, int(n_keys))
+        dr.make_opaque(self.outer, self.stamp)
+
+    def count(self, n_old, key, probe, active):
+        """The counts ``n_old`` of texel keys ``key`` (of ``probe``) as the merge reads them."""
+        o = dr.gather(mi.UInt32, self.outer, probe, active)
+        s = dr.gather(mi.UInt32, self.stamp, key, active)
+        return dr.select((o > 0) & (o >= s), dr.minimum(n_old, self.cap), n_old)
+
+    def touched(self, key, active, frame: int) -> None:
+        """The keys ``key`` (where ``active``) were updated on ``frame``."""
+        dr.scatter(self.stamp, dr.opaque(mi.UInt32, int(frame) + 1), key, active)
+
+    def mark_outer(self, probe_ids: np.ndarray, frame: int) -> None:
+        """The probes ``probe_ids`` (host) are in ``V_out - V_in`` on ``frame`` (after its updates)."""
+        if len(probe_ids):
+            dr.scatter(self.outer, dr.opaque(mi.UInt32, int(frame) + 1),
+                       upload(np.asarray(probe_ids, np.uint32), mi.UInt32))
+            dr.eval(self.outer)

@@ -429,6 +429,7 @@ class ADGITechnique(_ProbeTechniqueBase):
         techniques/adgi/test_device_path.py); the counts are read by :meth:`finish_frame`, after the image."""
         self._lights_begin(frame, t)        # lights=: the sampler's per-frame hook before the first probe ray
         self.passes.scene = self.scene      # D's distance rays trace apart from the pipeline's passes
+        self.accumulator.frame = frame.index     # the lazy outer count cap's stamps (.sparse.LazyCountCap)
         return self.pipeline.step(self.scene, frame, t)
 
     def finish_frame(self, t: StageTimer, stats: dict, img, ind) -> FrameResult:
