@@ -36,13 +36,14 @@ Three parts, each beside the paper's statements (issue 18 item 6):
     ``extras_a``): a row no paper has, the CDQ inside the framework's path tracer, whose NEE samples the
     sunsky (sun included), so little is left for guiding.
 
-Samples per octree leaf (issue 28): the paper's octree splits a leaf at 4096 samples and collapses at
-2048 (Sec. 7, 1080p), so its CDQs learn from thousands of samples per leaf and frame. nee-pt's default
-thresholds (``octree.scaled_thresholds``: the paper's scaled by the placed vertices per frame, floored at
-512 / 256) leave ~50-70 samples per leaf and frame at our sizes, too few to find a small sun: the CDQ's
-gain was small there. Part (a) therefore runs the CDQ twice, labelled: at nee-pt's default thresholds and
-at the paper's (``leaf_samples=4096``: the paper's samples per leaf at our resolution, with fewer, larger
-leaves); the mean placed samples per leaf and frame and the leaf count stand beside each figure.
+Records per octree leaf: the paper's octree splits a leaf at 4096 samples and collapses 8 siblings at
+2048 (Sec. 7, 1080p), so its CDQs learn from ~256-4096 records per leaf and frame. nee-pt keeps these
+thresholds wherever the frame records >= 8 x 4096 samples (``octree.paper_thresholds``; two recording
+vertices per path): both configurations here do (192x108: 41472, 320x180: 115200 records per frame), so
+the claim is decided at the paper's records per leaf (:data:`RECORDS_NEED`) and the paper's sun
+(:data:`CLAIM_SCENE`), with the CDQ's evidence rule (``cdq_min_records``, ours) and the threshold scaling
+(``leaf_scaling``, ours) in their own ablation rows, and the paper-literal row (both at the paper's)
+beside; the mean records per leaf and frame and the leaf count stand beside each figure.
 Every part-(a) figure is given for ``seeds_a`` seeds (mean over seeds of the per-seed mean over frames,
 and each seed's BSDF/CDQ ratio, so the spread shows).
 
@@ -58,21 +59,26 @@ import numpy as np
 
 from ...errors import DyngiError
 from .. import cluster
-from ..claims import Claim, Criterion, claims_json, result_from_values, verdict_table
+from ...directions.octree import PAPER_MIN_RECORDS
+from ..claims import Claim, Criterion, claim_rows, claims_json, result_from_values, verdict_table
 from ..reproduce import paper_table, register_experiment
 from ._summary import write_summary
 
 PAPER = ("Dittebrandt, Hanika, Dachsbacher, \"Temporal Sample Reuse for Next Event Estimation and Path "
          "Guiding for Real-Time Path Tracing\", EGSR 2020, Secs. 5, 7.1, 7.3, 7.4")
-CDQ_QUICK = {"scenes_a": ("sky-pit-sun-disc-2deg", "sky-pit-sun-disc", "sky-pit"), "res_a": (192, 108),
+CDQ_QUICK = {"quick": True, "scenes_a": ("sky-pit-sun-disc", "sky-pit-sun-disc-2deg", "sky-pit"), "res_a": (192, 108),
              "frames_a": 50, "warmup_a": 15, "seeds_a": (0, 1, 2), "extras_a": ("sky-pit-sun-disc-2deg",),
              "res_b": (48, 48), "pre_b": 30, "post_b": 20, "runs_b": 1, "ref_spp": 128, "bits": (32, 128)}
-CDQ_FULL = {"scenes_a": ("sky-pit-sun-disc-2deg", "sky-pit-sun-disc", "sky-pit"), "res_a": (320, 180),
+CDQ_FULL = {"scenes_a": ("sky-pit-sun-disc", "sky-pit-sun-disc-2deg", "sky-pit"), "res_a": (320, 180),
             "frames_a": 160, "warmup_a": 40, "seeds_a": (0, 1, 2),
             "extras_a": ("sky-pit-sun-disc-2deg", "sky-pit-sun-disc"), "res_b": (64, 64), "pre_b": 60, "post_b": 40,
             "runs_b": 3, "ref_spp": 512, "bits": (32, 64, 96, 128)}
-PAPER_LEAF = "leaf_samples=4096"
-"""nee-pt's octree at the paper's thresholds (split 4096, collapse 2048 samples per leaf; Sec. 7)."""
+CLAIM_SCENE = "sky-pit-sun-disc"
+"""The scene of Fig. 8 (b)'s claim: the paper's sun (~0.5 degrees); the 2-degree sun and ``sky-pit`` are rows."""
+RECORDS_NEED = PAPER_MIN_RECORDS
+"""Records per frame from which nee-pt's octree keeps the paper's thresholds (4096 / 2048, Sec. 7;
+:func:`dyngi.directions.octree.paper_thresholds`): its leaves then hold the paper's ~256-4096 records per frame.
+320x180 (the full run) records 115200 per frame, 192x108 (quick) 41472."""
 PATH = "path:spp=1:max_depth=3:progressive=false"
 EXTRAS = (f"{PATH}:directions=bsdf", f"{PATH}:directions=cdq")
 """Rows no paper has (issue 28): the CDQ inside the framework's path tracer (whose NEE samples the sunsky,
@@ -124,8 +130,8 @@ def _part(name: str, cfg: dict, out_dir: str, quiet: bool = True) -> tuple[dict,
 
 # -- (a) Fig. 8 (b) -----------------------------------------------------------------------------------
 def part_a(cfg, out_dir, scene_name="sky-pit-sun-disc", quiet=True) -> dict:
-    """Part (a) on one scene: BSDF, CDQ at nee-pt's default thresholds and CDQ at the paper's samples per
-    leaf, each for every seed of ``cfg["seeds_a"]``; per technique the per-seed figures and their means."""
+    """Part (a) on one scene: BSDF and CDQ (on :data:`CLAIM_SCENE` also the claim's paper-literal and ablation
+    rows), each for every seed of ``cfg["seeds_a"]``; per technique the per-seed figures and their means."""
     sc = make_builtin(scene_name)
     res, F, W = cfg["res_a"], cfg["frames_a"], cfg["warmup_a"]
     seeds = tuple(cfg.get("seeds_a", (0,)))
@@ -133,7 +139,10 @@ def part_a(cfg, out_dir, scene_name="sky-pit-sun-disc", quiet=True) -> dict:
     ind = reference_image(sc, 0.0, res, cfg["ref_spp"], 3, indirect=True).astype(np.float64)
     mask = ind @ _LUM > 0.5 * (ref @ _LUM)
     write_png(os.path.join(out_dir, f"a_{scene_name}_reference.png"), ref)
-    specs = [f"{BASE}:directions=bsdf", f"{BASE}:directions=cdq", f"{BASE}:directions=cdq:{PAPER_LEAF}"]
+    specs = [f"{BASE}:directions=bsdf", f"{BASE}:directions=cdq"]
+    if scene_name == CLAIM_SCENE:     # the claim's own rows (paper-literal, one ablation per marked setting)
+        specs += [r.spec for r in claim_rows(declare_claims(cfg, {"scene": scene_name, "techniques": {}})[0],
+                                             bool(cfg.get("quick"))) if r.role in ("paper-literal", "ablation")]
     out = {"scene": scene_name, "res": res, "frames": F, "warmup": W, "seeds": list(seeds),
            "indirect_pixels": float(mask.mean()), "techniques": {}}
     rows = []
@@ -163,7 +172,7 @@ def part_a(cfg, out_dir, scene_name="sky-pit-sun-disc", quiet=True) -> dict:
                      [st.get("ms", {}).get("trace", 0.0) for st in stats[W:]])),
                  "cdq_adapt_ms": float(np.median(cdq_ms)), "per_frame_mse": mse, "per_frame_mse_ind": msei}
             octs = [st.get("octree") for st in stats[W:] if st.get("octree")]
-            if octs and octs[0].get("placed") is not None:   # samples per octree leaf per frame (issue 28)
+            if octs and octs[0].get("placed") is not None:   # records per octree leaf per frame
                 r["samples_per_leaf"] = float(np.mean([o["placed"] / max(o["leaves"], 1) for o in octs]))
                 r["leaves"] = float(np.mean([o["leaves"] for o in octs]))
             per_seed.append(r)
@@ -283,9 +292,9 @@ def _rows_a(a: dict) -> list:
     for spec, v in t.items():
         if spec == f"{BASE}:directions=bsdf":
             continue
-        spl = (f"; {v['samples_per_leaf']:.0f} samples/leaf/frame over {v['leaves']:.0f} leaves"
+        spl = (f"; {v['samples_per_leaf']:.0f} records/leaf/frame over {v['leaves']:.0f} leaves"
                if "samples_per_leaf" in v else "")
-        what = "the paper's thresholds" if PAPER_LEAF in spec else "nee-pt's default thresholds"
+        what = spec.split(f"{BASE}:directions=cdq")[-1].lstrip(":") or "nee-pt's defaults"
         rows.append((f"{sn}, indirectly lit pixels ({100 * a['indirect_pixels']:.0f} %): MSE BSDF / {spec} "
                      f"({what}{spl}; {ns} seeds)",
                      "CDQ 2-3 orders of magnitude lower (Fig. 8 b); target >= 10x",
@@ -334,35 +343,37 @@ def _rows_b(b: dict) -> list:
 
 ORDERS = 100.0
 """Fig. 8 (b)'s "two to three orders of magnitude": the claim's criterion is the lower end, 100x."""
-LEAF_NEED = 2048
-"""Samples per octree leaf per frame that the paper's leaves hold (collapse threshold, Sec. 7)."""
-
-
 def declare_claims(cfg: dict, a: dict) -> list:
     """Fig. 8 (b)'s claim on one part-(a) scene (dyngi.experiments.claims): CDQ's 1-spp MSE on the pixels the
-    sun lights indirectly, against BSDF sampling, frames after the CDQ's adaptation."""
+    sun lights indirectly, against BSDF sampling, frames after the CDQ's adaptation. Decided on
+    :data:`CLAIM_SCENE` (the paper's ~0.5-degree sun) at the paper's records per leaf (:data:`RECORDS_NEED`)."""
     cdq = f"{BASE}:directions=cdq"
     leaf = (a["techniques"].get(cdq) or {}).get("samples_per_leaf")
-    paper = {"resolution": "1920x1080", "samples per octree leaf per frame": "2048-4096", "spp": 1}
-    ours = {"resolution": f"{cfg['res_a'][0]}x{cfg['res_a'][1]}", "spp": 1,
-            "frames (after adaptation)": cfg["frames_a"] - cfg["warmup_a"],
-            "samples per octree leaf per frame": None if leaf is None else round(float(leaf), 1)}
+    res = cfg["res_a"]
+    paper = {"resolution": "1920x1080", "sun": "~0.5 degrees", "records per frame": 2 * 1920 * 1080,
+             "records per octree leaf per frame": "256-4096 (split 4096, collapse 2048 per 8 siblings)", "spp": 1}
+    ours = {"resolution": f"{res[0]}x{res[1]}", "spp": 1, "sun": "0.5 degrees" if a["scene"] == CLAIM_SCENE
+            else a["scene"], "frames (after adaptation)": cfg["frames_a"] - cfg["warmup_a"],
+            "records per frame": 2 * res[0] * res[1],
+            "records per octree leaf per frame": None if leaf is None else round(float(leaf), 1)}
     return [Claim(f"cdq.fig8b.{a['scene']}", PAPER,
                   "guiding by the CDQ \"improves sampling by two to three orders of magnitude\" for the regions the "
                   "sun lights indirectly", "Fig. 8 (b)", cdq, f"{BASE}:directions=bsdf",
                   "MSE at 1 spp on the indirectly lit pixels, mean over the frames after adaptation "
                   f"(the first {cfg['warmup_a']} left out: the CDQ starts empty)", "equal-frames",
                   Criterion("below", 1 / ORDERS), tuple(CDQ_FULL["seeds_a"]), paper, ours,
-                  cost_note="1 spp each, as the paper", needs={"samples per octree leaf per frame": LEAF_NEED})]
+                  cost_note="1 spp each, as the paper", needs={"records per frame": RECORDS_NEED})]
 
 
 def decide_claims(a_all: list, cfg: dict, quick: bool) -> list:
     out = []
     for a in a_all:
+        if a["scene"] != CLAIM_SCENE:       # the 2-degree sun and sky-pit: rows, not the claim
+            continue
         for c in declare_claims(cfg, a):
             t = a["techniques"]
-            vals = {"default": {r["seed"]: r["mse_ind_mean"] for r in t[c.technique]["per_seed"]},
-                    "baseline": {r["seed"]: r["mse_ind_mean"] for r in t[c.baseline]["per_seed"]}}
+            vals = {r.label: {x["seed"]: x["mse_ind_mean"] for x in t[r.spec]["per_seed"]}
+                    for r in claim_rows(c, quick) if r.spec in t}
             out.append(result_from_values(c, vals, quick))
     return out
 
@@ -393,8 +404,8 @@ def reproduce_cdq(out_dir: str, quick: bool = False, quiet: bool = True) -> str:
     md = "\n".join([f"# reproduce cdq ({'quick' if quick else 'full'} run)", "", "CDQ: " + PAPER + ".",
                     f"(a) {' and '.join(cfg['scenes_a'])} at {cfg['res_a'][0]}x{cfg['res_a'][1]}, {cfg['frames_a']} frames at t = 0, "
                     f"the first {cfg['warmup_a']} left out (adaptation), seeds {', '.join(map(str, cfg.get('seeds_a', (0,))))}; "
-                    "samples per leaf per frame = placed vertices / octree leaves (paper: split at 4096, collapse at "
-                    "2048 per leaf); (b) rotating-hidden-light-9/-36 at "
+                    "records per leaf per frame = recording vertices / octree leaves (paper: split at 4096, collapse "
+                    "at 2048 per 8 siblings); (b) rotating-hidden-light-9/-36 at "
                     f"{cfg['res_b'][0]}x{cfg['res_b'][1]}, {cfg['pre_b']} frames before and {cfg['post_b']} after the "
                     f"step; references: Mitsuba path, {cfg['ref_spp']} spp, max depth 3. 1 spp everywhere. Per-frame "
                     "MSE in a_mse.csv / b_mse.csv. Part (b) uses medians over frames (heavy-tailed 1-spp MSE).", "",
