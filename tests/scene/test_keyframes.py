@@ -394,49 +394,116 @@ def test_sunsky_up_must_match(backend, tmp_path):
 
 # -- shapes moved through to_world: rectangle, disk, cylinder, an instance ---------------------------
 
-TO_WORLD_SHAPES = {
-    "rectangle": '<shape type="rectangle" id="s"><transform name="to_world"><scale value="0.4"/>{}</transform>'
-                 '<ref id="red"/></shape>',
-    "disk": '<shape type="disk" id="s"><transform name="to_world"><scale value="0.4"/><rotate x="1" angle="-60"/>{}'
-            '</transform><ref id="red"/></shape>',
-    "cylinder": '<shape type="cylinder" id="s"><float name="radius" value="0.2"/><transform name="to_world">'
-                '<rotate x="1" angle="-90"/>{}</transform><ref id="red"/></shape>',
-    "instance": '<shape type="shapegroup" id="g"><shape type="cube"><transform name="to_world"><scale value="0.3"/>'
-                '</transform><ref id="red"/></shape></shape><shape type="instance" id="s"><ref id="g"/>'
-                '<transform name="to_world">{}</transform></shape>',
+TO_WORLD_SHAPES = {     # id: (XML with a {} for the moved part of to_world, XML base position)
+    "rect": ('<shape type="rectangle" id="rect"><transform name="to_world"><scale value="0.3"/>{}</transform>'
+             '<ref id="red"/></shape>', (-1.2, 0.5, 0.0)),
+    "disk": ('<shape type="disk" id="disk"><transform name="to_world"><scale value="0.3"/><rotate x="1" angle="-60"/>'
+             '{}</transform><ref id="red"/></shape>', (0.4, 0.5, -0.8)),
+    "cyl": ('<shape type="cylinder" id="cyl"><float name="radius" value="0.15"/><transform name="to_world">'
+            '<scale z="0.6"/><rotate x="1" angle="-90"/>{}</transform><ref id="red"/></shape>', (-0.4, 0.0, -0.8)),
+    "inst": ('<shape type="shapegroup" id="g"><shape type="cube"><transform name="to_world"><scale value="0.3"/>'
+             '</transform><ref id="red"/></shape></shape><shape type="instance" id="inst"><ref id="g"/>'
+             '<transform name="to_world">{}</transform></shape>', (0.9, 0.3, 0.3)),
 }
 
 
-@pytest.mark.parametrize("kind", sorted(TO_WORLD_SHAPES))
-def test_to_world_shapes_move_in_place(backend, tmp_path, kind):
-    """An analytic shape (or an instance) moved by the sidecar renders as the XML with the moved
-    to_world (Mitsuba's path on both: what is tested is the in-place update); the unmoved XML is told apart."""
+def test_to_world_shapes_move_in_place(backend, tmp_path):
+    """Analytic shapes (rectangle, disk, cylinder) and an instance moved by the sidecar render as the XML with
+    the moved to_world (Mitsuba's path on both: what is tested is the in-place update; alpha 0.01 as above);
+    the unmoved XML is told apart."""
     from dyngi.backend import mi
     from dyngi.scene.keyframes import attach
     from dyngi.scene.loaders import load_scene
 
     xml = SKY_XML.replace('<emitter type="{kind}" id="sky">{body}</emitter>',
                           '<bsdf type="diffuse" id="red"><rgb name="reflectance" value="0.8, 0.1, 0.1"/></bsdf>'
-                          '{shape}<emitter type="directional" id="sun"><vector name="direction" x="0.3" y="-1" '
+                          '{shapes}<emitter type="directional" id="sun"><vector name="direction" x="0.3" y="-1" '
                           'z="-0.4"/><rgb name="irradiance" value="3"/></emitter>'
                           '<emitter type="constant"><rgb name="radiance" value="0.3"/></emitter>')
-    xml = xml.replace('<shape type="cube" id="box">', '<shape type="cube" id="box2">')
 
-    def pose(extra):
-        return xml.format(shape=TO_WORLD_SHAPES[kind].format('<translate y="0.5"/>' + extra))
+    def pose(moved):
+        parts = []
+        for sid, (tpl, p) in TO_WORLD_SHAPES.items():
+            at = f'<translate x="{p[0]}" y="{p[1]}" z="{p[2]}"/>'
+            if moved:   # 40 degrees about y through the base position, then up 0.2 and along x 0.3
+                at += (f'<translate x="{-p[0]}" y="{-p[1]}" z="{-p[2]}"/><rotate y="1" angle="40"/>'
+                       f'<translate x="{p[0] + 0.3}" y="{p[1] + 0.2}" z="{p[2]}"/>')
+            parts.append(tpl.format(at))
+        return xml.format(shapes="".join(parts))
 
-    sc = attach(load_scene(_write(tmp_path, "a.xml", pose(""))),
-                _write(tmp_path, "a.toml", "[shapes.s]\npivot = [0.0, 0.5, 0.0]\nkeys = [{ t = 0.0, rotate = 0.0 }, "
-                                           "{ t = 1.0, translate = [0.6, 0.2, 0.0], rotate = 40.0 }]\n"))
+    toml = "".join(f"[shapes.{sid}]\npivot = [{p[0]}, {p[1]}, {p[2]}]\nkeys = [{{ t = 0.0, rotate = 0.0 }}, "
+                   f"{{ t = 1.0, translate = [0.3, 0.2, 0.0], rotate = 40.0 }}]\n"
+                   for sid, (_, p) in TO_WORLD_SHAPES.items())
+    sc = attach(load_scene(_write(tmp_path, "a.xml", pose(False))), _write(tmp_path, "a.toml", toml))
     cam, res, spp, k = sc.camera(0.0), (32, 24), 16, 8
     sc.at(1.0)
     integ = mi.load_dict({"type": "path", "max_depth": 4})
     a = np.stack([np.asarray(mi.render(sc.mi_scene, sensor=cam.to_sensor(res, spp), integrator=integ, spp=spp,
                                        seed=100 + i)) for i in range(k)])
-    moved = _write(tmp_path, "e.xml", pose('<rotate y="1" angle="40"/><translate x="0.6" y="0.2"/>'))
-    b = np.stack([_mitsuba_xml(moved, cam, res, spp, i) for i in range(k)])
+    b = np.stack([_mitsuba_xml(_write(tmp_path, "e.xml", pose(True)), cam, res, spp, i) for i in range(k)])
     ok, info = _agree(a, b)
-    assert ok, f"{kind}: moved in place and edited XML disagree: {info}"
-    b = np.stack([_mitsuba_xml(_write(tmp_path, "w.xml", pose("")), cam, res, spp, i) for i in range(k)])
+    assert ok, f"moved in place and the edited XML disagree: {info}"
+    b = np.stack([_mitsuba_xml(_write(tmp_path, "w.xml", pose(False)), cam, res, spp, i) for i in range(k)])
     ok, info = _agree(a, b)
-    assert not ok, f"{kind}: the unmoved shape was not told apart: {info}"
+    assert not ok, f"the unmoved shapes were not told apart: {info}"
+
+
+# -- emitter scales: every emitter type -------------------------------------------------------------
+
+EMIT_XML = """<scene version="3.0.0">
+  <sensor type="perspective"><float name="fov" value="50"/>
+    <transform name="to_world"><lookat origin="0, 2.6, 3.6" target="0, 0.3, 0" up="0, 1, 0"/></transform></sensor>
+  <bsdf type="diffuse" id="grey"><rgb name="reflectance" value="0.6, 0.6, 0.6"/></bsdf>
+  <shape type="rectangle" id="floor"><transform name="to_world"><scale value="2.5"/><rotate x="1" angle="-90"/></transform>
+    <ref id="grey"/></shape>
+  <shape type="rectangle" id="lamp"><transform name="to_world"><scale value="0.2"/><rotate x="1" angle="90"/>
+    <translate y="1.5"/></transform><emitter type="area"><rgb name="radiance" value="{lamp}"/></emitter></shape>
+  <emitter type="point" id="pt"><point name="position" x="0.5" y="1" z="0"/><rgb name="intensity" value="{pt}"/></emitter>
+  <emitter type="spot" id="spot"><transform name="to_world"><lookat origin="-1, 2, 0" target="0, 0, 0"/></transform>
+    <rgb name="intensity" value="{spot}"/></emitter>
+  <emitter type="directional" id="sun"><vector name="direction" x="0.3" y="-1" z="-0.4"/>
+    <rgb name="irradiance" value="{sun}"/></emitter>
+  {env}
+</scene>"""
+EMIT_BASE = {"lamp": 5.0, "pt": 3.0, "spot": 6.0, "sun": 1.0}
+EMIT_ENVS = {
+    "constant": '<emitter type="constant" id="env"><rgb name="radiance" value="{0}"/></emitter>',
+    "envmap": '<emitter type="envmap" id="env"><string name="filename" value="{2}"/><float name="scale" value="{0}"/>'
+              '</emitter>',
+    "sunsky": '<emitter type="sunsky" id="env"><vector name="sun_direction" x="0" y="0.6" z="0.8"/>'
+              '<float name="sun_scale" value="{1}"/><float name="sky_scale" value="{0}"/></emitter>',
+}
+
+
+@pytest.mark.parametrize("env", sorted(EMIT_ENVS))
+def test_emitter_scales(backend, tmp_path, env):
+    """Area, point, spot and directional lights and a constant / envmap / sunsky environment scaled by the
+    sidecar render as the XML with the scaled values (Mitsuba's path, same seed: equal to round-off); the
+    unscaled XML differs."""
+    from dyngi.backend import mi
+    from dyngi.scene.keyframes import attach
+    from dyngi.scene.loaders import load_scene
+
+    exr = str(tmp_path / "sky.exr")
+    mi.Bitmap(np.full((8, 16, 3), 0.5, np.float32)).write(exr)
+    factors = {eid: 2.0 + i for i, eid in enumerate(EMIT_BASE)}
+
+    def xml(mult, env_mult):
+        vals = {eid: f"{v * mult.get(eid, 1.0):.9g}" for eid, v in EMIT_BASE.items()}
+        return EMIT_XML.format(env=EMIT_ENVS[env].format(0.3 * env_mult, 0.01 * env_mult, exr), **vals)
+
+    toml = "".join(f"[emitters.{eid}]\nkeys = [{{ t = 0.0, scale = 1.0 }}, {{ t = 1.0, scale = {f} }}]\n"
+                   for eid, f in factors.items()) + "[emitters.env]\nkeys = [{ t = 0.0, scale = 1.0 }, { t = 1.0, scale = 0.5 }]\n"
+    sc = attach(load_scene(_write(tmp_path, "a.xml", xml({}, 1.0))), _write(tmp_path, "a.toml", toml))
+    cam = sc.camera(0.0)
+    sc.at(1.0)
+    integ = mi.load_dict({"type": "path", "max_depth": 3})
+
+    def render(mis):
+        return np.asarray(mi.render(mis, sensor=cam.to_sensor((16, 12), 64), integrator=integ, spp=64, seed=1))
+
+    a = render(sc.mi_scene)
+    e = render(mi.load_file(_write(tmp_path, "e.xml", xml(factors, 0.5))))
+    w = render(mi.load_file(_write(tmp_path, "w.xml", xml({}, 1.0))))
+    assert np.abs(a - e).mean() <= 1e-4 * e.mean(), (np.abs(a - e).mean(), e.mean())
+    assert np.abs(a - w).mean() >= 0.1 * e.mean()

@@ -279,12 +279,16 @@ class _Problems:
             raise DyngiError("\n".join(self.lines))
 
 
-def _vector(v, n: int):
-    """v as a float array of n entries (a number broadcast to n when n == 3 and scalar allowed), or None."""
+SCALAR_OK = ("scale",)
+"""Key properties of 3 numbers that also take one number (broadcast to all three)."""
+
+
+def _vector(v, n: int, scalar_ok: bool = False):
+    """v as a float array of n entries (one number broadcast to 3 where ``scalar_ok``), or None."""
     if isinstance(v, bool):
         return None
     if isinstance(v, (int, float)):
-        return np.full(n, float(v)) if n in (1, 3) else None
+        return np.full(n, float(v)) if n == 1 or scalar_ok else None
     if isinstance(v, list) and len(v) == n and all(isinstance(x, (int, float)) and not isinstance(x, bool)
                                                    for x in v):
         return np.asarray(v, np.float64)
@@ -325,7 +329,7 @@ def _read_keys(prob: _Problems, where: str, table: dict, allowed: tuple, sizes: 
         for i, k in enumerate(keys):
             if name not in k:
                 continue
-            v = _vector(k[name], n)
+            v = _vector(k[name], n, name in SCALAR_OK)
             if v is None:
                 shape = "a number" if n == 1 else f"a list of {n} numbers" + (" or a number" if name == "scale" else "")
                 prob.add(f"{where}.keys[{i}]", f"'{name}' must be {shape}")
@@ -339,6 +343,8 @@ def _read_keys(prob: _Problems, where: str, table: dict, allowed: tuple, sizes: 
             vs.append(v)
         if ok and ts:
             tracks[name] = Track(ts, vs, interp, loop)
+    if ok and not tracks:
+        prob.add(where, f"no key sets any of: {', '.join(sizes)}")
     return tracks if ok else {}
 
 
@@ -360,7 +366,7 @@ def _table_vec(prob, where, table, name, default):
     if name not in table:
         return None if default is None else np.asarray(default, np.float64)
     v = _vector(table[name], 3)
-    if v is None or not np.all(np.isfinite(v)) or isinstance(table[name], (int, float)):
+    if v is None or not np.all(np.isfinite(v)):
         prob.add(where, f"'{name}' must be a list of 3 finite numbers")
         return None
     if name == "axis" and np.linalg.norm(v) == 0:
@@ -525,6 +531,8 @@ def attach(scene: Scene, toml_path: str) -> Scene:
                 prob.add(where, f"the {kind} emitter '{eid}' has a textured radiance: 'scale' needs a constant one")
             elif np.any(tr["scale"].values < 0):
                 prob.add(where, "'scale' factors must be >= 0")
+            elif kind in ("envmap", "sunsky") and np.any(np.ptp(tr["scale"].values, axis=1) > 0):
+                prob.add(where, f"the {kind} emitter '{eid}' scales by one number, not red, green and blue")
             else:
                 animators.append(ScaleKeyframes(keys, tr["scale"]))
         if "elevation" in tr or "azimuth" in tr:
