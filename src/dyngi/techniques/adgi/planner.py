@@ -54,6 +54,7 @@ from ...probes.rays import RayPlan, compact
 from ...sampling.metropolis import ChainState, MetropolisChains
 from ...sampling.octahedral import direction_to_texel_coords, texel_directions
 from .heuristics import OCTANTS, octant_of, octant_of_np, static_guide
+from .sparse import SparseKeys
 
 PROXY = 3                 # 3x3x3 probes per virtual proxy (Sec. 4.9)
 GUIDE_LEVELS = 1024       # f_d's levels in the 6-10-10 word (Sec. 4.3): the budget's sort keys
@@ -211,6 +212,7 @@ class ADGIChainPlanner:
         self._texel_dirs = mi.Float(texel_directions(volume.irradiance_texels)[1:-1, 1:-1]
                                     .reshape(-1).astype(np.float32))
         self._setup_dynamic_directions(int(p["dynamic_rays"]))
+        self._entry_keys = SparseKeys(int(np.prod(self.proxies)) * OCTANTS)    # D's marked (proxy, octant) entries
         self.n_run = self.static_state.n
         self.last_samples = 0
         self._first = 0              # the first static chain to run under a budget (rotates, ours)
@@ -332,6 +334,30 @@ class ADGIChainPlanner:
         dr.eval(g)
         return g
 
+    def guide_at(self, probe, w):
+        """The static guide's feedback ``g`` for samples at ``probe`` along ``w``: :meth:`guide_feedback`'s
+        value of the mip cell ``w`` falls in, computed per sample from the irradiance atlas (the mean luminance
+        of the cell's ``2^level x 2^level`` interior texels; fewer at an odd edge) -- work that follows the
+        chains' samples, not the grid's probes."""
+        vol = self.volume
+        T = vol.irradiance_texels
+        n = T - 2
+        L = self._mip_level
+        c = direction_to_texel_coords(w, T)
+        cx = dr.clip(mi.Int32(dr.floor(c.x)) - 1, 0, n - 1) >> L
+        cy = dr.clip(mi.Int32(dr.floor(c.y)) - 1, 0, n - 1) >> L
+        base = probe * (T * T)
+        total = mi.Float(0.0)
+        count = mi.Float(0.0)
+        for dy in range(1 << L):
+            for dx in range(1 << L):
+                ix, iy = (cx << L) + dx, (cy << L) + dy
+                ok = (ix < n) & (iy < n)
+                v = dr.gather(mi.Color3f, vol.device.irradiance, base + mi.UInt32((iy + 1) * T + ix + 1), ok)
+                total += dr.select(ok, mi.luminance(v), 0.0)
+                count += dr.select(ok, 1.0, 0.0)
+        return total / dr.maximum(count, 1.0)
+
     def _mip_cell_of(self, w):
         """Mip cell (row-major in the ``m x m`` mip) that direction ``w`` falls in."""
         T = self.volume.irradiance_texels
@@ -346,14 +372,13 @@ class ADGIChainPlanner:
         """S (Sec. 4.8): run the static chains (the first ``n_run`` under a ray budget), one ray per sample
         with ``h > 0``; ``fs`` is f_s from the 6-10-10 word (Sec. 4.3)."""
         vol = self.volume
-        g_mip = self.guide_feedback()
-        mm = self._mip_n * self._mip_n
 
         def target(x, w):
             probe = self._probe_of(x, self.counts)
             e = probe * OCTANTS + octant_of(w)
             f = dr.gather(mi.Float, fs, e) * dr.gather(mi.Float, vin_dr, probe)
-            g = dr.gather(mi.Float, g_mip, probe * mm + self._mip_cell_of(w))
+            # g: the previous frame's irradiance at mip guide_mip, read per sample (guide_at), only where f > 0
+            g = dr.select(f > 0.0, self.guide_at(probe, w), 0.0)
             return static_guide(f, g)
 
         n_run = self.n_run = self._chains_to_run(rays, shadow_rate)
@@ -472,27 +497,13 @@ class ADGIChainPlanner:
         proxy-table value (the guide) first, while ``rays`` last (:func:`budget_keep`, on the device; ours:
         the paper's chains visit proxies in proportion to the guide, a budget cut keeps the largest)."""
         vol = self.volume
-        nx, ny, nz = self.counts
-        px, py, pz = self.proxies
-        n_entries = px * py * pz * OCTANTS
-        # -- the proxy table: max of f_d over the proxy's 27 probes in V_in, per octant --
-        e = dr.arange(mi.UInt32, n_entries)
-        q = e // OCTANTS
-        o = e - q * OCTANTS
-        qi, qj, qk = mi.Int32(q % px), mi.Int32((q // px) % py), mi.Int32(q // (px * py))
-        table = dr.zeros(mi.Float, n_entries)
-        for di in range(PROXY):
-            for dj in range(PROXY):
-                for dk in range(PROXY):
-                    i, j, k = qi * PROXY + di, qj * PROXY + dj, qk * PROXY + dk
-                    inside = (i < nx) & (j < ny) & (k < nz)
-                    pr = mi.UInt32(dr.select(inside, i + nx * (j + ny * k), 0))
-                    v = dr.gather(mi.Float, fd, pr * OCTANTS + o, inside) * dr.gather(mi.Float, vin_dr, pr, inside)
-                    table = dr.maximum(table, v)
-        dr.eval(table)
+        # -- the proxy table: max of f_d over the proxy's 27 probes in V_in, per (proxy, octant) entry, evaluated
+        # where the chains and the budget read it (work that follows the chains, not the grid) --
+        def table(ent):
+            return self.proxy_value(ent, vin_dr, fd)
 
         def target(x, w):
-            return dr.gather(mi.Float, table, self._probe_of(x, self.proxies) * OCTANTS + octant_of(w))
+            return table(self._probe_of(x, self.proxies) * OCTANTS + octant_of(w))
 
         self.dynamic_state, s = self.dynamic.run(self.dynamic_state, target, seed, frame)
         # -- one proxy octant per chain per frame (Sec. 4.9: "the first invocation to update the octant marks
@@ -501,14 +512,17 @@ class ADGIChainPlanner:
         last = dr.arange(mi.UInt32, n) + (self.dynamic.samples_per_chain - 1) * n
         pos = dr.gather(mi.Vector3f, s.position, last)
         w = dr.gather(mi.Vector3f, s.direction, last)
-        mark = dr.zeros(mi.UInt32, n_entries)
         ent = self._probe_of(pos, self.proxies) * OCTANTS + octant_of(w)
-        dr.scatter(mark, mi.UInt32(1), ent, dr.gather(mi.Float, s.value, last) > 0.0)
+        hot = dr.gather(mi.Float, s.value, last) > 0.0
+        # the chains' entries made unique (an owner table reset on use: chain-sized work, .sparse.SparseKeys)
+        ukey, u_ok, _, _, _, _ = self._entry_keys.reduce(ent, [], mi.Float(1.0) + dr.zeros(mi.Float, n), hot,
+                                                         device=self.device)
         cost = upload(self.pair_cost(shadow_rate).astype(np.uint32), mi.UInt32)     # rays per pair, by octant
         self.distance_plan = None
         if self.device:
-            return self._dynamic_masked(table, mark, vin_dr, cost, rays, rays_max, limit)
-        marked = dr.compress(mark != 0)          # its width is the count of marked octants
+            return self._dynamic_masked(table, ukey, u_ok, vin_dr, cost, rays, rays_max, limit)
+        # the marked entries in index order (the budget's ties go in index order; <= n_chains of them)
+        marked = upload(np.sort(np.asarray(ukey, np.uint32)), mi.UInt32)
         n_marked = self.last_samples = dr.width(marked)
         if n_marked == 0:
             self.dynamic_wanted = 0
@@ -522,7 +536,7 @@ class ADGIChainPlanner:
             # pairs of one proxy octant are contiguous: a block sum, not a scatter into n_marked slots
             # (on LLVM that bakes n_marked into the kernel, a new kernel whenever it changes)
             per = dr.block_reduce(dr.ReduceOp.Add, pair_cost, 27)
-            key = guide_level(dr.gather(mi.Float, table, marked), GUIDE_LEVELS)
+            key = guide_level(table(marked), GUIDE_LEVELS)
             keep_m = budget_keep(key, per, dr.opaque(mi.UInt32, _ray_total(rays)), GUIDE_LEVELS)
             ok &= dr.gather(mi.Bool, keep_m, m)
             dr.eval(ok)
@@ -535,6 +549,25 @@ class ADGIChainPlanner:
         if self._dir_dist is not None:
             self.distance_plan = self._host_rays(pair_probe, pair_oct, self._dir_dist, self._ok_dist, self._R_dist)
         return plan
+
+    def proxy_value(self, ent, vin_dr, fd):
+        """Sec. 4.9's virtual-proxy table at entries ``ent`` (``proxy * 8 + octant``): the max of ``f_d`` over
+        the proxy's 3x3x3 probes in ``V_in`` along the octant (0 outside the grid)."""
+        nx, ny, nz = self.counts
+        px, py, _ = self.proxies
+        q = ent // OCTANTS
+        o = ent - q * OCTANTS
+        qi, qj, qk = mi.Int32(q % px), mi.Int32((q // px) % py), mi.Int32(q // (px * py))
+        out = mi.Float(0.0)
+        for di in range(PROXY):
+            for dj in range(PROXY):
+                for dk in range(PROXY):
+                    i, j, k = qi * PROXY + di, qj * PROXY + dj, qk * PROXY + dk
+                    inside = (i < nx) & (j < ny) & (k < nz)
+                    pr = mi.UInt32(dr.select(inside, i + nx * (j + ny * k), 0))
+                    v = dr.gather(mi.Float, fd, pr * OCTANTS + o, inside) * dr.gather(mi.Float, vin_dr, pr, inside)
+                    out = dr.maximum(out, v)
+        return out
 
     def _host_rays(self, pair_probe, pair_oct, dirs, dirs_ok, R: int) -> RayPlan:
         """A ragged plan of the table rays of each (probe, octant) pair: ``dirs[o * R + r]`` where valid."""
@@ -568,16 +601,12 @@ class ADGIChainPlanner:
         dr.eval(probe, ok, oo)
         return probe, ok, oo, m
 
-    def _dynamic_masked(self, table, mark, vin_dr, cost, rays, rays_max, limit):
+    def _dynamic_masked(self, table, marked, m_ok, vin_dr, cost, rays, rays_max, limit):
         """The device path's dynamic plans (module docstring): the marked proxy octants packed on the device (at
         most one per chain), their (octant, probe) pairs, whole octants kept highest guide first while the cap
         lasts (``limit`` rays under a budget, the plans' width without one), packed into masked plans of
         :meth:`dynamic_capacity` pairs (the radiance rays; the distance rays in :attr:`distance_plan`); no host
         read."""
-        px, py, pz = self.proxies
-        n_entries = px * py * pz * OCTANTS
-        E = max(min(n_entries, self.dynamic_state.n), 1)
-        marked, m_ok = compact(mark != 0, E)
         self.last_samples = dr.count(m_ok)
         probe, ok, oo, m = self._pairs(marked, m_ok, vin_dr)
         self._pending["dynamic"] = dr.count(ok)
@@ -585,7 +614,7 @@ class ADGIChainPlanner:
         self._pending["dynamic_wanted"] = dr.sum(pair_cost)
         n_pairs = self.dynamic_capacity(rays_max if rays is not None else None, 0.0)
         per = dr.block_reduce(dr.ReduceOp.Add, pair_cost, 27)
-        key = guide_level(dr.select(m_ok, dr.gather(mi.Float, table, marked), 0.0), GUIDE_LEVELS)
+        key = guide_level(dr.select(m_ok, table(marked), 0.0), GUIDE_LEVELS)
         # whole octants, highest guide first, while the plans' width (pairs) and, under a budget, the rays last
         keep_m = budget_keep(key, dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(ok), 27),
                              dr.opaque(mi.UInt32, n_pairs), GUIDE_LEVELS)

@@ -95,7 +95,13 @@ class SparseKeys:
             heads, u_ok = compact(head, max(n, 1))
         else:
             heads = dr.compress(head)
-            u_ok = mi.Bool(True) | dr.zeros(mi.Bool, dr.width(heads))
+            if dr.width(heads) == 0:        # no sample: nothing claimed (the owners are left as they were)
+                dr.scatter(owner, mi.UInt32(NO_OWNER), key, active)
+                dr.eval(owner)
+                empty = dr.zeros(mi.UInt32, 0)
+                return empty, dr.zeros(mi.Bool, 0), [dr.zeros(mi.Float64, 0) for _ in values], \
+                    dr.zeros(mi.Float64, 0), empty, dr.zeros(mi.UInt32, n)
+            u_ok = dr.full(mi.Bool, True, dr.width(heads))
         U = dr.width(heads)
         ukey = dr.gather(mi.UInt32, key, heads, u_ok)
         # -- the owner entry becomes the key's unique index; the samples reduce into the U slots --

@@ -59,7 +59,12 @@ One frame, in the paper's stages (Table 4; ``stats['ms']`` keys ``P``, ``S``, ``
   ``V_in`` so marked (the paper culls "probes that are not used in deferred shading" in D; ours in S too,
   the issue's reading; the mask is one frame old since our primary pass shades in the same pass).
 * After the updates, probes in ``V_out - V_in`` get their texel counts capped,
-  ``N <- min(N, 16)`` (Sec. 4.8).
+  ``N <- min(N, 16)`` (Sec. 4.8), applied lazily by the next merge of each texel
+  (:class:`.sparse.LazyCountCap`). Merges are sparse (:mod:`.sparse`): a pass's (probe, texel) keys
+  compacted and reduced, Algorithm 3 only on the texels that received samples. The static guide's mip and
+  the dynamic proxy table are read per chain sample (:meth:`.planner.ADGIChainPlanner.guide_at`,
+  :meth:`~.planner.ADGIChainPlanner.proxy_value`): a frame's work follows the chains and the view
+  (tests/techniques/adgi/test_view_work.py); the heuristics' tables (P x 8) still span the grid.
 
 How a sample becomes a texel update (Algorithm 2 updates "the closest entry"; how a radiance sample
 becomes irradiance the paper does not say; ours, :mod:`.radiance`): the radiance along ``w`` goes into
