@@ -15,8 +15,10 @@ illumination at the primary vertex", Sec. 5), built from Bitterli et al. 2020
    surfaces) -- the unshadowed contribution without the BSDF, our choice (it
    needs only the G-buffer's position and normal, so the target of any
    neighbour or of the previous frame is exact and cheap, see Bias below).
-   Bitterli's Alg. 5 visibility reuse (``visibility_reuse='candidate'``, an option):
-   one shadow ray to the chosen candidate before reuse, ``W = 0`` if occluded.
+   **Visibility** (``visibility_reuse``, default ``'unbiased'``): one shadow ray to the chosen candidate
+   before reuse, ``W = 0`` if occluded (Bitterli Alg. 5), and the reuse's MIS weights over
+   ``p_hat_j(y) V_j(y)`` of the final sample at every other domain (Bitterli et al.'s unbiased variant; see
+   :mod:`dyngi.transport.restir_di`).
 3. **Temporal reuse** (Alg. 4/5 with the reprojected previous pixel's
    reservoir; M capped at ``m_cap`` x M, the "20x" of Bitterli Sec. 6);
    skipped where the disocclusion mask rejects the previous pixel.
@@ -41,9 +43,10 @@ temporal : bool = True    temporal reuse
 m_cap : float = 20        temporal M cap, in multiples of ``candidates``
 spatial : int = 3         spatial neighbours per pixel (0: none; Bitterli: 5)
 radius : float = 30       spatial reuse radius in pixels of a 1920-wide image (scaled with the width)
-visibility_reuse : str = 'none'  the unbiased option (default: 'candidate' left a room lit through
-                          windows 12-17% dark); 'candidate' Alg. 5: shadow ray to the initial candidate
-                          before reuse; 'final' the final visibility stored
+visibility_reuse : str = 'unbiased'  unbiased: 'unbiased' (visibility in the MIS weights, +4 shadow rays
+                          per pixel) and 'none' (no visibility; 4x the accumulated block error of
+                          'unbiased' in a room lit through a window); biased: 'candidate' (Alg. 5) and
+                          'final' (20-64% dark there; docs/techniques/restir-pt.md)
 combine : str = 'mis'     'mis' | '1/z' (unbiased) | 'biased' (:mod:`dyngi.sampling.reservoir`)
 max_depth : int = 12      maximum path depth (-1: unbounded), Mitsuba's convention
 rr_depth : int = 5        Russian roulette start depth
@@ -54,11 +57,12 @@ directions : str = 'bsdf' indirect directions of the path after the primary vert
                           (:class:`dyngi.directions.walk.WalkDirections`; ReSTIR DI at the primary vertex
                           is unchanged)
 
-Bias: none with ``combine='mis'`` or ``'1/z'`` and ``visibility_reuse='none'``
-(tested by a per-pixel z-test against Mitsuba's ``path``). The default
-visibility reuse is Bitterli's biased-but-consistent Alg. 5: a slight darkening
-at shadow edges, its image-mean bias bounded in ``tests/techniques/test_restir.py``
-(figures: docs/techniques/ddgi-resampling.md, "The mechanism"). Besides, two documented approximations on
+Bias: none with ``combine='mis'`` or ``'1/z'`` and ``visibility_reuse='unbiased'`` (the default) or
+``'none'`` (tested per region on ``living-room-sky`` and per pixel on the Cornell box against Mitsuba's
+``path``). ``'candidate'`` (Bitterli's Alg. 5) and ``'final'`` are biased: the sample's visibility at its own
+pixel decides its reuse while the MIS weights count every domain whose unshadowed target is positive, a
+darkening wherever neighbours or the previous pixel cannot see the light (20-64 % per block in a room lit
+through a window, docs/techniques/restir-pt.md). Besides, two documented approximations on
 *dynamic* scenes: (a) the previous pixel's target is evaluated with the lights
 as they are now (its emitter may have changed since), (b) a reservoir's ``W``
 from the previous frame is reused although the lights may have moved; both
@@ -85,14 +89,19 @@ class ReSTIRPTTechnique(Technique):
     """PT + ReSTIR: ReSTIR DI at the primary vertex (candidates, temporal, spatial), PT for the rest."""
 
     name = "restir-pt"
-    description = ("path tracer with ReSTIR DI at the primary vertex (32 candidates, Alg. 5 visibility reuse, "
+    description = ("path tracer with ReSTIR DI at the primary vertex (32 candidates, unbiased visibility reuse, "
                    "temporal x20 cap, 3 spatial neighbours, MIS), progressive")
     HAS_INDIRECT = True
     PARAMS = {
         **{k: Param(**v) for k, v in PARAM_SPECS.items()},
-        "visibility_reuse": Param(**{**PARAM_SPECS["visibility_reuse"], "ours": True, "paper": "candidate",
-                                     "doc": PARAM_SPECS["visibility_reuse"]["doc"] + " (ours: Bitterli et al.'s "
-                                     "ReSTIR reuses the candidate's visibility, Alg. 5)"}),
+        "visibility_reuse": Param(**{**PARAM_SPECS["visibility_reuse"], "default": "unbiased",
+                                     "doc": "visibility in the reservoirs: 'unbiased' (the default; Bitterli et "
+                                     "al.'s unbiased variant, the DDGI Resampling paper's 'unbiased path tracer "
+                                     "that uses ReSTIR', Sec. 5) the MIS weights over p_hat_j V_j of the final "
+                                     "sample, one shadow ray per other domain; 'none' unbiased, no visibility "
+                                     "(its accumulated blocks 4x noisier in a room lit through a window); "
+                                     "'candidate' (Alg. 5) and 'final' biased: 20-64% dark in that room "
+                                     "(docs/techniques/restir-pt.md)"}),
         "min_radius_px": Param(**MIN_RADIUS_PARAM),
         "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq (collapse: half); 0 = ours: the VLC paper's 4096 / 2048 at 1080p (Sec. 7) scaled to the placed vertices per frame and floored at 512 / 256 (directions.octree.MIN_SPLIT / MIN_COLLAPSE: fewer samples make a meaningless cache); 4096 = the paper's", min=0, max=1 << 20,
                               ours=True, paper=4096),

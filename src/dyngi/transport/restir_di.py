@@ -9,12 +9,24 @@ Resampling family; issue 24). The target is a parameter of each reuse stage.
    solid angle, delta lights as point masses) streamed through a reservoir with the default target
    ``p_hat(y) = lum(Lg(y)) * cos+(n, wi)`` (:func:`target`; ``|cos|`` on transmissive surfaces): the
    unshadowed contribution without the BSDF, so any neighbour's or the previous frame's target is
-   exact and needs only a G-buffer's position and normal. **Visibility reuse** (Bitterli Alg. 5,
-   ``visibility_reuse``; default ``'none'`` here, ``'candidate'`` in ``ddgi-resampling``'s unified reservoir;
-   measured: docs/techniques/ddgi-resampling.md): one
-   shadow ray to the chosen candidate before any reuse, ``W = 0`` (and no weight in merges) if occluded;
-   ``'final'`` writes the final shadow ray's visibility into the stored reservoir instead (no extra ray);
-   ``'none'``: neither.
+   exact and needs only a G-buffer's position and normal. **Visibility** (``visibility_reuse``; the
+   component's default ``'none'``, ``restir-pt``'s ``'unbiased'``, ``ddgi-resampling``'s ``'candidate'``;
+   measured: docs/techniques/restir-pt.md, docs/techniques/ddgi-resampling.md):
+
+   * ``'unbiased'`` (**unbiased**; Bitterli et al.'s unbiased variant, a generalized-RIS partition of unity
+     over the true supports): the candidate's shadow ray of ``'candidate'``, and in every reuse stage the
+     MIS / 1/Z weights over ``p_hat_j(y) V_j(y)`` of the final sample at each domain (this pixel, each
+     accepted neighbour, the previous pixel): one shadow ray per domain other than the one ``y`` came from
+     (visible there: every stored reservoir holds a sample visible from its own pixel, or ``W = 0``). The
+     final shading then needs no ray. Rays per pixel: 1 candidate + 1 temporal + ``spatial`` (stages
+     ``candidates``, ``temporal``, ``spatial``), instead of the 1 shading ray of ``'none'``;
+   * ``'candidate'`` (Bitterli Alg. 5; **biased**): one shadow ray to the chosen candidate before any reuse,
+     ``W = 0`` (and no weight in merges) if occluded, weights over the unshadowed targets;
+   * ``'final'`` (**biased**): the final shadow ray's visibility written into the stored reservoir (no extra
+     ray), weights over the unshadowed targets;
+   * ``'none'`` (**unbiased**): no visibility in the reservoirs (a sample occluded at its pixel stays and is
+     reused: unbiased, but in a room lit through a window most samples are occluded and the few visible
+     ones persist for tens of frames, so an accumulated image converges slowly).
 3. **Temporal reuse** (Alg. 4/5, :meth:`ReSTIRDI.temporal_reuse`): the reprojected previous pixel's
    reservoir, M capped at ``m_cap`` x M (Bitterli Sec. 6: 20); skipped where the disocclusion mask
    rejects the previous pixel.
@@ -28,10 +40,12 @@ Resampling family; issue 24). The target is a parameter of each reuse stage.
 ReSTIR's light samples cannot (emission behind a delta lobe of vertex 0) and everything from vertex 2
 on (the indirect part).
 
-Bias: none with ``combine='mis'`` or ``'1/z'`` and ``visibility_reuse='none'`` on static frames. Visibility
-reuse (either mode) is biased but consistent, as in Bitterli et al.: a sample's visibility at its own pixel
-decides its reuse while the MIS weights count every domain with a positive unshadowed target, a slight
-darkening at shadow edges (bounded in ``tests/techniques/test_restir.py``). On dynamic frames the previous
+Bias: none with ``combine='mis'`` or ``'1/z'`` and ``visibility_reuse='unbiased'`` or ``'none'`` on static
+frames (``tests/techniques/test_restir.py``: per region on ``living-room-sky``, per pixel on the Cornell box).
+``'candidate'`` and ``'final'`` are biased but consistent, as in Bitterli et al.'s Alg. 5: a sample's
+visibility at its own pixel decides its reuse while the MIS weights count every domain with a positive
+unshadowed target, a darkening wherever a neighbour or the previous pixel cannot see the light (20-64 % per
+image block in a room lit through a window, docs/techniques/restir-pt.md). On dynamic frames the previous
 pixel's target is evaluated with today's lights and a reused ``W`` may belong to a light that moved (both
 documented in :mod:`dyngi.techniques.restir`).
 """
@@ -84,10 +98,13 @@ PARAM_SPECS = {
     "radius": dict(default=30.0, doc="spatial reuse radius in pixels of a 1920-pixel-wide image (Bitterli "
                    "et al.: 30 px at 1080p), scaled with the image width (at least MIN_RADIUS_PX)",
                    min=1.0, max=1e5),
-    "visibility_reuse": dict(default="none", doc="visibility in the reservoirs (Bitterli Alg. 5): 'candidate' "
-                             "a shadow ray to the initial candidate before reuse (W = 0 if occluded), 'final' "
-                             "the final shadow ray's visibility written back into the stored reservoir, 'none' (the default: in a room "
-                             "lit through windows 'candidate' left the image 12-17% dark, docs/techniques/ddgi-resampling.md)",
+    "visibility_reuse": dict(default="none", doc="visibility in the reservoirs: 'unbiased' (unbiased: the reuse's "
+                             "MIS weights over p_hat_j V_j of the final sample, one shadow ray per other domain), "
+                             "'candidate' (biased, Bitterli Alg. 5: a shadow ray to the initial candidate before "
+                             "reuse, W = 0 if occluded), 'final' (biased: the final shadow ray's visibility written "
+                             "back into the stored reservoir), 'none' (unbiased, no visibility: the component's "
+                             "default, bit-identical for its users; restir-pt's is 'unbiased', "
+                             "docs/techniques/restir-pt.md)",
                              choices=VISIBILITY_REUSE),
     "combine": dict(default="mis", doc="reservoir combination: unbiased 'mis' or '1/z', or 'biased'",
                     choices=COMBINE_MODES),

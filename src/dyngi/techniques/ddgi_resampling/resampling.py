@@ -119,7 +119,9 @@ def _resampling_params():
     out["visibility_reuse"] = Param("candidate", "visibility in the unified reservoir (Bitterli Alg. 5): 'candidate' a "
                                     "shadow ray to the initial emitter candidate before reuse (W = 0 if occluded), "
                                     "'final' the final shadow ray's visibility written back into the stored "
-                                    "reservoir, 'none'", choices=VISIBILITY_REUSE)
+                                    "reservoir, 'none' (the component's 'unbiased' is not implemented for the "
+                                    "unified reservoir yet)",
+                                    choices=tuple(v for v in VISIBILITY_REUSE if v != "unbiased"))
     out.update({
         "gmax": Param(1.0, "bound G_max of the resampled geometry term cos_y/r^2 (Eq. 9), in the units "
                       "gmax_scale sets; 0: all probe light by the BSDF sample", min=0.0, max=1e9),
