@@ -507,3 +507,16 @@ def test_emitter_scales(backend, tmp_path, env):
     w = render(mi.load_file(_write(tmp_path, "w.xml", xml({}, 1.0))))
     assert np.abs(a - e).mean() <= 1e-4 * e.mean(), (np.abs(a - e).mean(), e.mean())
     assert np.abs(a - w).mean() >= 0.1 * e.mean()
+
+
+def test_steady_frames_compile_nothing(animated):
+    """Animated values reach the kernels as data, not literals: after the first frames, frames at new times
+    (every track of the sidecar changing: mesh, sphere, sun, sky) launch only kernels launched before."""
+    from helpers import assert_steady_state_compiles_nothing
+
+    sc, _ = animated
+
+    def step(f):
+        _ours(sc, 0.1 + 0.3 * f, (8, 6), 1, f)     # the sky steps at t = 1
+
+    assert_steady_state_compiles_nothing(step, frames=6, warmup=2, nonempty=True)
