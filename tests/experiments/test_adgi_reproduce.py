@@ -72,7 +72,8 @@ def test_budgeted_adgi_spends_its_ratio_of_qddgi_rays_from_frame_0(rep, ratio):
 MICRO = {"res": (16, 12), "dt": 1.0, "hold": 2, "ref_spp": 4, "static_frames": 3,
          "reference": {"texels": 4, "rays_per_texel": 1},
          "params": {"probe_counts": "3,3,6", "warmup": 1, "warmup_rays": 16, "static_chains": 256,
-                    "dynamic_chains": 64}, "atrium_seeds": (0, 1)}
+                    "dynamic_chains": 64}, "atrium_seeds": (0, 1),
+         "cost": {"res": (16, 12), "frames": 2, "counts": "8,6,16", "frames_large": 2, "ref_spp": 4}}
 
 
 @pytest.mark.slow
@@ -106,3 +107,21 @@ def test_reproduce_adgi_micro_run(rep, tmp_path, monkeypatch):
     rec = pj["tunnel"]["figures"]
     assert set(rec) == {"adgi", "adgi@equal-rays", "qddgi", "qddgi+drop", "probes-reference"}
     assert all(np.isfinite(v["steady_relmse"]) for v in rec.values())
+
+
+@pytest.mark.slow
+def test_cost_claims_are_decided_by_the_claim_machinery(rep):
+    """Table 4's cost claims (:func:`~dyngi.experiments.reproductions.adgi.claims_table4`) on a micro scale,
+    quick: both are decided by :func:`~dyngi.experiments.claims.result_from_values` from the interleaved runs
+    (probe work of every frame, ADGI at Q-DDGI's rays), say ``undecided (quick)``, name the large grid's
+    missing scale, and report ADGI's rays (at most its budget) and, on the tunnel, its MSE over Q-DDGI's."""
+    out = rep.claims_table4({"cost": MICRO["cost"]}, quick=True)
+    assert [r.claim.key for r in out] == ["adgi.table4.cost-tunnel", "adgi.table4.cost-large"]
+    for r in out:
+        assert r.verdict.word == "undecided (quick)"
+        base = r.measurements["baseline"]
+        assert len(base) == 3 and all(np.isfinite(m.value) and m.value > 0 for m in base.values())
+        rays = [c for c in r.verdict.conditions if c.startswith("default: rays over Q-DDGI's")]
+        assert rays and float(rays[0].split("Q-DDGI's ")[1].split("x")[0]) <= 1.05
+    assert any("probe count 768 < 98304" in c for c in out[1].verdict.conditions)
+    assert any("mean MSE over Q-DDGI's" in c for c in out[0].verdict.conditions)

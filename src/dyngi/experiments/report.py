@@ -178,7 +178,24 @@ def summary_md(scene, techniques, specs, summary, ctx, names, title: str | None 
     for t in techniques:
         st = ", ".join(f"{k} {v:.1f}" for k, v in summary[t]["stage_ms"].items())
         lines.append(f"* **{t}**: {st}")
+    work = {t: probe_work_ms(summary[t]["stage_ms"]) for t in techniques}
+    if sum(v is not None for v in work.values()) >= 1:
+        lines += ["", "| technique | total probe work (ms per frame: every stage but primary shading) |", "|---|---|"]
+        lines += [f"| {t} | {v:.1f} |" for t, v in work.items() if v is not None]
     return "\n".join(lines) + "\n"
+
+
+PRIMARY_STAGES = ("primary",)
+"""The stages of a probe technique's frame that shade the image (the deferred pass); every other stage is probe
+work (ADGI's P + S + D and its merges, Q-DDGI's trace, shade, blend and states, a warm-up)."""
+
+
+def probe_work_ms(stage_ms: dict) -> float | None:
+    """A probe technique's probe work in ms: the sum of its stages but primary shading (ADGI's Table 4 "probe
+    sampling" against Q-DDGI's); None for a technique without a primary stage (no probe volume)."""
+    if not any(k in stage_ms for k in PRIMARY_STAGES):
+        return None
+    return float(sum(v for k, v in stage_ms.items() if k not in PRIMARY_STAGES))
 
 
 def verdict(techniques, summary, names) -> str:
