@@ -40,13 +40,15 @@ class Vertex:
 
 @dataclass
 class DirSample:
-    """A sampled direction: ``wo`` (world), ``weight`` = f cos / pdf, ``pdf`` (solid angle), ``delta``, ``ok``."""
+    """A sampled direction: ``wo`` (world), ``weight`` = f cos / pdf, ``pdf`` (solid angle), ``delta``, ``ok``,
+    ``node`` (where a guide located ``wo`` while sampling: its record reuses it)."""
 
     wo: Any
     weight: Any
     pdf: Any
     delta: Any
     ok: Any
+    node: Any = None       # a learned distribution's cell of ``wo`` (the CDQ's quadtree leaf node), else None
 
 
 class DirectionSampler(Protocol):

@@ -428,16 +428,16 @@ def select0(words, r, bits: int):
 
 
 @dr.syntax
-def locate(words, x, y):
+def locate(words, x, y, active=True):
     """Top-down traversal: the leaf node containing unit-square point (x, y) and its bounds.
 
-    Returns (node, origin x, origin y, side)."""
+    Returns (node, origin x, origin y, side); lanes outside ``active`` do not walk (node 0, side 1)."""
     node = _u32(0)
     ob = _u32(0)
     ox = dr.zeros(mi.Float, dr.width(x))
     oy = dr.zeros(mi.Float, dr.width(x))
     s = dr.ones(mi.Float, dr.width(x))
-    go = dr.ones(mi.Bool, dr.width(x))
+    go = dr.full(mi.Bool, True, dr.width(x)) & mi.Bool(active)
     depth = _u32(0)
     while go:
         s = s * 0.5
@@ -485,26 +485,28 @@ def to_unit_square(d):
     return (dr.clip(dr.fma(p.x, 0.5, 0.5), 0.0, _ONE_MINUS), dr.clip(dr.fma(p.y, 0.5, 0.5), 0.0, _ONE_MINUS))
 
 
-def sample_field(words, bits: int, u2):
-    """Leaf-uniform sampling of one field per lane: (unit direction, solid-angle pdf)."""
+def sample_field(words, bits: int, u2, active=None, with_node: bool = False):
+    """Leaf-uniform sampling of one field per lane: (unit direction, solid-angle pdf[, leaf node]).
+    ``active``: lanes outside it do not walk up the tree (their result is unused)."""
     n = leaf_count(bits)
     t = u2.x * n
     i = dr.minimum(mi.UInt32(t), n - 1)
     ux = dr.clip(t - mi.Float(i), 0.0, _ONE_MINUS)   # reuse of u.x (our choice, see docstring)
     node = select0(words, i, bits) + 1
-    ox, oy, s = leaf_bounds(words, node)
+    ox, oy, s = leaf_bounds(words, node if active is None else dr.select(mi.Bool(active), node, 0))
     px = dr.fma(ux, s, ox)
     py = dr.fma(dr.clip(u2.y, 0.0, _ONE_MINUS), s, oy)
     d = oct_decode(mi.Point2f(dr.fma(px, 2.0, -1.0), dr.fma(py, 2.0, -1.0)))
     pdf = solid_angle_factor(d) / (s * s * n)
-    return d, pdf
+    return (d, pdf, node) if with_node else (d, pdf)
 
 
-def pdf_field(words, bits: int, d):
-    """Solid-angle pdf of direction ``d`` under the field (Sec. 5.2)."""
+def pdf_field(words, bits: int, d, active=True, with_node: bool = False):
+    """Solid-angle pdf of direction ``d`` under the field (Sec. 5.2)[, and its leaf node]."""
     x, y = to_unit_square(d)
-    _, _, _, s = locate(words, x, y)
-    return solid_angle_factor(d) / (s * s * leaf_count(bits))
+    node, _, _, s = locate(words, x, y, active)
+    pdf = solid_angle_factor(d) / (s * s * leaf_count(bits))
+    return (pdf, node) if with_node else pdf
 
 
 # -- device migration (Sec. 5.1, Fig. 4) on 4-word fields ------------------------------------------
@@ -803,12 +805,35 @@ class CDQDirections:
     def pdf(self, leaf, wo, active=True):
         return dr.select(mi.Bool(active), pdf_field(self._words(leaf, active), self.bits, wo), 0.0)
 
-    def record(self, leaf, wo, contribution, active=True) -> None:
-        """Indirect samples of this frame (direction + luminance contribution), NEE excluded."""
+    def sample_located(self, leaf, u2, take, other, wo_other):
+        """One walk per lane for the mixture (Sec. 5.2): lanes ``take`` draw a direction from the leaf's
+        quadtree (bottom up) and keep its pdf and leaf node; lanes ``other`` locate ``wo_other`` (top down)
+        for its pdf and node. Returns (direction, pdf, node) per lane (``wo_other``, 0, INVALID elsewhere). The
+        node is the one :meth:`record` would locate for the direction (up to float32 rounding on a leaf's
+        border), so the record reuses it instead of walking again."""
+        take, other = mi.Bool(take), mi.Bool(other) & ~mi.Bool(take)
+        words = self._words(leaf, take | other)
+        d_t, p_t, n_t = sample_field(words, self.bits, u2, take, with_node=True)
+        wo = dr.select(take, d_t, wo_other)
+        p_o, n_o = pdf_field(words, self.bits, wo, other, with_node=True)
+        pdf = dr.select(take, p_t, dr.select(other, p_o, 0.0))
+        node = dr.select(take, n_t, dr.select(other, n_o, mi.UInt32(INVALID)))
+        return wo, pdf, node
+
+    def record(self, leaf, wo, contribution, active=True, node=None) -> None:
+        """Indirect samples of this frame (direction + luminance contribution), NEE excluded. ``node``: the
+        direction's quadtree leaf node where the caller located it already (:meth:`sample_located`; INVALID
+        lanes are located here)."""
         ok = mi.Bool(active) & (leaf < self._rows_dev) & dr.isfinite(contribution)
-        words = self._words(leaf, ok)
         x, y = to_unit_square(wo)
-        node, _, _, _ = locate(words, x, y)
+        if node is None:
+            words = self._words(leaf, ok)
+            node, _, _, _ = locate(words, x, y)
+        else:
+            node = mi.UInt32(node)
+            need = ok & (node == INVALID)
+            words = self._words(leaf, need)
+            node = dr.select(need, locate(words, x, y, need)[0], node)
         c = dr.maximum(mi.Float(contribution), 0.0)
         c2 = c * c
         slot = leaf * (self.bits + 1) + node
@@ -912,6 +937,10 @@ class CDQComponent:
     def sample(self, v: Vertex, u2, active):
         wo, _ = self.guide.sample(v.leaf, u2, active)
         return wo
+
+    def sample_located(self, v: Vertex, u2, take, other, wo_other):
+        """(direction, CDQ pdf, quadtree node) in one walk per lane (:meth:`CDQDirections.sample_located`)."""
+        return self.guide.sample_located(v.leaf, u2, take, other, wo_other)
 
     def pdf(self, v: Vertex, wo, active):
         return self.guide.pdf(v.leaf, wo, active)

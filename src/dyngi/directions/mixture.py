@@ -33,17 +33,21 @@ class MixtureDirections:
         return dr.select(use, self.fraction * pc + (1.0 - self.fraction) * pb, pb)
 
     def sample(self, v: Vertex, u_sel, u1, u2, active) -> DirSample:
+        """One CDQ walk per lane (Sec. 5.2): a CDQ-drawn direction keeps the pdf and the quadtree node of its
+        draw (bottom up), a BSDF-drawn one is located once (top down); the node goes with the sample
+        (``DirSample.node``) so that the CDQ's record does not walk again."""
         use = self.guide.usable(v)
         b = self.base.sample(v, u_sel, u1, u2, active)
         take = use & (u_sel < self.fraction)
-        wo_c = self.guide.sample(v, u2, take)
-        wo = dr.select(take, wo_c, b.wo)
-        p_mix = self.pdf(v, wo, active)
+        wo, pc, node = self.guide.sample_located(v, u2, take, mi.Bool(active) & use, b.wo)
+        pb = self.base.pdf(v, wo, active)
+        p_mix = dr.select(use, self.fraction * pc + (1.0 - self.fraction) * pb, pb)
         f = self.base.f(v, wo, active & ~b.delta)
         w_mix = dr.select(p_mix > 0.0, f / p_mix, 0.0)
         mixed = use & ~b.delta
         return DirSample(wo, mi.Color3f(dr.select(mixed, w_mix, b.weight)), dr.select(mixed, p_mix, b.pdf),
-                         b.delta & ~take, dr.select(take, active & (p_mix > 0.0), b.ok))
+                         b.delta & ~take, dr.select(take, active & (p_mix > 0.0), b.ok),
+                         dr.select(use, node, mi.UInt32(0xFFFFFFFF)))
 
 
 register("cdq", MixtureDirections, "the CDQ (VLC paper Sec. 5) mixed 50/50 with the BSDF by one-sample MIS")

@@ -224,8 +224,11 @@ class WalkDirections:
         for d in range(last - 1, -1, -1):
             x = self.vx[d]
             val = x["d"].weight * inner
-            recs.append((x["leaf"], x["d"].wo, luminance(val), x["d"].ok))
+            node = x["d"].node     # located while sampling, in the sampling leaf: reused where it records too
+            if node is not None:
+                node = dr.select(x["leaf"] == x["v"].leaf, mi.UInt32(node), mi.UInt32(0xFFFFFFFF))
+            recs.append((x["leaf"], x["d"].wo, luminance(val), x["d"].ok, node))
             if d > 0:
                 inner = self.env[d] + x["L_nee"] + val
-        for leaf, wo, lum, ok in reversed(recs):
-            self.cdq.record(leaf, wo, lum, ok)
+        for leaf, wo, lum, ok, node in reversed(recs):
+            self.cdq.record(leaf, wo, lum, ok, node=node)
