@@ -41,20 +41,24 @@ def _stacks(name, max_depth, K=12, frames=16, ref_factor=16, **params):
     return a, b
 
 
-@pytest.mark.parametrize("name,max_depth,combine,K,frames", [
-    pytest.param("cornell-static", 5, "mis", 16, 32, marks=pytest.mark.slow),   # CI budget: ~20 s cold
-    pytest.param("cornell-static", 2, "1/z", 16, 32, marks=pytest.mark.slow),
-    pytest.param("warehouse-lights", 2, "mis", 12, 16, marks=pytest.mark.slow),
+@pytest.mark.parametrize("name,max_depth,combine,K,frames,visibility_reuse", [
+    pytest.param("cornell-static", 5, "mis", 16, 32, "none", marks=pytest.mark.slow),   # CI budget: ~20 s cold
+    pytest.param("cornell-static", 2, "1/z", 16, 32, "none", marks=pytest.mark.slow),
+    pytest.param("cornell-static", 2, "mis", 16, 32, "unbiased", marks=pytest.mark.slow),
+    pytest.param("cornell-static", 2, "1/z", 16, 32, "unbiased", marks=pytest.mark.slow),
+    pytest.param("warehouse-lights", 2, "mis", 12, 16, "none", marks=pytest.mark.slow),
+    pytest.param("warehouse-lights", 2, "mis", 12, 16, "unbiased", marks=pytest.mark.slow),
     # area + point lights (delta positions enter the reservoirs as point masses)
-    pytest.param("maze", 2, "mis", 12, 16, marks=pytest.mark.slow)])
-def test_unbiased_modes_agree_with_mitsuba_path(backend, name, max_depth, combine, K, frames):
+    pytest.param("maze", 2, "mis", 12, 16, "none", marks=pytest.mark.slow)])
+def test_unbiased_modes_agree_with_mitsuba_path(backend, name, max_depth, combine, K, frames, visibility_reuse):
     """Per-pixel z-test (Sidak), rejection count and image-mean test against Mitsuba's `path` with the
     same max_depth, after accumulating ``frames`` frames (temporal + spatial reuse on: correlated frames,
-    but independent runs), with no visibility in the reservoirs (the unbiased option; the default's
-    bias is bounded by :func:`test_visibility_reuse_bias_is_bounded`). The Cornell light's edge pixels
+    but independent runs), for each visibility option that claims to be unbiased, pinned ('none': no
+    visibility in the reservoirs; 'unbiased', the default: visibility in the MIS weights; the biased
+    'candidate' is bounded by :func:`test_visibility_reuse_bias_is_bounded`). The Cornell light's edge pixels
     (a 17x brighter emitter under the jittered pixel) are Bernoulli-like: 32 frames keep their mean close
     enough to normal for the t-test."""
-    a, b = _stacks(name, max_depth, K=K, frames=frames, combine=combine, visibility_reuse="none")
+    a, b = _stacks(name, max_depth, K=K, frames=frames, combine=combine, visibility_reuse=visibility_reuse)
     ok, info = z_test_images(*_without_rare_event_pixels(a, b))
     assert ok, info
 
@@ -105,13 +109,13 @@ def test_biased_combination_is_measurably_biased_and_bounded(backend):
 
 @pytest.mark.slow
 def test_visibility_reuse_bias_is_bounded(backend):
-    """Visibility in the reservoirs (Bitterli Alg. 5; the default ``visibility_reuse='candidate'``) is
+    """Visibility in the reservoirs (Bitterli Alg. 5, ``visibility_reuse='candidate'``, pinned) is
     biased but consistent: a sample's visibility at its own pixel decides whether it is reused, but the
     unbiased MIS weights count every domain whose unshadowed target is positive, so near shadow edges a
     neighbour that cannot see the sample still dilutes it (a darkening). On the Cornell box, direct light, 16 runs x 32 frames:
     the image mean stays within [-3 %, +1 %] of Mitsuba's and the per-pixel test rejects under 15 % of
     the pixels (figures: docs/techniques/ddgi-resampling.md)."""
-    a, b = _stacks("cornell-static", 2, K=16, frames=32)      # the default: visibility_reuse='candidate'
+    a, b = _stacks("cornell-static", 2, K=16, frames=32, visibility_reuse="candidate")
     rel = (a.mean() - b.mean()) / b.mean()
     assert -0.03 < rel < 0.01, rel
     ok, info = z_test_images(*_without_rare_event_pixels(a, b))

@@ -29,7 +29,13 @@ occluded light sample. ``'final'``: the final shadow ray's visibility is written
 reservoir instead (no extra ray, occluded samples are not reused next frame); ``'none'``: neither.
 Either way the estimate at the pixel itself stays unbiased (the shading multiplies by the same
 visibility); reuse then spreads visibility-weighted samples, a darkening bias at shadow edges that
-``tests/techniques/test_restir.py`` bounds for the shared component.
+``tests/techniques/test_restir.py`` bounds for the shared component. ``'unbiased'`` (**unbiased**; Bitterli
+et al.'s unbiased variant, the component's option): the candidate's shadow ray of ``'candidate'``, and the
+temporal and spatial MIS weights over ``p_hat_j(y) V_j(y)`` of the final sample of either part at each
+domain (this pixel, each neighbour, the previous pixel; :meth:`_visible_sample`: a ray to the emitter
+sample, or to the point ``y`` of a probe sample), one shadow ray per domain other than the sample's own
+(every stored reservoir holds a sample visible from its pixel, or ``W = 0``); it subsumes
+``reuse_visibility`` (ignored with it), whose rays it traces only for the final sample.
 
 Visibility of reused probe samples (``reuse_visibility``, default off): a BSDF candidate exists only
 where the point is the first hit from its pixel, so strictly a domain's target for a part-1 sample
@@ -119,9 +125,10 @@ def _resampling_params():
     out["visibility_reuse"] = Param("candidate", "visibility in the unified reservoir (Bitterli Alg. 5): 'candidate' a "
                                     "shadow ray to the initial emitter candidate before reuse (W = 0 if occluded), "
                                     "'final' the final shadow ray's visibility written back into the stored "
-                                    "reservoir, 'none' (the component's 'unbiased' is not implemented for the "
-                                    "unified reservoir yet)",
-                                    choices=tuple(v for v in VISIBILITY_REUSE if v != "unbiased"))
+                                    "reservoir, 'none' (all three biased here: the MIS weights ignore visibility), "
+                                    "'unbiased' (the reuse's MIS weights over p_hat_j V_j of the final sample of "
+                                    "either part, one shadow ray per other domain; subsumes reuse_visibility)",
+                                    choices=VISIBILITY_REUSE)
     out.update({
         "gmax": Param(1.0, "bound G_max of the resampled geometry term cos_y/r^2 (Eq. 9), in the units "
                       "gmax_scale sets; 0: all probe light by the BSDF sample", min=0.0, max=1e9),
@@ -163,6 +170,7 @@ class DDGIResamplingTechnique(SecondaryShading):
         self.prev_eps = 0.0
         self._vis_rays = []
         p = self.params
+        self._unbiased = p["visibility_reuse"] == "unbiased"
         self.cvnr = NearestRayCV(self.vol) if p["control_variate"] and p["cv_kind"] == "nearest-ray" else None
 
     # -- G_max (Sec. 3.6) ---------------------------------------------------------------------------
@@ -185,6 +193,35 @@ class DDGIResamplingTechnique(SecondaryShading):
         ray = mi.Ray3f(o, d / dr.maximum(dist, 1e-30))
         ray.maxt = dist * (1.0 - SAME_POINT_TOL)
         return mi.Bool(active) & ~occluded(self.scene.mi_scene, ray, active, stage="spatial")
+
+    def _visible_sample(self, pos, ng, sample, time, active, stage):
+        """``visibility_reuse='unbiased'``: is the unified reservoir's ``sample`` (either part) visible from
+        the surface point ``pos`` (geometric normal ``ng``)? One shadow ray per ``active`` lane: to the
+        emitter sample (part 0; along its direction for lights at infinity) or to the point ``y`` (part 1).
+        Returns (visible, lanes that traced a ray)."""
+        part, k, pl, y, ny, Ly = sample
+        active = mi.Bool(active)
+        p0 = active & (part == 0)
+        tgt = mi.Point3f(y)
+        fin = mi.Bool(True)
+        d_inf = mi.Vector3f(0.0)
+        if self.cand.count:
+            ev = self.cand.evaluate(pos, k, pl, time, p0)
+            p0 &= ev.valid
+            tgt = dr.select(p0, ev.p_light, tgt)
+            fin = ~p0 | dr.isfinite(ev.dist)
+            d_inf = ev.wi
+        else:
+            p0 = mi.Bool(False) & active
+        lanes = p0 | (active & (part == 1))
+        d = dr.select(fin, tgt - pos, d_inf)
+        side = dr.select(dr.dot(ng, d) >= 0.0, 1.0, -1.0)
+        o = pos + ng * (side * 1e-4 * (1.0 + dr.max(dr.abs(pos))))
+        d = dr.select(fin, tgt - o, d_inf)
+        dist = dr.norm(d)
+        ray = mi.Ray3f(o, d / dr.maximum(dist, 1e-30))
+        ray.maxt = dr.select(fin, dist * (1.0 - SAME_POINT_TOL), dr.inf)
+        return lanes & ~occluded(self.scene.mi_scene, ray, lanes, stage=stage), lanes
 
     def _bsdf_factor(self, sid, w, active):
         """``lum(f_r(x, w) cos)`` at the domain's primary vertex ``sid`` (a surface interaction whose ``wi``
@@ -238,7 +275,7 @@ class DDGIResamplingTechnique(SecondaryShading):
             val = dr.abs(mi.luminance(Ly) - gl) + eps
         ph1 = val * cx * dr.minimum(J, gmax)
         ok1 = p1 & (r2 > 0.0) & dr.isfinite(ph1) & (ph1 > 0.0)
-        if ng is not None and self.params["reuse_visibility"]:
+        if ng is not None and self.params["reuse_visibility"] and not self._unbiased:
             ok1 = self._visible(pos, ng, y, ok1)
             self._vis_rays.append(dr.count(ok1))
         return dr.select(ok1, ph1, dr.select(p1, 0.0, ph))
@@ -331,7 +368,7 @@ class DDGIResamplingTechnique(SecondaryShading):
             if M_e:
                 k, pl, w_sum_e, ph_e = initial_candidates(self.cand, si, n, two, smooth, sampler, M_e, time,
                                                           self._emitter_target(si))
-                if self.restir.visibility_reuse == "candidate":
+                if self.restir.visibility_reuse in ("candidate", "unbiased"):
                     # Alg. 5: the emitter part's chosen candidate is shadow-tested before it meets the BSDF
                     # candidate and before reuse; an occluded one weighs 0, so the BSDF candidate is kept
                     vis_e, traced_e = self.restir.candidate_visibility(gb, (k, pl), smooth & (w_sum_e > 0.0), time)
@@ -377,7 +414,19 @@ class DDGIResamplingTechnique(SecondaryShading):
                 psi = self._gather_si(prev.si, pix, ok)
                 return self._target(ppos, pn, ptwo, pg, sample, time, ok, pcv, self.prev_eps, png, psi)
 
-            self.restir.temporal_reuse(r, gb, pv.reproj, smooth, sampler, M, here, there_prev)
+            def vis_here(sample, ok):
+                v, traced = self._visible_sample(gb.pos, gb.n_geo, sample, time, ok, "temporal")
+                t.add_rays("temporal", dr.count(traced))
+                return v
+
+            def vis_prev(prev, pix, sample, ok):
+                v, traced = self._visible_sample(dr.gather(mi.Point3f, prev.pos, pix, ok),
+                                                 dr.gather(mi.Vector3f, prev.n_geo, pix, ok), sample, time, ok,
+                                                 "temporal")
+                t.add_rays("temporal", dr.count(traced))
+                return v
+
+            self.restir.temporal_reuse(r, gb, pv.reproj, smooth, sampler, M, here, there_prev, vis_here, vis_prev)
 
         # -- spatial reuse --
         with t.stage("spatial"):
@@ -392,7 +441,8 @@ class DDGIResamplingTechnique(SecondaryShading):
             direct = mi.Color3f(0.0)
             shadow_lanes = occluded = mi.Bool(False)
             if self.cand.count:
-                direct, shadow_lanes, occluded = self.restir.shade(gb, bsdf, (k, pl), r.W, p0, time)
+                direct, shadow_lanes, occluded = self.restir.shade(gb, bsdf, (k, pl), r.W, p0, time,
+                                                                   known_visible=self._unbiased)
             dz = yz - gb.pos
             rz = dr.norm(dz)
             wz = dz / dr.maximum(rz, 1e-30)
@@ -468,5 +518,16 @@ class DDGIResamplingTechnique(SecondaryShading):
             npos, nn, ntwo, ngmax, ng, nng, nsi = dom
             return self._target(npos, nn, ntwo, ngmax, sample, time, ok, ng, eps, nng, nsi)
 
-        return self.restir.spatial_reuse(gb, r_t, active, sampler, here, domain, there)
+        def vis_here(sample, ok):
+            v, traced = self._visible_sample(gb.pos, gb.n_geo, sample, time, ok, "spatial")
+            self._vis_rays.append(dr.count(traced))
+            return v
+
+        def vis_there(nid, sample, ok):
+            v, traced = self._visible_sample(dr.gather(mi.Point3f, gb.pos, nid, ok),
+                                             dr.gather(mi.Vector3f, gb.n_geo, nid, ok), sample, time, ok, "spatial")
+            self._vis_rays.append(dr.count(traced))
+            return v
+
+        return self.restir.spatial_reuse(gb, r_t, active, sampler, here, domain, there, vis_here, vis_there)
 
