@@ -13,7 +13,14 @@ one-line summary at the end::
         [--equal-rays] [--adgi K=V,...] [--qddgi K=V,...]
 
 ``--equal-rays``: ADGI's ray budget is Q-DDGI's rays of the same frame (Q-DDGI steps first); without it
-each runs at its defaults (the paper's protocol). ``--adgi`` / ``--qddgi``: extra ``key=value,...``
+each runs at its defaults (the paper's protocol).
+
+``--scaling 8,6,24:16,12,48:24,18,96:32,24,136`` (the scaling curve, ADGI's Sec. 7 claim): ADGI and Q-DDGI at
+each grid (1,152 to 104,448 probes), all eight stepped round-robin in one process
+(:func:`dyngi.experiments.runner.run_round_robin`, each at its defaults), every frame timed; per technique and
+grid the probe work per frame (:func:`dyngi.experiments.report.probe_work_ms`: every stage but primary
+shading), median over the frames after ``--skip`` and the mean over all frames; a markdown table and
+``scaling.png`` (:func:`dyngi.experiments.report.scaling_plot`) under ``--out``. ``--adgi`` / ``--qddgi``: extra ``key=value,...``
 settings (e.g. ``--adgi impl=device``). At the defaults it takes about a minute on the shared 2-core box
 at load 2-4 with a warm kernel cache (the first frame of each, with the warm-up, 5-25 s; the others
 0.4-1 s). Results go to docs/techniques/adgi.md with the machine load.
@@ -45,7 +52,11 @@ def main(argv=None) -> dict:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--equal-rays", action="store_true",
                     help="adgi gets qddgi's rays of the same frame as its budget (qddgi steps first)")
+    ap.add_argument("--scaling", default="", help="grids 'nx,ny,nz:nx,ny,nz:...': the scaling curve (docstring)")
+    ap.add_argument("--out", default="out/adgi_scaling", help="--scaling: where the table and plot go")
     a = ap.parse_args(argv)
+    if a.scaling:
+        return scaling(a)
 
     from dyngi.scene import load_scene
     from dyngi.techniques.base import Frame, create_technique
@@ -92,6 +103,64 @@ def main(argv=None) -> dict:
           f"{med['qddgi']:.1f} ms ({statistics.median(rays['qddgi']):.0f} rays/frame), adgi/qddgi = {ratio:.2f} "
           f"(target <= 0.5); load after: {after.split('load average:')[-1].strip()}")
     return {"median_ms": med, "ratio": ratio, "probes": n_probes}
+
+
+def scaling(a) -> dict:
+    """``--scaling``: ADGI and Q-DDGI at every grid, stepped round-robin in one process (module docstring)."""
+    import os
+
+    import numpy as np
+
+    from dyngi.experiments.report import probe_work_ms, scaling_plot
+    from dyngi.experiments.runner import run_round_robin
+    from dyngi.scene import load_scene
+    from dyngi.techniques.base import create_technique
+
+    res = tuple(int(x) for x in a.res.split("x"))
+    grids = [g.strip() for g in a.scaling.split(":") if g.strip()]
+    print("uptime before:", uptime(), flush=True)
+    sc = load_scene("tunnel-gate")
+    techs, meta = {}, {}
+    for g in grids:
+        for name, extra in (("adgi", a.adgi), ("qddgi", a.qddgi)):
+            lb = f"{name}@{g}"
+            techs[lb] = create_technique(name, sc, {"probe_counts": g, **parse_settings(extra)})
+            meta[lb] = (name, techs[lb].volume.n_probes)
+    outs, errors = run_round_robin(sc, techs, a.frames, res, seed=a.seed, t0=a.t0)
+    after = uptime()
+    rows = []
+    for lb, seq in outs.items():
+        if lb in errors:
+            print(f"{lb}: failed: {errors[lb]}")
+            continue
+        work = [probe_work_ms(st["ms"]) or 0.0 for st in seq.stats]
+        steady = work[a.skip:] or work
+        name, n = meta[lb]
+        rows.append({"technique": name, "probes": n, "grid": lb.split("@")[1], "probe_ms": statistics.median(steady),
+                     "probe_ms_lo": float(np.min(steady)), "probe_ms_hi": float(np.max(steady)),
+                     "mean_all_frames": float(np.mean(work)),
+                     "rays": statistics.median([st.get("counted_rays", 0) for st in seq.stats[a.skip:] or seq.stats])})
+    lines = [f"tunnel-gate, {a.res}, frames {a.skip}-{a.frames - 1} (median) and all frames (mean), round-robin in "
+             f"one process, each at its defaults; load before/after: {after.split('load average:')[-1].strip()}", "",
+             "| probes | grid | adgi probe work ms (median [min-max]) | qddgi probe work ms | adgi / qddgi | "
+             "mean over all frames, adgi / qddgi | rays per frame adgi / qddgi |", "|---|---|---|---|---|---|---|"]
+    for g in grids:
+        ad = next((r for r in rows if r["grid"] == g and r["technique"] == "adgi"), None)
+        qd = next((r for r in rows if r["grid"] == g and r["technique"] == "qddgi"), None)
+        if ad is None or qd is None:
+            continue
+        lines.append(f"| {ad['probes']} | {g} | {ad['probe_ms']:.1f} [{ad['probe_ms_lo']:.1f}-{ad['probe_ms_hi']:.1f}] | "
+                     f"{qd['probe_ms']:.1f} [{qd['probe_ms_lo']:.1f}-{qd['probe_ms_hi']:.1f}] | "
+                     f"{ad['probe_ms'] / max(qd['probe_ms'], 1e-9):.2f} | "
+                     f"{ad['mean_all_frames']:.0f} / {qd['mean_all_frames']:.0f} | {ad['rays']:.0f} / {qd['rays']:.0f} |")
+    os.makedirs(a.out, exist_ok=True)
+    table = "\n".join(lines)
+    open(os.path.join(a.out, "scaling.md"), "w").write(table + "\n")
+    plot = scaling_plot(rows, os.path.join(a.out, "scaling.png"))
+    print(table)
+    print("uptime after:", after)
+    print("plot:", plot)
+    return {"rows": rows, "table": table}
 
 
 if __name__ == "__main__":

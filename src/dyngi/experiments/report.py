@@ -392,3 +392,30 @@ def _report_html(tmp, scene, md, plots, grids, video):
     parts.append("</body></html>")
     with open(os.path.join(tmp, "report.html"), "w") as f:
         f.write("\n".join(parts))
+
+
+def scaling_plot(rows: list, path: str, title: str = "probe work against grid size") -> str:
+    """The scaling curve (ADGI's Table 4 claim, Sec. 7: sampling "decoupled from the number of probes"): per
+    technique, probe-work ms per frame (:func:`probe_work_ms`) against the probe count, log-log. ``rows``:
+    dicts with ``technique``, ``probes``, ``probe_ms`` (and optionally ``probe_ms_lo`` / ``probe_ms_hi``, drawn
+    as a band). Writes ``path`` (PNG) and returns it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.0, 3.6))
+    for t in dict.fromkeys(r["technique"] for r in rows):
+        rr = sorted((r for r in rows if r["technique"] == t), key=lambda r: r["probes"])
+        x = [r["probes"] for r in rr]
+        ax.loglog(x, [r["probe_ms"] for r in rr], marker="o", label=t)
+        if all("probe_ms_lo" in r for r in rr):
+            ax.fill_between(x, [r["probe_ms_lo"] for r in rr], [r["probe_ms_hi"] for r in rr], alpha=0.2)
+    ax.set(xlabel="probes", ylabel="probe work, ms per frame", title=title)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend()
+    fig.tight_layout()
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

@@ -93,7 +93,6 @@ from ...backend import dr, mi
 from ...errors import DyngiError
 from ...probes.arrays import upload
 from ...probes.rays import RayPlan
-from ...probes.pipeline import probes_in_frustum
 from ...sampling.rng import mix_seed
 
 OCTANTS = 8
@@ -133,24 +132,46 @@ def camera_falloff(distance, k: float):
     return np.exp(-np.maximum(d - k, 0.0))
 
 
-def view_distances(volume, camera, res, active=None, out_clip: float = V_OUT_CLIP) -> np.ndarray:
+def view_geometry(volume, camera, res) -> tuple:
+    """One projection of the probes for a frame (host): ``(x, y, z, dist, near)`` -- image-plane coordinates and
+    depth (:meth:`Camera.project <dyngi.scene.camera.Camera.project>`), camera distances, and the probes within
+    one cell diagonal of the camera; :func:`frusta` and :func:`view_distances` share it (one pass over the
+    probes' positions per frame instead of one per clip test)."""
+    pos = volume.positions()
+    x, y, z = camera.project(res, pos)
+    dist = np.linalg.norm(pos - np.asarray(camera.origin, np.float64), axis=1)
+    return x, y, z, dist, dist <= volume.grid.cell_diagonal
+
+
+def _in_clip(geo, margin: float) -> np.ndarray:
+    """:func:`~dyngi.probes.pipeline.probes_in_frustum` from a :func:`view_geometry`: inside the frustum extended
+    to ``|clip xy| <= margin``, or within one cell diagonal of the camera."""
+    x, y, z, _, near = geo
+    with np.errstate(invalid="ignore"):
+        inside = (z > 0) & (np.abs(x) <= margin) & (np.abs(y) <= margin)
+    return inside | near
+
+
+def view_distances(volume, camera, res, active=None, out_clip: float = V_OUT_CLIP, geo=None) -> np.ndarray:
     """Camera distances of the probes inside the ``V_out`` clip frustum (``|clip xy| <= out_clip``, 1.4 in
     Fig. 6b), of the ``active`` ones when given: what Eq. 10's default k is taken from
-    (:meth:`ADGIHeuristics.k_for`)."""
-    inside = probes_in_frustum(volume, camera, res, out_clip)
+    (:meth:`ADGIHeuristics.k_for`). ``geo``: the frame's :func:`view_geometry` (computed when None)."""
+    geo = view_geometry(volume, camera, res) if geo is None else geo
+    inside = _in_clip(geo, out_clip)
     if active is not None:
         inside &= np.asarray(active, bool)
-    return np.linalg.norm(volume.positions()[inside] - np.asarray(camera.origin, np.float64), axis=1)
+    return geo[3][inside]
 
 
-def frusta(volume, camera, res, k: float, cuts: tuple = (V_IN_CLIP, V_IN_FC, V_OUT_CLIP, V_OUT_FC)):
+def frusta(volume, camera, res, k: float, cuts: tuple = (V_IN_CLIP, V_IN_FC, V_OUT_CLIP, V_OUT_FC), geo=None):
     """(f_c (P,) float64, V_in (P,) bool, V_out (P,) bool) of Fig. 6b (host arrays); ``cuts``: ``(in_clip,
-    in_fc, out_clip, out_fc)``, the technique's ``v_in_clip``, ``v_in_fc``, ``v_out_clip``, ``v_out_fc``."""
+    in_fc, out_clip, out_fc)``, the technique's ``v_in_clip``, ``v_in_fc``, ``v_out_clip``, ``v_out_fc``.
+    ``geo``: the frame's :func:`view_geometry` (computed when None)."""
     in_clip, in_fc, out_clip, out_fc = cuts
-    dist = np.linalg.norm(volume.positions() - np.asarray(camera.origin, np.float64), axis=1)
-    fc = camera_falloff(dist, k)
-    v_in = probes_in_frustum(volume, camera, res, in_clip) & (fc >= in_fc)
-    v_out = probes_in_frustum(volume, camera, res, out_clip) & (fc >= out_fc)
+    geo = view_geometry(volume, camera, res) if geo is None else geo
+    fc = camera_falloff(geo[3], k)
+    v_in = _in_clip(geo, in_clip) & (fc >= in_fc)
+    v_out = _in_clip(geo, out_clip) & (fc >= out_fc)
     return fc, v_in, v_out | v_in
 
 

@@ -32,7 +32,8 @@ from ...probes.arrays import upload
 from ...probes.pipeline import ProbePass
 from ...probes.trace import ProbeRayResults, trace_probe_distances
 from ..base import Frame, StageTimer
-from .heuristics import OCTANTS, ADGIHeuristics, frusta, octant_of, pack_heuristics, unpack_heuristics, view_distances
+from .heuristics import (OCTANTS, ADGIHeuristics, frusta, octant_of, pack_heuristics, unpack_heuristics,
+                         view_distances, view_geometry)
 from .planner import ADGIChainPlanner
 
 PILOT_STREAM, STATIC_STREAM, DYNAMIC_STREAM = 41, 43, 45     # random streams of the three traces
@@ -78,12 +79,12 @@ class ADGIPasses:
         """The warm-up's single-pass updates: ``ddgi``'s rotated spherical-Fibonacci set of ``warmup_rays``."""
         return self.warmup.plan(frame, seed, probe_ids, previous, **hints)
 
-    def k_for(self, frame: Frame) -> float:
+    def k_for(self, frame: Frame, geo=None) -> float:
         """Eq. 10's k on ``frame`` (:meth:`.heuristics.ADGIHeuristics.k_for`: the user's, else from the camera
-        distances of the active probes in view)."""
+        distances of the active probes in view); ``geo``: the frame's :func:`.heuristics.view_geometry`."""
         vol = self.volume
         view = None if self.heur.user_k is not None else \
-            view_distances(vol, frame.camera, frame.res, vol.state.states != 0, self.cuts[2])
+            view_distances(vol, frame.camera, frame.res, vol.state.states != 0, self.cuts[2], geo)
         return self.heur.k_for(frame.camera.origin, view)
 
     # -- one frame's passes (MultiPassPlanner) --------------------------------------------------------
@@ -96,10 +97,12 @@ class ADGIPasses:
         # -- ddgi's relocation/classification after the warm-up (the paper is silent; ours) --
         if frame.index > 0 and p["reclassify_interval"] and frame.index % p["reclassify_interval"] == 0 and \
                 (p["relocate"] or p["classify"]):
-            _, _, near = frusta(vol, frame.camera, frame.res, self.k_for(frame), self.cuts)
+            geo = view_geometry(vol, frame.camera, frame.res)
+            _, _, near = frusta(vol, frame.camera, frame.res, self.k_for(frame, geo), self.cuts, geo)
             yield self._states_pass(near | (vol.state.states == 0))
         active = vol.state.states != 0
-        fc, v_in, v_out = frusta(vol, frame.camera, frame.res, self.k_for(frame), self.cuts)
+        geo = view_geometry(vol, frame.camera, frame.res)      # once per frame (the states pass may move probes)
+        fc, v_in, v_out = frusta(vol, frame.camera, frame.res, self.k_for(frame, geo), self.cuts, geo)
         v_in &= active
         v_out &= active
         stats = {}
