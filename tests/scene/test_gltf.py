@@ -683,3 +683,53 @@ def test_reference_key_includes_the_animation(tmp_path):
     assert a.state_hash(0.5) == load_scene(str(path)).state_hash(0.5)
     assert a.state_hash(1.7) != b.state_hash(1.7)
     assert load_scene(str(path), loop=True).state_hash(3.0) != a.state_hash(3.0)     # wrapped vs held
+
+
+# -- accessor layouts and primitive modes ------------------------------------------------------------------
+def test_interleaved_sparse_strip_fan_and_mirrored_nodes(tmp_path):
+    w = Writer()
+    d = w.doc
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], np.float64)
+    N = np.tile([0.0, 0.0, 1.0], (4, 1))
+    # interleaved POSITION + NORMAL in one bufferView with byteStride 24
+    inter = np.concatenate([V, N], 1).astype(np.float32)
+    while len(w.blob) % 4:
+        w.blob.append(0)
+    d["bufferViews"].append({"buffer": 0, "byteOffset": len(w.blob), "byteLength": inter.nbytes, "byteStride": 24})
+    w.blob += inter.tobytes()
+    bv = len(d["bufferViews"]) - 1
+    d["accessors"] += [{"bufferView": bv, "byteOffset": 0, "componentType": FLOAT, "count": 4, "type": "VEC3",
+                        "min": [0, 0, 0], "max": [1, 1, 0]},
+                       {"bufferView": bv, "byteOffset": 12, "componentType": FLOAT, "count": 4, "type": "VEC3"}]
+    pos, nrm = len(d["accessors"]) - 2, len(d["accessors"]) - 1
+    # sparse: the same positions with vertex 3 moved to (2, 2, 0)
+    sp_idx, sp_val = w.acc(np.array([3], np.uint32), "SCALAR", UINT32), w.acc([[2.0, 2.0, 0.0]], "VEC3")
+    sparse = dict(d["accessors"][pos])
+    sparse["sparse"] = {"count": 1, "indices": {"bufferView": d["accessors"][sp_idx]["bufferView"],
+                                                 "componentType": UINT32},
+                        "values": {"bufferView": d["accessors"][sp_val]["bufferView"]}}
+    d["accessors"].append(sparse)
+    sp = len(d["accessors"]) - 1
+    strip = w.acc(np.array([0, 1, 2, 3], np.uint32), "SCALAR", UINT32)
+    fan = w.acc(np.array([0, 1, 3, 2], np.uint32), "SCALAR", UINT32)
+    d["meshes"] = [{"primitives": [{"attributes": {"POSITION": pos, "NORMAL": nrm}, "indices": strip, "mode": 5}]},
+                   {"primitives": [{"attributes": {"POSITION": sp}, "indices": fan, "mode": 6}]}]
+    d["nodes"] = [{"name": "strip", "mesh": 0}, {"name": "fan", "mesh": 1, "translation": [0, 0, -1]},
+                  {"name": "mirror", "mesh": 0, "scale": [-1, 1, 1], "translation": [0, 0, -2]}]
+    sc = load_scene(str(w.save(tmp_path / "layouts.gltf")))
+
+    def tris(sid):
+        P = positions(sc, sid)
+        F = np.asarray(sc.params[f"{sid}.faces"]).reshape(-1, 3)
+        return P, F, np.cross(P[F[:, 1]] - P[F[:, 0]], P[F[:, 2]] - P[F[:, 0]])
+
+    P, F, n = tris("strip")
+    np.testing.assert_allclose(P, V, atol=1e-7)
+    np.testing.assert_allclose(np.asarray(sc.params["strip.vertex_normals"]).reshape(-1, 3), N, atol=1e-7)
+    assert len(F) == 2 and np.all(n[:, 2] > 0)                  # a strip alternates winding: both face +z
+    P, F, n = tris("fan")
+    np.testing.assert_allclose(P, np.array([[0, 0, -1], [1, 0, -1], [0, 1, -1], [2, 2, -1]]), atol=1e-7)
+    assert len(F) == 2 and np.all(n[:, 2] > 0)
+    P, F, n = tris("mirror")
+    np.testing.assert_allclose(P, V * [-1, 1, 1] + [0, 0, -2], atol=1e-7)
+    assert np.all(n[:, 2] > 0)                                  # a mirroring node flips the winding back
