@@ -608,6 +608,15 @@ class Materials:
     def __init__(self, f: GltfFile):
         self.f = f
         self._img: dict[int, np.ndarray] = {}
+        self._loaded: dict = {}
+
+    def load(self, mi_index: int | None):
+        """(the material's Mitsuba BSDF, loaded once and shared by every primitive using it; its area emitter
+        dict or None: an emitter belongs to one shape, so each primitive loads its own)."""
+        if mi_index not in self._loaded:
+            bsdf, emitter = self.bsdf(mi_index)
+            self._loaded[mi_index] = (mi.load_dict(bsdf), emitter)
+        return self._loaded[mi_index]
 
     def _texture(self, info: dict | None):
         """(RGBA float32 (H, W, 4) non-linear as stored, sampler dict) of a textureInfo, or None."""
@@ -783,7 +792,7 @@ def load_gltf(path: str, *, name: str | None = None, fps: float | None = None, c
     has_light = False
     moving_prims = []
     for pr in prims:
-        bsdf, emitter = mats.bsdf(pr.material)
+        bsdf, emitter = mats.load(pr.material)
         has_light |= emitter is not None
         deforms = pr.joints is not None or (pr.targets and (g.weights(pr.node, pr.mesh, 0.0) is not None))
         F = pr.F
@@ -791,7 +800,7 @@ def load_gltf(path: str, *, name: str | None = None, fps: float | None = None, c
             dfm = Deformer(f, g, pr)
             P, N = dfm(0.0)
             animated = pr.joints is not None or any(c.path == "weights" for c in g.by_node.get(pr.node, ()))
-            if animated or pr.joints is not None:
+            if animated or pr.joints is not None or pr.node in g.moving:
                 animators.append(DeformMotion(shape=pr.sid, deform=dfm))
                 moving_prims.append(("deform", pr, dfm))
         else:
