@@ -799,8 +799,12 @@ def load_gltf(path: str, *, name: str | None = None, fps: float | None = None, c
         if deforms:
             dfm = Deformer(f, g, pr)
             P, N = dfm(0.0)
-            animated = pr.joints is not None or any(c.path == "weights" for c in g.by_node.get(pr.node, ()))
-            if animated or pr.joints is not None or pr.node in g.moving:
+            if pr.joints is not None:       # a skin moves with its joints (its own node's transform is ignored)
+                moves = any(j in g.moving for j in dfm.joint_nodes)
+            else:
+                moves = pr.node in g.moving
+            moves |= bool(pr.targets) and any(c.path == "weights" for c in g.by_node.get(pr.node, ()))
+            if moves:
                 animators.append(DeformMotion(shape=pr.sid, deform=dfm))
                 moving_prims.append(("deform", pr, dfm))
         else:
