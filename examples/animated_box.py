@@ -85,7 +85,7 @@ def build() -> dict:
                     _quad([0, 0.01, 0], [s, 0, 0], [0, 0, s])])
     box = mesh(walls, 1)
     lid = mesh(_quad([0, 0.0, s], [s, 0, 0], [0, 0, s]), 1)                       # hinge along the lid's z = 0 edge
-    glow = mesh(_quad([0, -0.005, s], [0, 0, 0.6 * s], [0.6 * s, 0, 0]), 2)       # underside, facing down
+    glow = mesh(_quad([0, -0.005, s], [0.6 * s, 0, 0], [0, 0, 0.6 * s]), 2)       # underside, facing down
     doc["cameras"] = [{"name": "watch", "type": "perspective",
                        "perspective": {"yfov": 0.7, "aspectRatio": 4 / 3, "znear": 0.05}}]
     doc["extensionsUsed"] = ["KHR_lights_punctual", "KHR_materials_emissive_strength"]
