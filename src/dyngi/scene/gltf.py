@@ -881,10 +881,8 @@ def load_gltf(path: str, *, name: str | None = None, fps: float | None = None, c
     desc = (f"loaded from {path} (glTF: {len(prims)} mesh primitive(s), {len(g.channels)} animation "
             f"channel(s), {len(lights)} punctual light(s), {len(cams)} camera(s)"
             + (f"; ignored extensions: {', '.join(f.ignored)}" if f.ignored else "") + ")")
-    sc = Scene(nm, mis, cam_path, animators, desc, duration=g.duration if g.duration > 0 else 4.0,
-               fps=float(fps) if fps is not None else DEFAULT_FPS, probe_box=box, probe_counts=counts, source=path)
-    sc.gltf_loop = loop
-    return sc
+    return Scene(nm, mis, cam_path, animators, desc, duration=g.duration if g.duration > 0 else 4.0,
+                 fps=float(fps) if fps is not None else DEFAULT_FPS, probe_box=box, probe_counts=counts, source=path)
 
 
 def _animation_bounds(mis, g: NodeGraph, moving) -> tuple[np.ndarray, np.ndarray]:
