@@ -4,7 +4,7 @@ Reads ``OUT/SEQ/seedN/figures.json`` (:func:`dyngi.experiments.reproductions.smc
 ``dyngi reproduce smcir --out OUT``, whole or ``--only SEQ:SEEDS``), whatever seeds each sequence has, and
 gives per sequence |E| and |E'| of the 8 tracked pixels (mean [min-max] over its seeds) for every
 technique row beside the paper's Table 1 (after Reinhard tone mapping at the key of the image reference
-sequence), the brightness-normalised |E'| (each estimate over its brightness) and the tracked reference's
+sequence), the brightness-normalised |E| and |E'| (each estimate over its brightness) and the tracked reference's
 own |E|, |E'| floor (from its two independent halves), the brightness (mean indirect / the reference's), the steady ms
 per frame, smcir's |E'| rank per seed with the reproduction's stability verdict (one seed: not judged),
 each run's wall time, and smcir's stage ms (Table 2). ``dyngi reproduce smcir --out OUT --table`` prints it;
@@ -77,6 +77,7 @@ def table_markdown(out: str) -> str:
         fl = [f[labels[3]].get("floor_E_prime_tracked", np.nan) for f in figs]
         fe = [f[labels[3]].get("floor_E_tracked", np.nan) for f in figs]
         spp = figs[0][labels[3]].get("tracked_spp", "?")
+        print(f"| | abs E / brightness | " + " | ".join(cell(l, "E_tracked_norm") for l in order) + " | | |")
         print(f"| | abs E' / brightness | " + " | ".join(cell(l, "E_prime_tracked_norm") for l in order)
               + f" | | tracked reference's own floor: abs E {np.nanmean(fe) if np.isfinite(fe).any() else np.nan:.4f}, "
               f"abs E' {np.nanmean(fl) if np.isfinite(fl).any() else np.nan:.4f} ({spp} spp) |")
