@@ -48,19 +48,29 @@ def mitsuba_ms(scene, res, repeats=5):
     return float(np.median(ts[1:]))
 
 
-def technique_ms(scene, spec_text, res, frames, skip):
+def technique_ms(scene, spec_text, res, frames, skip, stages=None):
+    """Median steady frame time (ms); with ``stages`` (a dict) also fills ``{stage: (median ms, median rays
+    per pixel)}`` from the frames' stage timers (``FrameResult.stats``)."""
     from dyngi.backend import dr
     from dyngi.techniques.base import Frame, create_technique, parse_spec
 
     spec = parse_spec(spec_text)
     tech = create_technique(spec.name, scene, spec.params)
     scene.at(0.0)
-    ts = []
+    ts, st = [], []
     for i in range(frames):
         t0 = time.perf_counter()
-        tech.step(Frame(i, 0.0, scene.camera(0.0), res, seed=1, static=i > 0))
+        r = tech.step(Frame(i, 0.0, scene.camera(0.0), res, seed=1, static=i > 0))
         dr.sync_thread()
         ts.append(1e3 * (time.perf_counter() - t0))
+        st.append(r.stats or {})
+    if stages is not None:
+        npix = res[0] * res[1]
+        names = [k for k in (st[-1].get("ms") or {})] + [k for k in (st[-1].get("rays") or {})
+                                                        if k not in (st[-1].get("ms") or {})]
+        for k in names:
+            stages[k] = (float(np.median([d.get("ms", {}).get(k, 0.0) for d in st[skip:]])),
+                         float(np.median([d.get("rays", {}).get(k, 0) for d in st[skip:]])) / npix)
     return float(np.median(ts[skip:]))
 
 
@@ -74,6 +84,8 @@ def main():
     ap.add_argument("--res", default="320x180")
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--skip", type=int, default=4)
+    ap.add_argument("--stages", action="store_true",
+                    help="after each technique's row, its stage table: median ms and rays per pixel per stage")
     args = ap.parse_args()
     from dyngi import backend
     backend.set_device("cpu")
@@ -97,8 +109,9 @@ def main():
     print("|---|---|---|---|")
     for spec in specs:
         m0 = mitsuba_ms(scene, res)
+        stages = {} if args.stages else None
         try:
-            ms = technique_ms(scene, spec, res, args.frames, args.skip)
+            ms = technique_ms(scene, spec, res, args.frames, args.skip, stages)
         except Exception as e:      # one technique's failure is a row, not the end of the run
             if not isinstance(e, DyngiError):
                 traceback.print_exc()
@@ -108,6 +121,10 @@ def main():
         m1 = mitsuba_ms(scene, res)
         ref = float(np.median([m0, m1]))
         print(f"| {spec} | {ms:.1f} | {ref:.1f} | {ms / ref:.2f} |", flush=True)
+        if stages:
+            print("|  stage | ms | rays per pixel | |")
+            for k, (sms, rpp) in stages.items():
+                print(f"|  {spec}: {k} | {sms:.1f} | {rpp:.2f} | |", flush=True)
     print(f"load {os.getloadavg()[0]:.1f}")
 
 

@@ -444,6 +444,17 @@ class ReSTIRDI:
             raise DyngiError("visibility_reuse='unbiased' needs the reuse stage's visibility callables "
                              "(vis_here, vis_prev / vis_there); this caller passes none")
 
+    @staticmethod
+    def ray_origin(g, idx, active, time):
+        """What a shadow ray from G-buffer ``g``'s pixels ``idx`` needs of their surface (position, geometric
+        normal for the origin's offset, time): a surface interaction with only those set (cheaper to gather
+        than the full one)."""
+        it = dr.zeros(mi.SurfaceInteraction3f, dr.width(idx))
+        it.p = dr.gather(mi.Point3f, g.pos, idx, active)
+        it.n = dr.gather(mi.Vector3f, g.n_geo, idx, active)
+        it.time = time
+        return it
+
     def visible_at(self, si, sample, time, active, stage: str):
         """Visibility of emitter samples ``sample`` = (k, payload) from surface interactions ``si`` (one shadow
         ray per ``active`` lane with a valid sample, counted under ``stage``); returns (visible, lanes that
@@ -509,8 +520,7 @@ class ReSTIRDI:
                 return self.eval_at(ppos, pn, ptwo, sample, time, ok)
 
             def vis_prev(prev, pix, sample, ok):
-                v, traced = self.visible_at(dr.gather(mi.SurfaceInteraction3f, prev.si, pix, ok), sample, time,
-                                            ok, "temporal")
+                v, traced = self.visible_at(self.ray_origin(prev, pix, ok, time), sample, time, ok, "temporal")
                 vis_rays.append(("temporal", traced))
                 return v
 
@@ -519,8 +529,7 @@ class ReSTIRDI:
         with timer.stage("spatial"):
             if self.spatial > 0:
                 def vis_there(nid, sample, ok):
-                    v, traced = self.visible_at(dr.gather(mi.SurfaceInteraction3f, gb.si, nid, ok), sample,
-                                                time, ok, "spatial")
+                    v, traced = self.visible_at(self.ray_origin(gb, nid, ok, time), sample, time, ok, "spatial")
                     vis_rays.append(("spatial", traced))
                     return v
 
