@@ -137,6 +137,7 @@ class RadianceUpdate:
         V, N = batch_update(old, n_old, s, cnt, cap)
         hit = u_ok & (cnt > 0)
         dr.eval(V, N, hit)
+        del old, n_old      # no pending read of the layer at the scatters (else they copy it whole first)
         if lazy_cap is not None:
             lazy_cap.touched(ukey, hit, frame)
         dr.scatter(self.value, V, ukey, hit)

@@ -162,6 +162,9 @@ def merge_distance_sparse(keys: SparseKeys, volume, results, accumulator, encodi
     val = dr.select(ok, val, old)
     c = dr.select(ok, mi.UInt32(c), n_old)
     dr.eval(val, c, ok)
+    # the gathers of the atlas must not outlive this point: a pending read of an array makes the scatter into it
+    # copy the whole array first (at 98k probes 200 MB per merge)
+    del old, n_old, ref
     if lazy_cap is not None:
         lazy_cap.touched(ukey, ok, frame)
     for k in range(K):
