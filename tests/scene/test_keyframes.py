@@ -551,3 +551,27 @@ def test_every_technique_runs_on_a_keyframed_scene(animated, name):
     """Every registered technique runs unchanged on the keyframed XML scene (a merged box moved, a sphere
     moved and scaled, the sun turned, the sky stepped): finite, non-negative frames that change."""
     _run_technique(animated[0], name)
+
+
+def test_viewer_plays_a_keyframed_scene(animated):
+    """`dyngi view`'s render loop plays the sidecar's animation: playing from the start, over its
+    duration, its time advancing frame to frame."""
+    import time
+
+    from dyngi.viewer.session import RenderSession
+
+    sc, _ = animated
+    got = []
+    s = RenderSession(sc, ["path:spp=1"], (16, 9), lambda kind, payload: got.append((kind, payload)), still_frames=4)
+    s.start()
+    try:
+        assert s.ready.wait(60) and s.startup_error is None
+        st = s.state()
+        assert st["animated"] and st["playing"] and st["duration"] == 2.0
+        end = time.monotonic() + 60
+        while time.monotonic() < end and s.t <= 0.0:
+            time.sleep(0.05)
+        assert s.t > 0.0, "the viewer's time did not advance"
+        assert any(kind == "frame" for kind, _ in got)
+    finally:
+        assert s.stop(60)
