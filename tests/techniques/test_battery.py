@@ -82,7 +82,9 @@ FAST_SCENES = ("sky-pit", "maze", "glossy-floor")
 """Varied: sun + sky (directional + constant environment); point + area lights with a walking camera and
 heavy occlusion; glossy (rough plastic, GGX alpha 0.04) floor under sky + area light, moving object."""
 
-_DDGI_RESAMPLING = {
+def _ddgi_resampling_family(furnace_tol: float) -> dict:
+    """A fresh settings dict per technique (no mutable settings shared between techniques' tests)."""
+    return {
     "BATTERY_PARAMS": {"candidates": 4, "spatial": 2, "probe_counts": "4", "rays_per_probe": 64, "warmup": 2,
                        "max_glossy": 1},
     # the furnace runs without the emission heuristic of Sec. 3.3: (t / (t + d))^2 is a deliberate bias
@@ -92,8 +94,11 @@ _DDGI_RESAMPLING = {
     # a measured bias, bounded here: the default spatiotemporal reuse (M cap 4, the unified
     # reservoir) leaves the ellipsoid furnace's indirect mean 4.5% low after 32 accumulated frames -- a transient
     # of the per-frame image (-10% at frames 8-11, -3% at 36-39); temporal=false or spatial=0 are within 1%, and
-    # M cap 1 gives -1.5%, 20 gives -11%. The cause in the reuse is not found yet; the bound fails if it grows
-    "FURNACE_TOL": 0.06}
+    # M cap 1 gives -1.5%, 20 gives -11%. With the probes frozen after the warm-up the transient is gone (16 seeds,
+    # per-frame indirect mean within +-4% at every frame, docs/techniques/ddgi-resampling.md): it is the reuse of
+    # samples across frames while the probes still change. ddgi-resampling keeps 6% until that is fixed;
+    # ddgi-secondary (no unified reservoir) is held to 3%
+    "FURNACE_TOL": furnace_tol}
 
 PROFILES = {
     "path": {"BATTERY_PARAMS": {"spp": 1, "max_depth": 4},
@@ -121,8 +126,8 @@ PROFILES = {
                                         "warmup": 1, "glossy_depth": 2},
                      "FURNACE_PARAMS": {"candidates": 8, "probe_counts": "4", "rays_per_probe": 64,
                                         "hysteresis": 0.5, "irradiance_gamma": 1.0, "warmup": 8}},
-    "ddgi-secondary": _DDGI_RESAMPLING,
-    "ddgi-resampling": _DDGI_RESAMPLING,
+    "ddgi-secondary": _ddgi_resampling_family(0.03),
+    "ddgi-resampling": _ddgi_resampling_family(0.06),
     "restir-pt": {"BATTERY_PARAMS": {"candidates": 4, "spatial": 2, "max_depth": 4},
                   "FURNACE_PARAMS": {"candidates": 8, "max_depth": -1}},
     "nee-pt": {"BATTERY_PARAMS": {"spp": 1},
