@@ -8,8 +8,9 @@ command line) holds keyframed tracks (:class:`~dyngi.scene.animation.Track`, int
   pivot + d(t)`` with ``M = R(axis, rotate) S(scale)`` (:class:`ShapeKeyframes`; meshes get new vertex
   positions and normals, analytic shapes -- rectangle, disk, sphere, cylinder -- a new ``to_world``);
 * ``[emitters.<id>]``: a radiance / intensity / irradiance ``scale`` (an area light is named by its
-  shape's id), the sun's ``elevation`` / ``azimuth`` of a ``directional`` or ``sunsky`` emitter, the
-  ``rotate`` angle of an ``envmap`` about ``axis``;
+  shape's id; it moves as a shape), the ``translate`` of a ``point`` or ``spot`` light, the sun's
+  ``elevation`` / ``azimuth`` of a ``directional`` or ``sunsky`` emitter, the ``rotate`` angle of an
+  ``envmap`` about ``axis``;
 * ``[camera]``: ``position``, ``target``, ``up``, ``fov`` (horizontal, degrees).
 
 The animation lasts until the last keyframe (``duration``); ``fps`` and ``loop`` are optional.
@@ -57,7 +58,7 @@ CAMERA_KEYS = ("t", "position", "target", "up", "fov")
 EMITTER_TABLE = ("axis", "interpolation", "keys")
 #: key properties per emitter kind (besides ``t``)
 EMITTER_KEYS = {
-    "area": ("scale",), "point": ("scale",), "spot": ("scale",), "constant": ("scale",),
+    "area": ("scale",), "point": ("scale", "translate"), "spot": ("scale", "translate"), "constant": ("scale",),
     "directional": ("scale", "elevation", "azimuth"), "sunsky": ("scale", "elevation", "azimuth"),
     "envmap": ("scale", "rotate"),
 }
@@ -203,6 +204,36 @@ class RotateKeyframes(Animator):
 
     def signature(self, t):
         return tuple(np.round(self.rotate(t), 9))
+
+
+@dataclass
+class LightMoveKeyframes(Animator):
+    """A point light's ``position`` or a spot light's ``to_world`` offset by a track (world units) from the
+    XML's, captured at bind time."""
+
+    emitter: str
+    translate: Track
+    _base: np.ndarray | None = field(default=None, repr=False)
+    _key: str = ""
+
+    def bind(self, params):
+        pkey = f"{self.emitter}.position"
+        if pkey in params:
+            self._key, self._base = pkey, np.array(params[pkey], np.float64).ravel()
+        else:
+            self._key, self._base = f"{self.emitter}.to_world", _matrix(params[f"{self.emitter}.to_world"])
+
+    def apply(self, params, t):
+        d = self.translate(t)
+        if self._base.ndim == 1:
+            params[self._key] = mi.Point3f(*(self._base + d).tolist())
+        else:
+            T = self._base.copy()
+            T[:3, 3] += d
+            params[self._key] = mi.ScalarTransform4f(T)
+
+    def signature(self, t):
+        return tuple(np.round(self.translate(t), 9))
 
 
 class _SunDirection:
@@ -522,7 +553,7 @@ def attach(scene: Scene, toml_path: str) -> Scene:
             continue
         _unknown(prob, where, table, EMITTER_TABLE if kind == "envmap" else ("interpolation", "keys"))
         axis = _table_vec(prob, where, table, "axis", (0.0, 1.0, 0.0))
-        sizes = {"scale": 3, "elevation": 1, "azimuth": 1, "rotate": 1}
+        sizes = {"scale": 3, "elevation": 1, "azimuth": 1, "rotate": 1, "translate": 3}
         tr = _read_keys(prob, where, table, ("t",) + allowed, {k: sizes[k] for k in allowed},
                         _interp(prob, where, table, interp), loop)
         if "scale" in tr:
@@ -561,6 +592,8 @@ def attach(scene: Scene, toml_path: str) -> Scene:
                 animators.append(SunMotion(prefix, _SunDirection(el, az, up, -1.0)))
         if "rotate" in tr and axis is not None:
             animators.append(RotateKeyframes(prefix, tuple(axis), tr["rotate"]))
+        if "translate" in tr:
+            animators.append(LightMoveKeyframes(prefix, tr["translate"]))
 
     cam_path = scene.camera_path
     cam_tracks = {}
