@@ -630,9 +630,9 @@ def attach(scene: Scene, toml_path: str) -> Scene:
     # -- the probe box over the animation's bounds --
     lo, hi = animated_bounds(mis, moving.values(), duration)
     box, counts = default_probe_grid(lo, hi)
-    out = Scene(scene.name, mis, cam_path, list(scene.animators) + animators,
-                scene.description + f" animated by {toml_path}", scene.stands_for, duration, float(fps),
-                box, counts, scene.source)
+    out = Scene(name=scene.name, mi_scene=mis, camera_path=cam_path, animators=list(scene.animators) + animators,
+                description=scene.description + f" animated by {toml_path}", stands_for=scene.stands_for,
+                duration=duration, fps=float(fps), probe_box=box, probe_counts=counts, source=scene.source)
     out.meta.bounds = (tuple(lo), tuple(hi))
     out.meta.dynamic_shapes = sorted(set(out.meta.dynamic_shapes) | set(moving))
     out.keyframes_file = toml_path
