@@ -289,7 +289,11 @@ def test_cache_update_is_algorithm_2_and_3_and_table3_memory(adgi):
     Ti, Td = 8, 16
     assert mem["irradiance"] == 2 * (Ti * Ti * 3 * 4 + Ti * Ti * 4) == 2048
     assert mem["visibility"] == 2 * (Td * Td * 2 * 4 + Td * Td * 4) == 6144
-    assert mem["heuristics"] == 8 * 8 * 4 + 3 * 4
+    assert mem["heuristics"] == 8 * 8 * 4 + 4 * 4             # + the triggers' lazy-decay tick per probe
+    # the sparse merges' tables: a UInt32 owner per radiance (36) and distance (196) texel key, the lazy cap's
+    # stamp per key and last outer frame per probe, an owner per dynamic proxy entry
+    n_entries = 8 * int(np.prod(a.passes.chains.proxies))
+    assert np.isclose(mem["merge_tables"], 4 * (36 + 196) * 2 + 2 * 4 + 4 * n_entries / a.volume.n_probes)
     assert mem["radiance_layer"] == 36 * (3 * 4 + 4)
     assert mem["probe_state"] == 3 * 4 + 1 + 4 + 3 * 4 + 4 + 4 * 4
     assert mem["total"] == sum(v for k, v in mem.items() if k not in ("total", "table3"))

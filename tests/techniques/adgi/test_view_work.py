@@ -1,7 +1,7 @@
 """ADGI's per-frame work follows the chains and the view, not the probe grid (Datta et al. 2022, Sec. 7: "our
 adaptive sampling stages have a fixed upper bound on the compute requirement and also decouple sampling from
 the number of probes"): the outer count cap applied lazily at merge, the static guide's mip read per chain
-sample, the dynamic proxy table evaluated where the chains read it. Tested by the lanes a steady frame's
+sample, the dynamic proxy table evaluated where the chains read it, the heuristics on V_out's bounding box. Tested by the lanes a steady frame's
 probe update launches (``dr.kernel_history``) when the grid grows outside the view, and the per-sample reads
 against the dense tables they replace."""
 import dataclasses
@@ -41,9 +41,10 @@ def test_steady_frame_lanes_do_not_grow_with_the_grid_outside_the_view(backend):
     axis around it at equal spacing (17^3 = 4913 probes: the first grid's probes are among them), Eq. 10's k
     fixed (so f_c, V_in and V_out do not follow the grid), 1024 dynamic and 4096 static chains: the lanes the
     5th frame's probe update launches stay within 1.1x, and no kernel of it spans the grown grid's texels
-    (>= 36 lanes per probe: the former outer count cap, the guide's mip, the proxy table were such passes).
-    Measured (2026-12-06): 3.11M lanes at 729 probes, 2.59M at 4913 (the static chains spread over the larger
-    grid draw fewer samples in V_in); before the lazy cap and per-sample reads 4.54M."""
+    (>= 36 lanes per probe: the former outer count cap, the guide's mip, the proxy table were such passes), nor
+    any over the grid's probe octants (8 lanes per probe: the heuristics now run on V_out's bounding box).
+    Measured (2026-12-06): 3.12M lanes at 729 probes, 2.44M at 4913 (the static chains spread over the larger
+    grid draw fewer samples in V_in); before the lazy cap, the per-sample reads and the heuristics' box 4.54M."""
     sc = load_scene("cornell-moving-box")
     lo, hi = (np.asarray(x, np.float64) for x in sc.meta.probe_box)
     k = 4.8                                   # about the default quantile rule's k for this view (fixed here)
@@ -56,6 +57,8 @@ def test_steady_frame_lanes_do_not_grow_with_the_grid_outside_the_view(backend):
     assert abs(st1["v_in"] - st0["v_in"]) <= 0.1 * st0["v_in"]        # the same view (a precondition)
     assert grown <= 1.1 * base, (base, grown)
     assert max(h["size"] for h in hist) < 36 * P
+    # nor over the grid's probe octants (the heuristics' triggers, convolution and 6-10-10 words: V_out's box)
+    assert not [h["size"] for h in hist if h["size"] >= 8 * P and h["size"] % P == 0]
 
 
 def test_per_sample_guide_and_proxy_reads_equal_the_dense_tables(backend):

@@ -209,6 +209,8 @@ class HeuristicState:
     fdv, fdr : Float         convolved triggers (Eqs. 15, 18)
     fc : Float               f_c per probe (Eq. 10), this frame
     stamp : UInt32           per probe: 1 + the frame its pilot rays were last traced (0: never)
+    tick : UInt32            per probe: 1 + the frame its triggers last advanced (0: never); a probe outside the
+                             frame's box (:meth:`ADGIHeuristics.update`) decays lazily, by the frames since
     """
 
     fv: "mi.Float"
@@ -221,16 +223,18 @@ class HeuristicState:
     fdr: "mi.Float"
     fc: "mi.Float"
     stamp: "mi.UInt32"
+    tick: "mi.UInt32" = None
 
     @staticmethod
     def zeros(n_probes: int) -> "HeuristicState":
         n = int(n_probes) * OCTANTS
         z = [dr.zeros(mi.Float, n) for _ in range(8)]
         fc, stamp = dr.full(mi.Float, 1.0, int(n_probes)), dr.zeros(mi.UInt32, int(n_probes))
+        tick = dr.zeros(mi.UInt32, int(n_probes))
         # evaluated, not literal zeros: a literal folds into the first frames' kernels, which then differ
         # from the steady ones (a recompile on frames 3-4)
-        dr.make_opaque(*z, fc, stamp)
-        return HeuristicState(*z, fc, stamp)
+        dr.make_opaque(*z, fc, stamp, tick)
+        return HeuristicState(*z, fc, stamp, tick)
 
     def fc_entries(self):
         return dr.gather(mi.Float, self.fc, dr.arange(mi.UInt32, dr.width(self.fv)) // OCTANTS)
@@ -245,20 +249,26 @@ class HeuristicState:
         return self.fs * (self.fdv + dr.opaque(mi.Float, mu) * self.fdr)
 
 
-def trigger_step(trig, peak, pulse, theta: float):
+def trigger_step(trig, peak, pulse, theta: float, steps=None):
     """Temporal trigger ``Tr`` (Eq. 14, Fig. 6a), one frame: the signal decays linearly by ``peak / theta``;
-    a pulse above the decayed signal restarts it at the pulse's height. Returns (signal, peak)."""
-    decayed = dr.maximum(trig - peak * dr.opaque(mi.Float, 1.0 / max(float(theta), 1e-6)), 0.0)
+    a pulse above the decayed signal restarts it at the pulse's height. Returns (signal, peak). ``steps``
+    (Float per lane, >= 1): the frames since the lane last advanced, the last one with ``pulse`` -- the same
+    as that many one-frame steps with no pulse before it (a linear decay; the peak drops to 0 with it)."""
+    rate = peak * dr.opaque(mi.Float, 1.0 / max(float(theta), 1e-6))
+    decayed = dr.maximum(trig - (rate if steps is None else rate * steps), 0.0)
     fire = pulse > decayed
     return dr.select(fire, pulse, decayed), dr.select(fire, pulse, dr.select(decayed > 0.0, peak, 0.0))
 
 
-def convolve(table, counts, radius: int = SPATIAL_RADIUS):
+def convolve(table, counts, radius: int = SPATIAL_RADIUS, opaque: bool = False):
     """Eq. 15: box sum over ``(2r+1)^3`` probes (zero outside the grid) x the 4-octant directional kernel.
-    ``table`` a Float, or a tuple of Floats convolved in the same kernels (one launch per axis for all)."""
+    ``table`` a Float, or a tuple of Floats convolved in the same kernels (one launch per axis for all).
+    ``opaque``: the counts enter the kernels as opaque values (a box whose size changes every frame)."""
     many = isinstance(table, (tuple, list))
     tables = list(table) if many else [table]
     nx, ny, nz = (int(c) for c in counts)
+    if opaque:
+        nx, ny, nz = (dr.opaque(mi.UInt32, c) for c in (nx, ny, nz))
     n = dr.width(tables[0])
     e = dr.arange(mi.UInt32, n)
     probe = e // OCTANTS
@@ -271,8 +281,8 @@ def convolve(table, counts, radius: int = SPATIAL_RADIUS):
         accs = [dr.zeros(mi.Float, n) for _ in xs]
         ci = mi.Int32(c)
         for d in range(-radius, radius + 1):
-            ok = (ci + d >= 0) & (ci + d < size)
-            src = dr.select(ok, mi.UInt32(mi.Int32(e) + d * stride * OCTANTS), e)
+            ok = (ci + d >= 0) & (ci + d < mi.Int32(size))
+            src = dr.select(ok, mi.UInt32(mi.Int32(e) + d * mi.Int32(stride) * OCTANTS), e)
             for a, x in zip(accs, xs):
                 a += dr.gather(mi.Float, x, src, ok)
         dr.eval(*accs)
@@ -322,24 +332,63 @@ class ADGIHeuristics:
     def initial_state(self) -> HeuristicState:
         return HeuristicState.zeros(self.grid.n_probes)
 
+    def box_of(self, mask: np.ndarray):
+        """The grid-index bounding box ``(lo, hi)`` (3 ints each, ``hi`` exclusive) of the probes in ``mask``
+        (host), or None when it is empty."""
+        ids = np.flatnonzero(mask)
+        if not len(ids):
+            return None
+        nx, ny, _ = (int(c) for c in self.grid.counts)
+        ijk = np.stack([ids % nx, (ids // nx) % ny, ids // (nx * ny)], -1)
+        return tuple(int(v) for v in ijk.min(0)), tuple(int(v) + 1 for v in ijk.max(0))
+
     def update(self, state: HeuristicState, frame: int, probe_ids, distance, direct_luminance,
-               fc: np.ndarray | None = None) -> HeuristicState:
+               fc: np.ndarray | None = None, box=None) -> HeuristicState:
         """One frame: the pilot results of ``probe_ids`` (plan order, 8 rays each: ``distance`` signed as
         the tracer returns it, ``direct_luminance`` per ray) -> the new state (``state`` is not modified).
-        ``fc``: this frame's f_c per probe (default: unchanged). An empty ``probe_ids`` only decays."""
+        ``fc``: this frame's f_c per probe (default: unchanged). An empty ``probe_ids`` only decays.
+
+        ``box``: ``(lo, hi)`` grid-index bounds (``hi`` exclusive) of the probes whose f_dv / f_dr this frame
+        needs (V_out's bounding box, :meth:`box_of`; None: the whole grid); the pilot probes must lie in it.
+        The triggers advance and the convolution runs over the box grown by the convolution's radius (clamped
+        to the grid; Eqs. 14-15 exact on the box), f_dv / f_dr are written for the box only (elsewhere they
+        keep older values, which no chain reads: the chains sample V_in), and a probe's triggers decay lazily
+        by the frames since they last advanced (:func:`trigger_step`'s ``steps``): work that follows the view."""
         pids = np.asarray(probe_ids, np.uint32)
-        P = self.grid.n_probes
+        counts = np.asarray([int(c) for c in self.grid.counts])
+        nx, ny, nz = (int(c) for c in counts)
+        lo_in, hi_in = (np.zeros(3, int), counts) if box is None else (np.asarray(box[0]), np.asarray(box[1]))
+        r = SPATIAL_RADIUS
+        lo = np.maximum(lo_in - r, 0)
+        hi = np.minimum(hi_in + r, counts)
+        bx, by, bz = (int(v) for v in hi - lo)
         frame_o = dr.opaque(mi.UInt32, int(frame))
         fv, fr = mi.Float(state.fv), mi.Float(state.fr)
-        pulse_v = dr.zeros(mi.Float, P * OCTANTS)
-        pulse_r = dr.zeros(mi.Float, P * OCTANTS)
         stamp = mi.UInt32(state.stamp)
+        tick0 = state.tick if state.tick is not None else dr.zeros(mi.UInt32, nx * ny * nz)
+        # -- the box's entries: local lane -> global probe and entry --
+        L = bx * by * bz * OCTANTS
+        lane = dr.arange(mi.UInt32, L)
+        lp = lane // OCTANTS
+        o = lane - lp * OCTANTS
+        bxo, byo = dr.opaque(mi.UInt32, bx), dr.opaque(mi.UInt32, by)
+        li, lj, lk = lp % bxo, (lp // bxo) % byo, lp // (bxo * byo)
+        gi = li + dr.opaque(mi.UInt32, int(lo[0]))
+        gj = lj + dr.opaque(mi.UInt32, int(lo[1]))
+        gk = lk + dr.opaque(mi.UInt32, int(lo[2]))
+        gprobe = gi + nx * (gj + ny * gk)
+        g = gprobe * OCTANTS + o
+        pulse_v = dr.zeros(mi.Float, L)
+        pulse_r = dr.zeros(mi.Float, L)
         if len(pids):
+            ijk = np.stack([pids % nx, (pids // nx) % ny, pids // (nx * ny)], -1).astype(np.int64) - lo
+            local = (ijk[:, 0] + bx * (ijk[:, 1] + by * ijk[:, 2])).astype(np.uint32)
             n = len(pids) * OCTANTS
             i = dr.arange(mi.UInt32, n)
             slot = i // OCTANTS
-            o = i - slot * OCTANTS
+            oo = i - slot * OCTANTS
             probe = dr.gather(mi.UInt32, upload(pids, mi.UInt32), slot)
+            lprobe = dr.gather(mi.UInt32, upload(local, mi.UInt32), slot)
             d = mi.Float(distance)
             t = dr.select(d < 0.0, -d / BACKFACE_DISTANCE_SCALE, d)
             s = dr.opaque(mi.Float, self.grid.cell_diagonal)
@@ -347,23 +396,42 @@ class ADGIHeuristics:
             lum = dr.maximum(mi.Float(direct_luminance), 0.0)
             beta = dr.opaque(mi.Float, self.beta)
             fr_new = dr.minimum(dr.select(dr.isfinite(lum), lum, 0.0), beta) / beta   # Eq. 12
-            ev = probe * OCTANTS + (o ^ 7)
-            er = probe * OCTANTS + o
+            ev = probe * OCTANTS + (oo ^ 7)
+            er = probe * OCTANTS + oo
             # -- time differences between identical rays (second frame of a pair, Eqs. 13, 16) --
             if int(frame) % 2 == 1:
                 same = dr.gather(mi.UInt32, state.stamp, probe) == frame_o       # traced at frame - 1
-                dr.scatter(pulse_v, dr.abs(fv_new - dr.gather(mi.Float, state.fv, ev)), ev, same)
-                dr.scatter(pulse_r, dr.abs(fr_new - dr.gather(mi.Float, state.fr, er)), er, same)
+                dr.scatter(pulse_v, dr.abs(fv_new - dr.gather(mi.Float, state.fv, ev)), lprobe * OCTANTS + (oo ^ 7),
+                           same)
+                dr.scatter(pulse_r, dr.abs(fr_new - dr.gather(mi.Float, state.fr, er)), lprobe * OCTANTS + oo, same)
             dr.scatter(fv, fv_new, ev)
             dr.scatter(fr, fr_new, er)
             dr.scatter(stamp, frame_o + 1, probe)
-        # -- temporal trigger (Eqs. 14, 17) and convolution (Eqs. 15, 18) --
-        trig_v, peak_v = trigger_step(state.trig_v, state.peak_v, pulse_v, self.theta)
-        trig_r, peak_r = trigger_step(state.trig_r, state.peak_r, pulse_r, self.theta)
-        dr.eval(fv, fr, trig_v, peak_v, trig_r, peak_r, stamp)
-        fdv, fdr = convolve((trig_v, trig_r), self.grid.counts)     # one launch per axis for both
+        # -- temporal trigger (Eqs. 14, 17) on the box, each lane by the frames since it last advanced --
+        tk = dr.gather(mi.UInt32, tick0, gprobe)
+        steps = mi.Float(dr.select(tk > 0, frame_o + 1 - tk, 1))
+        tv, pv = trigger_step(dr.gather(mi.Float, state.trig_v, g), dr.gather(mi.Float, state.peak_v, g), pulse_v,
+                              self.theta, steps)
+        tr, pr = trigger_step(dr.gather(mi.Float, state.trig_r, g), dr.gather(mi.Float, state.peak_r, g), pulse_r,
+                              self.theta, steps)
+        dr.eval(fv, fr, tv, pv, tr, pr, stamp)
+        trig_v, peak_v, trig_r, peak_r = (mi.Float(x) for x in (state.trig_v, state.peak_v, state.trig_r, state.peak_r))
+        for dst, src in ((trig_v, tv), (peak_v, pv), (trig_r, tr), (peak_r, pr)):
+            dr.scatter(dst, src, g)
+        tick = mi.UInt32(tick0)
+        dr.scatter(tick, frame_o + 1, gprobe, o == 0)
+        # -- convolution (Eqs. 15, 18) on the box; written for the inner box (V_out's) --
+        cv, cr = convolve((tv, tr), (bx, by, bz), opaque=True)     # one launch per axis for both
+        inner = mi.Bool(True)
+        if box is not None:      # the bounds change every frame: opaque, not literals
+            ob = [dr.opaque(mi.UInt32, int(v)) for v in (*lo_in, *hi_in)]
+            inner = (gi >= ob[0]) & (gi < ob[3]) & (gj >= ob[1]) & (gj < ob[4]) & (gk >= ob[2]) & (gk < ob[5])
+        fdv, fdr = mi.Float(state.fdv), mi.Float(state.fdr)
+        dr.scatter(fdv, cv, g, inner)
+        dr.scatter(fdr, cr, g, inner)
+        dr.eval(trig_v, peak_v, trig_r, peak_r, tick, fdv, fdr)
         fc_dr = state.fc if fc is None else upload(np.asarray(fc, np.float32), mi.Float)
-        return HeuristicState(fv, fr, trig_v, peak_v, trig_r, peak_r, fdv, fdr, fc_dr, stamp)
+        return HeuristicState(fv, fr, trig_v, peak_v, trig_r, peak_r, fdv, fdr, fc_dr, stamp, tick)
 
 
 def static_guide(fs, g):

@@ -106,7 +106,8 @@ class ADGIPasses:
         v_in &= active
         v_out &= active
         stats = {}
-        # -- P: pilot rays and heuristics (Sec. 4.1-4.4) --
+        # -- P: pilot rays and heuristics (Sec. 4.1-4.4), over V_out's bounding box (heuristics.update) --
+        box = self.heur.box_of(v_out)
         with t.stage("P"):
             ids = np.flatnonzero(v_out).astype(np.uint32)
             if len(ids):
@@ -121,33 +122,64 @@ class ADGIPasses:
                 t.add_rays("P", n_p)
                 if self.device and not isinstance(n_p, int):   # the budget's device count (and host bounds)
                     self._frame_dev.append((n_p, 8 * len(ids), 8 * len(ids) * (1.0 + self._shadow_rate)))
-                self.hstate = self.heur.update(self.hstate, frame.index, ids, res.distance, lum, fc)
-            else:
-                self.hstate = self.heur.update(self.hstate, frame.index, ids, mi.Float(), mi.Float(), fc)
-            # -- the 6-10-10 heuristics word per octant (Sec. 4.3); the chains read the quantised values --
+                self.hstate = self.heur.update(self.hstate, frame.index, ids, res.distance, lum, fc, box)
+            # (no probe in V_out: nothing to update; the triggers decay lazily when probes come back into view)
+            # -- the 6-10-10 word per octant (Sec. 4.3) of V_out's box; the chains read the quantised values --
             vin_dr = upload(v_in.astype(np.float32), mi.Float)
-            vin_e = dr.gather(mi.Float, vin_dr, dr.arange(mi.UInt32, vol.n_probes * OCTANTS) // OCTANTS)
-            self.lut, self.lut_scale = pack_heuristics(self.hstate.fv, self.hstate.fs, self.hstate.fd(p["mu"]),
-                                                       vin_e)
-            _, fs_q, fd, _ = unpack_heuristics(self.lut, self.lut_scale)
-            self._fs_q = fs_q
-            dr.eval(fs_q, fd)
+            self._pack(box, vin_dr, p["mu"])
         self._plan_budget(frame, t)
         # -- Sec. 4.9's culling: the chains sample only probes of V_in that the last primary pass used --
         samp_dr = vin_dr * self.used if p["cull_unused"] else vin_dr
         # -- S: static chains (Sec. 4.8) --
         with t.stage("S"):
-            stats["static_samples"] = yield from self._static(frame, samp_dr, fd, t)
+            stats["static_samples"] = yield from self._static(frame, samp_dr, self._fd, t)
         if self._time_avail_ms is not None:      # equal time: D gets what S left
             per = self._ms_per_ray["D"] or self._ms_per_ray["S"]
             self._dynamic_rays = None if per is None else max(self._time_avail_ms - t.ms.get("S", 0.0), 0.0) / per
         # -- D: dynamic chains on proxies (Sec. 4.9), then the outer cap and the convolution --
         with t.stage("D"):
-            stats["dynamic_proxy_octants"] = yield from self._dynamic(frame, samp_dr, fd, t)
+            stats["dynamic_proxy_octants"] = yield from self._dynamic(frame, samp_dr, self._fd, t)
             stats["probes_updated"] = yield ProbePass("finish", options={"outer": v_out & ~v_in})
         stats["v_in"], stats["v_out"] = int(v_in.sum()), int(v_out.sum())
         stats["static_chains_run"] = self.chains.n_run
         return stats
+
+    def _pack(self, box, vin_dr, mu: float) -> None:
+        """The 6-10-10 words (Sec. 4.3, :func:`.heuristics.pack_heuristics`) of the entries of ``box`` (V_out's
+        bounding box; the scale F the max of f_d there), written into the per-entry tables ``lut``, ``_fs_q``
+        and ``_fd`` the chains read (entries outside the box keep older values: only V_in's are read)."""
+        vol = self.volume
+        P8 = vol.n_probes * OCTANTS
+        if getattr(self, "lut", None) is None:
+            self.lut = dr.zeros(mi.UInt32, P8)
+            self._fs_q = dr.zeros(mi.Float, P8)
+            self._fd = dr.zeros(mi.Float, P8)
+            dr.make_opaque(self.lut, self._fs_q, self._fd)
+        if box is None:
+            self.lut_scale = dr.opaque(mi.Float, 0.0)
+            return
+        nx, ny, _ = (int(c) for c in vol.grid.counts)
+        lo, hi = box
+        bx, by, bz = (hi[i] - lo[i] for i in range(3))
+        lane = dr.arange(mi.UInt32, bx * by * bz * OCTANTS)
+        lp = lane // OCTANTS
+        o = lane - lp * OCTANTS
+        bxo, byo = dr.opaque(mi.UInt32, bx), dr.opaque(mi.UInt32, by)
+        gi = lp % bxo + dr.opaque(mi.UInt32, lo[0])
+        gj = (lp // bxo) % byo + dr.opaque(mi.UInt32, lo[1])
+        gk = lp // (bxo * byo) + dr.opaque(mi.UInt32, lo[2])
+        probe = gi + nx * (gj + ny * gk)
+        e = probe * OCTANTS + o
+        h = self.hstate
+        fv = dr.gather(mi.Float, h.fv, e)
+        fs = dr.gather(mi.Float, h.fc, probe) * fv
+        fd = fs * (dr.gather(mi.Float, h.fdv, e) + dr.opaque(mi.Float, mu) * dr.gather(mi.Float, h.fdr, e))
+        word, self.lut_scale = pack_heuristics(fv, fs, fd, dr.gather(mi.Float, vin_dr, probe))
+        _, fs_q, fd_q, _ = unpack_heuristics(word, self.lut_scale)
+        dr.eval(word, fs_q, fd_q)
+        for dst, src in ((self.lut, word), (self._fs_q, fs_q), (self._fd, fd_q)):
+            dr.scatter(dst, src, e)
+        dr.eval(self.lut, self._fs_q, self._fd)
 
     def _states_pass(self, mask: np.ndarray) -> ProbePass:
         """``ddgi``'s relocation and classification after the warm-up (issue 12 item 5; the paper is

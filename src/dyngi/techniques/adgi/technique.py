@@ -385,7 +385,8 @@ class ADGITechnique(_ProbeTechniqueBase):
         texel counts, host and device), ``probe_state`` (offsets, states, update counts, positions; with the
         pipeline's update history), ``radiance_layer`` (ours: the volume's radiance atlas and counts, device
         only, :mod:`.radiance`) -- and ``heuristics`` (the per-octant tables of
-        :class:`.heuristics.HeuristicState`, the 6-10-10 word, the culling mask), ``total``. Beside them,
+        :class:`.heuristics.HeuristicState`, the 6-10-10 word, the culling mask), ``merge_tables`` (the sparse
+        merges' key owners and the lazy count cap's stamps, :mod:`.sparse`), ``total``. Beside them,
         not measured: ``table3`` -- what the paper's Table 3 words would take (8x8 + 16x16 32-bit words and
         the 6-10-10 word per octant, 1312 B): our texels are fp32 values quantised through the encoding, not
         packed words, so the measured figure is larger (docs/techniques/adgi.md)."""
@@ -394,6 +395,10 @@ class ADGITechnique(_ProbeTechniqueBase):
         parts = vol.memory_parts()
         parts["probe_state"].append(self.pipeline._history)
         parts["heuristics"] = [self.passes.hstate, getattr(self.passes, "lut", None), self.passes.used]
+        acc = self.accumulator
+        # the sparse merges' per-key tables (.sparse): owners of the (probe, texel) keys, the lazy cap's stamps
+        parts["merge_tables"] = [acc.radiance.keys.owner, acc.dist_keys.owner, acc.cap_rad, acc.cap_dist,
+                                 self.passes.chains._entry_keys.owner]
         parts["radiance_layer"] = parts.pop("radiance_layer")          # the report's order: the layer last
         out = {k: allocated_bytes(v) / P for k, v in parts.items()}
         out["total"] = sum(out.values())
