@@ -23,7 +23,11 @@ def test_viewer_plays_the_gltf_box(backend, tmp_path):
     try:
         assert s.ready.wait(120) and s.startup_error is None, s.startup_error
         st = sink.wait(lambda k, p: k == "state")[0]
-        assert st["duration"] == 3.0 and st["fps"] == 24.0
+        assert st["duration"] == 3.0 and st["fps"] == 24.0 and st["playing"]      # an animated file plays
+        sink.wait(lambda k, p: k == "stats" and p["frame"] >= 2)
+        ts = [p["t"] for k, p in sink.msgs if k == "stats"]
+        assert len(ts) >= 3 and all(b > a for a, b in zip(ts, ts[1:])), ts          # time advances
+        s.set_playing(False)
         for t in (0.5, 2.5):
             s.seek(t)
             sink.wait(lambda k, p, t=t: k == "stats" and abs(p["t"] - t) < 1e-9)
