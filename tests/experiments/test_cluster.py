@@ -382,3 +382,17 @@ def test_sweep_cli_errors_are_one_line(backend, tmp_path, capsys):
         assert rc == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("dyngi: error:") and msg in err and "\n" not in err, err
+
+
+def test_scene_ref_carries_the_scene_options_to_a_worker(monkeypatch):
+    """A worker loads the scene with the options in force where the job was made (--fps, --animation), not
+    with its own environment: the reference is made inside scene_options and loaded outside it."""
+    from dyngi.experiments.cluster import scene_ref
+    from dyngi.scene.loaders import OPTIONS_ENV, scene_options
+
+    monkeypatch.delenv(OPTIONS_ENV, raising=False)
+    with scene_options(fps=7.5):
+        ref = scene_ref("cornell-moving-light")
+    assert os.environ.get(OPTIONS_ENV) is None
+    assert ref.load().fps == 7.5
+    assert scene_ref("cornell-moving-light").load().fps != 7.5

@@ -38,6 +38,7 @@ from __future__ import annotations
 import abc
 import contextlib
 import contextvars
+import json
 import os
 import re
 import sys
@@ -118,13 +119,14 @@ class SceneRef:
 
     source: str
     untextured: bool = False
+    options: str = ""          # the scene options (--fps, --camera, --animation, --loop) as JSON
 
     def load(self):
         from ..scene import load_scene
         from .io import exr_threads
 
         with exr_threads():        # a scene file may hold EXR textures
-            scene = load_scene(self.source)
+            scene = load_scene(self.source, **(json.loads(self.options) if self.options else {}))
         if self.untextured:
             from ..scene.untextured import make_untextured
             make_untextured(scene)
@@ -137,18 +139,32 @@ class SceneRef:
         return _WORKER_STATE[key]
 
 
-def scene_ref(scene, untextured: bool = False) -> SceneRef:
-    """A :class:`SceneRef` for a scene name, a scene file path, or a loaded Scene."""
-    from ..scene.library import BUILTINS
+def _carried_options() -> str:
+    """The scene options in force (:func:`~dyngi.scene.loaders.scene_options`) as JSON, the animation
+    file's path made absolute, so a worker on another machine (shared storage) loads the same animated scene."""
+    from ..scene.loaders import ambient_options
 
+    opts = ambient_options()
+    if opts.get("animation"):
+        opts["animation"] = os.path.abspath(opts["animation"])
+    return json.dumps(opts, sort_keys=True) if opts else ""
+
+
+def scene_ref(scene, untextured: bool = False) -> SceneRef:
+    """A :class:`SceneRef` for a scene name, a scene file path, or a loaded Scene; it carries the scene
+    options in force (``--fps``, ``--camera``, ``--animation``, ``--loop``)."""
+    from ..scene.library import builtin_names
+
+    opts = _carried_options()
+    builtins = set(builtin_names())   # loads the built-in modules (BUILTINS alone may be empty yet)
     if isinstance(scene, (str, os.PathLike)):
         text = os.fspath(scene)
-        return SceneRef(text if text in BUILTINS else os.path.abspath(text), bool(untextured))
+        return SceneRef(text if text in builtins else os.path.abspath(text), bool(untextured), opts)
     src = getattr(scene, "source", None)
-    if src == "builtin" and scene.name in BUILTINS:
-        return SceneRef(scene.name, bool(untextured))
+    if src == "builtin" and scene.name in builtins:
+        return SceneRef(scene.name, bool(untextured), opts)
     if src and src != "builtin" and os.path.isfile(src):
-        return SceneRef(os.path.abspath(src), bool(untextured))
+        return SceneRef(os.path.abspath(src), bool(untextured), opts)
     raise DyngiError(f"scene '{getattr(scene, 'name', scene)}' cannot be sent to cluster workers (built in "
                      "Python, not loaded by name or from a file); pass its name or file, or use --cluster local")
 

@@ -55,7 +55,8 @@ def scene_options(**opts):
             os.environ[OPTIONS_ENV] = old
 
 
-def _ambient_options() -> dict:
+def ambient_options() -> dict:
+    """The options :func:`scene_options` set (``{}`` outside its block)."""
     try:
         return json.loads(os.environ.get(OPTIONS_ENV, "") or "{}")
     except ValueError:
@@ -72,7 +73,7 @@ def load_scene(name_or_path: str, *, fps: float | None = None, camera: str | Non
     beside ``NAME.xml`` is used when present (``animation: FILE`` is printed).
     ``loop``: glTF animations wrap at the last keyframe instead of holding it.
     Keywords left ``None`` fall back to :func:`scene_options`."""
-    amb = _ambient_options()
+    amb = ambient_options()
     fps = amb.get("fps") if fps is None else fps
     camera = amb.get("camera") if camera is None else camera
     animation = amb.get("animation") if animation is None else animation
