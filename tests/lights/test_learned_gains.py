@@ -30,7 +30,7 @@ frames 2-11 (reduced scale: 4608 records per frame, octree thresholds scaled dow
 320x180 at the paper's 4096 / 2048). Measured there (3 seeds, 16384-spp reference): VLC 0.00226 / 0.00138 /
 0.00229, SLL 0.00452 / 0.00477 / 0.00456, LH 0.00372 / 0.00381 / 0.00374 (VLC/SLL 0.29-0.50, VLC/LH 0.36-0.61);
 the oracle lists 0.00125-0.00173."""
-STORAGE_REF_SPP = 8192
+STORAGE_REF_SPP = 16384
 """Reference spp on storage-cells: Mitsuba's path samples its 512 triangle lights by power, about 1 in 100 of its
 NEE samples is unoccluded (its reference noise must stay far below the VLC's 1-spp MSE)."""
 CDQ_FACTOR = 2.0
