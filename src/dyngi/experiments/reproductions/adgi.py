@@ -61,14 +61,16 @@ import numpy as np
 from ...errors import DyngiError
 from ...metrics import mse, relmse, ssim
 from ...scene import load_scene
-from ...techniques.base import create_technique, get_technique, parse_spec
+from ...techniques.base import Frame, create_technique, get_technique, parse_spec
 from .. import cluster
 from ..budgets import frame_budget
-from ..claims import Claim, Criterion, Measurement, claims_json, rays_per_frame, resolved_params, run_claim, verdict_table
+from ..claims import (Claim, ClaimCostError, Criterion, Measurement, claim_rows, claims_json, rays_per_frame,
+                      resolved_params, result_from_values, run_claim, verdict_table)
 from ..references.indirect import cached_indirect_reference
 from ..references.path import reference_halves, scene_max_depth
 from ..reproduce import paper_table, register_experiment
-from ..runner import frame_rays, run_sequence
+from ..report import probe_work_ms
+from ..runner import SequenceResult, frame_rays, run_sequence, step_frame
 from ._summary import write_summary
 
 PAPER = ("Datta, Goli, Zhang, \"Adaptive Dynamic Global Illumination\", High Performance Graphics 2022 "
@@ -477,10 +479,6 @@ def probe_cost_values(claim: Claim, rows: list, scene, times, res, seeds, counts
     ``mse`` (per row and seed, the mean MSE against ``refs`` over the frames, when given), ``rays`` (the rows'
     rays over the baseline's, all frames). A full run raises :class:`ClaimCostError` on a row more than 5 %
     over its budget; a quick one records it."""
-    from ..claims import ClaimCostError
-    from ..report import probe_work_ms
-    from ..runner import SequenceResult, step_frame
-    from ...techniques.base import Frame
     extra = {"probe_counts": counts} if counts else {}
     values = {r.label: {} for r in rows}
     notes = {"mse": {r.label: {} for r in rows}, "rays": {r.label: {} for r in rows}}
@@ -519,7 +517,6 @@ def claims_table4(cfg: dict, quick: bool = False, quiet: bool = True) -> list:
     machinery from :func:`probe_cost_values`; the tunnel claim also measures the mean MSE against the
     path-traced reference (the cost must not come from quality: the issue's bound, ADGI's MSE at equal rays at
     most 0.49x Q-DDGI's as it was, is printed in the verdict's conditions, not judged)."""
-    from ..claims import claim_rows, result_from_values
     c = cfg.get("cost") or (COST_QUICK if quick else COST)
     scene = load_scene("tunnel-gate")
     out = []
