@@ -22,9 +22,9 @@ a shape that Mitsuba cannot transform in place) is one line of the raised
 Mitsuba 3.9 merges the top-level meshes that share a BSDF when it loads an XML file (its parser's
 ``merge_meshes`` pass, part of ``mi.load_file(optimize=True)``), and the merged mesh has no id: the
 cube ``ShortBox`` of the Cornell box becomes part of an anonymous mesh. :func:`attach` therefore
-reloads the XML with that pass off (every other pass, ``merge_equivalent`` included, kept) when the
-sidecar names a shape that the loaded scene no longer has; the ids of emitters and of the sensor
-survive either way.
+reloads the XML through ``mi.parser`` when the sidecar names a shape that the loaded scene no longer
+has, with the named shapes taken out of that pass (every other pass, and the merging of every other
+mesh, as Mitsuba does it); the ids of emitters and of the sensor survive either way.
 
 The conventions are ours (no paper defines a sidecar): elevation and azimuth are measured in world
 space about the file's ``up`` axis (default +Y, as in the Mitsuba XML scenes we ship), azimuth from
@@ -439,8 +439,25 @@ def _scale_keys(kind, prefix, params):
     return tuple(keys) if keys and all(k in params for k in keys) else None
 
 
-def _reload_unmerged(path: str):
-    """``mi.load_file(path)`` without the parser's ``merge_meshes`` pass (every shape keeps its id)."""
+def _xml_shape_ids(path: str) -> list:
+    """The ids of the top-level shapes of the XML file (parsed, not instantiated), for error messages."""
+    cfg = mi.parser.ParserConfig(mi.variant())
+    cfg.merge_meshes = False
+    state = mi.parser.parse_file(cfg, os.path.abspath(path))
+    mi.parser.transform_all(cfg, state)
+    props = (state.root() if callable(state.root) else state.root).props
+    ids = []
+    for name in props.keys():
+        if props.type(name) == mi.Properties.Type.ResolvedReference:
+            node = state.nodes[props[name].index()]
+            if node.type == mi.ObjectType.Shape and node.props.id():
+                ids.append(node.props.id())
+    return ids
+
+
+def _reload_keeping(path: str, keep: set):
+    """``mi.load_file(path)`` with the shapes whose ids are in ``keep`` left out of the parser's
+    ``merge_meshes`` pass (they keep their ids; every other top-level mesh is merged as Mitsuba does)."""
     cfg = mi.parser.ParserConfig(mi.variant())
     cfg.merge_meshes = False
     old = mi.file_resolver()
@@ -450,6 +467,19 @@ def _reload_unmerged(path: str):
     try:
         state = mi.parser.parse_file(cfg, os.path.abspath(path))
         mi.parser.transform_all(cfg, state)
+        root = state.root() if callable(state.root) else state.root
+        props, kept = root.props, {}
+        for name in list(props.keys()):
+            if props.type(name) != mi.Properties.Type.ResolvedReference:
+                continue
+            ref = props[name]
+            node = state.nodes[ref.index()]
+            if node.type == mi.ObjectType.Shape and node.props.id() in keep:
+                kept[name] = ref
+                del props[name]
+        mi.parser.transform_merge_meshes(cfg, state)
+        for name, ref in kept.items():
+            props[name] = ref
         return mi.parser.instantiate(cfg, state)
     finally:
         mi.set_file_resolver(old)
@@ -500,11 +530,15 @@ def attach(scene: Scene, toml_path: str) -> Scene:
 
     # -- the Mitsuba scene: reloaded without mesh merging when a named shape was merged --
     mis = scene.mi_scene
+    known = None        # the ids to list when a named shape is unknown
     if any(sid not in _shape_ids(mis) for sid in shapes_doc) and str(scene.source).lower().endswith(".xml") \
             and os.path.isfile(scene.source):
-        mis = _reload_unmerged(scene.source)
+        known = _xml_shape_ids(scene.source)
+        if all(sid in known for sid in shapes_doc):      # else: reported below, before any loading
+            mis = _reload_keeping(scene.source, set(shapes_doc))
     params = mi.traverse(mis)
     shapes = _shape_ids(mis)
+    known = sorted(known if known is not None else shapes)
     emitters = _emitter_entries(mis, params)
 
     animators = []
@@ -512,7 +546,7 @@ def attach(scene: Scene, toml_path: str) -> Scene:
     for sid, table in shapes_doc.items():
         where = f"shapes.{sid}"
         if sid not in shapes:
-            prob.add(where, f"unknown shape id '{sid}'; the file's shape ids: {', '.join(sorted(shapes)) or '(none)'}")
+            prob.add(where, f"unknown shape id '{sid}'; the file's shape ids: {', '.join(known) or '(none)'}")
             continue
         _unknown(prob, where, table, SHAPE_TABLE)
         sh = shapes[sid]
