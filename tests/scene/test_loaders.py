@@ -210,3 +210,13 @@ def _raises_kw(target, fragment, **kw):
     with pytest.raises(DyngiError) as ei:
         load_scene(target, **kw)
     assert "\n" not in str(ei.value).strip() and fragment in str(ei.value), str(ei.value)
+
+
+def test_fps_given_wins_over_the_sidecars_own(tmp_path):
+    """A sidecar may name its fps; --fps on the command line (load_scene's fps) overrides it."""
+    xml = tmp_path / "room.xml"
+    xml.write_text(XML)
+    side = tmp_path / "room.anim.toml"
+    side.write_text("fps = 10\n" + TOML % "1.0")
+    assert load_scene(str(xml)).fps == 10
+    assert load_scene(str(xml), fps=24).fps == 24

@@ -119,10 +119,10 @@ def load_scene(name_or_path: str, *, fps: float | None = None, camera: str | Non
         msg = str(e).strip().splitlines()
         raise DyngiError(f"scene file '{path}' could not be loaded: {msg[-1] if msg else type(e).__name__}") from None
     _check_meshes(sc, path)
-    if fps is not None:
-        sc.fps = float(fps)
     if ext == ".xml":
         sc = _attach_keyframes(sc, path, animation)
+    if fps is not None:       # after the sidecar: --fps wins over a sidecar's own fps
+        sc.fps = float(fps)
     return sc
 
 
