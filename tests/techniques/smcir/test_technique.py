@@ -82,21 +82,25 @@ def test_exhaustive_smcir_error_falls_as_vpls_grow(backend):
     indirect reference (same three bounces) falls from 128 to 1024 VPLs (measured relMSE 1.13 -> 0.17 at
     32x24 on cornell-static, clamp 0.02 of the diagonal; 4096: 0.05).
 
-    Eq. 8's k = 1 over-estimates 1/p once replacements have made the set blue-noise-like (measured mean
-    indirect / reference: 1.27 at 1024 VPLs, 1.12 at 4096, 1.48 with the paper's 2048 and 100 warm-up
-    iterations); with ``density_k = 16`` it is 0.99 at 4096: checked here at 1024 (within 10%)."""
+    Eq. 8 as printed (``eq8='text'``, k = 1) over-estimates 1/p once replacements have made the set
+    blue-noise-like (measured mean indirect / reference: 1.27 at 1024 VPLs, 1.12 at 4096, 1.48 with the
+    paper's 2048 and 100 warm-up iterations); with ``density_k = 16`` it is 0.99 at 4096: checked here at 1024
+    (within 10%, and a lower error than k = 1's). The default reading (k = 5 at 1024): measured 1.055, relMSE
+    0.034 (k = 16: 1.027, 0.035), bounded within 10% too."""
     sc = load_scene("cornell-static")
     res = (32, 24)
     ref = _indirect_reference(sc, res)
     errs, ratio = {}, {}
-    for label, n, extra in (("128", 128, {}), ("1024", 1024, {}), ("1024-k16", 1024, {"density_k": 16})):
+    for label, n, extra in (("128", 128, {}), ("1024", 1024, {}), ("1024-text", 1024, {"eq8": "text"}),
+                            ("1024-k16", 1024, {"density_k": 16})):
         tech = create_technique("smcir", sc, {"vpls": n, "warmup": 4, "shading": "exhaustive",
                                               "clamp_distance": 0.02, "radiosity_spp": 16, **extra})
         ind = _frames(tech, sc, 1, res)[-1].indirect
         errs[label] = float(np.mean((ind - ref) ** 2) / np.mean(ref ** 2))
         ratio[label] = float(ind.mean() / ref.mean())
     assert errs["1024"] < 0.5 * errs["128"] and errs["1024"] < 0.3, errs
-    assert abs(ratio["1024-k16"] - 1.0) < 0.1 and errs["1024-k16"] < errs["1024"], (ratio, errs)
+    assert abs(ratio["1024-k16"] - 1.0) < 0.1 and errs["1024-k16"] < errs["1024-text"], (ratio, errs)
+    assert abs(ratio["1024"] - 1.0) < 0.1, (ratio, errs)
 
 
 def test_ir_reports_the_vpls_it_used(backend):
