@@ -22,7 +22,7 @@ import time
 
 V = ":vpls=512"
 TABLE_SPECS = tuple(s + V for s in ("mir", "ir:photons=qmc", "ir", "ir:photons=halton", "ir:photons=fixed", "tcas",
-                                    "smcir", "smcir:eq8=text"))
+                                    "smcir")) + ("smcir" + V + ":eq8=text",)
 ABLATION_SPECS = tuple(s + V for s in ("mir", "ir:photons=qmc", "tcas", "smcir", "smcir:eq8=text",
                                        "smcir:density_k=32", "smcir:radiosity_spp=256", "smcir:max_moves=0"))
 

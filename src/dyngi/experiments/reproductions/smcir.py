@@ -419,7 +419,9 @@ def declare_claims(cfg: dict, scene: str, methods=None, quantities=("E_prime",))
     specs = cfg["specs"]
     paper = {"resolution": "1920x1080", "VPLs": "the paper's budget per scene (Sec. 5.3)", "frames": "the sequence",
              "visibility": "128x128 paraboloid shadow maps", "tracked-pixel reference spp": 692100}
-    ours = {"resolution": f"{cfg['res'][0]}x{cfg['res'][1]}", "VPLs": "equal budget (the techniques' defaults)",
+    vpls = parse_spec(_method_label(specs, "smcir")).params.get("vpls")
+    ours = {"resolution": f"{cfg['res'][0]}x{cfg['res'][1]}",
+            "VPLs": f"equal budget, {vpls} for every method" if vpls else "equal budget (the techniques' defaults)",
             "frames": cfg["frames"], "visibility": "ray traced",
             "tracked-pixel reference spp": cfg.get("tracked_spp", "-")}
     out = []
