@@ -27,11 +27,10 @@ photons : str = 'per-frame'   'per-frame': a new photon set every frame (random 
                               prefix per frame; s = (seed mod 4096) * 2^20, so that technique seeds take
                               disjoint stretches). Keller 1997 draws the photons from Halton points;
                               Hedman et al. say no more than "IR [3]". Why 'qmc' is the claims' IR: it
-                              is the stronger baseline -- on the maze (static camera, 32x24, 8 frames,
-                              one seed) the frame-to-frame change of the indirect image was 0.0163
-                              ('qmc') against 0.0194 (per-frame random) and 0.0215 ('halton': the
-                              unscrambled high Halton dimensions are correlated within a short prefix),
-                              |E| 0.0153 / 0.0181 / 0.0177 (docs/techniques/smcir.md).
+                              is the stronger baseline, with less frame-to-frame change and error than
+                              the pseudo-random and the Halton sets (the unscrambled high Halton
+                              dimensions are correlated within a short prefix); measured on
+                              docs/techniques/smcir.md.
 
 Bias: clamping (the geometry term, ``clamp_distance``) and the finite bounce count.
 """

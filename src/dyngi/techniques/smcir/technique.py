@@ -28,10 +28,11 @@ is 1 at every budget the paper runs (I = 2048 and 512; k > 1 only from I = 4096)
 k = max(1, floor(sqrt(I / 32))) (``'root-of-ratio'``, 8 and 4 there) makes it hold. Both are consistent
 (k -> inf, k / I -> 0 as I grows; the paper's ref. [29]). **Default: ``'root-of-ratio'``**, because (1) it
 is the reading under which the paper's own sentence is true at its own budgets, and (2) the printed reading's
-k = 1 on the blue-noise-like set the replacements make over-estimates 1/p: measured mean indirect / the
-path-traced reference, cornell-static 32x24, 2048 VPLs, 3 seeds: ``'text'`` 1.37-1.43, ``'root-of-ratio'``
-1.09-1.10 (tests/techniques/smcir/test_bias.py bounds both). Which one the authors ran is not recoverable
-from the text; every SMC-IR table runs both rows.
+k = 1 on the blue-noise-like set the replacements make over-estimates 1/p by a third or more, the other
+reading by about a tenth (tests/techniques/smcir/test_bias.py bounds both; figures on
+docs/techniques/smcir.md). Its cost: a larger k smooths 1/p across the corners where Sec. 3.2.4's
+assumption (the k neighbours on one plane) fails, so its brightness-normalised error can exceed the printed
+reading's. Which one the authors ran is not recoverable from the text; every SMC-IR table runs both rows.
 
 Line 18, independent re-estimate (our reading, ``reestimate='independent'``, the default): the
 selection (lines 7-16) compares each VPL's estimate from stream 0 of its seed (``sel_radiosity``);
