@@ -132,7 +132,6 @@ EXPLORE_WEIGHTS = (0.6, 0.2, 0.2)   # energy, change, camera distance (our choic
 EXPLORERS = ("global", "lighttree")
 ADAPT_CHOICES = ("device", "host")   # where the caches are built (module docstring, "Device construction")
 
-_ONE_MINUS = float(np.nextafter(np.float32(1.0), np.float32(0.0)))   # largest float32 below 1
 
 def _to_host(x) -> np.ndarray:
     """The module's device -> host transfer on the device path (tests count its calls)."""
@@ -413,14 +412,13 @@ class VLCSelector:
         dr.eval(self._bits, self.leaf_bcnt, self._wmask, self._vis, self._rec_cnt, *self._dev_stats[:4])
 
     @dr.syntax
-    def _bucket_walk(self, p, n, leaf, bidx, B, target, u, active, choose):
-        """Algorithm 1's traversals of bucket ``bidx`` of ``leaf`` (lights with ``id mod B == bidx``, in increasing
-        id: the order of the host tables) in ONE pass: (sum of importances, importance of ``target``, the chosen
-        light, its importance). Lanes in ``choose`` select a light with probability importance / sum by streaming
-        weighted selection (a light replaces the running choice with probability ``w_k / acc_k``; one uniform
-        ``u``, rescaled after each step; exact: ``P(k) = w_k / acc``, the pmf the first traversal gives), so no
-        weight is evaluated twice (the paper's second traversal recomputes them). Words of the bit set that hold
-        no light of the bucket are skipped by an inner loop that only loads words (no importance evaluated)."""
+    def _bucket_walk(self, p, n, leaf, bidx, B, target, target_acc, active, select: bool):
+        """Both traversals of Algorithm 1 over the bit set of bucket ``bidx`` of ``leaf`` (lights with
+        ``id mod B == bidx``, in increasing id: the order of the host tables). ``select=False``:
+        (sum of importances, importance of ``target``); ``select=True``: (the first light whose running
+        sum exceeds ``target_acc``, or the last light with nonzero importance; its importance). Words of the
+        bit set without a light of the bucket are skipped by an inner loop that only loads words, so the
+        triangle irradiance is evaluated once per light of the bucket and never on a load-only iteration."""
         W = self._W
         mask = dr.gather(mi.UInt32, self._masks, B + bidx, active)
         rem = dr.gather(mi.UInt32, self._wmask, leaf, active)     # the slot's nonempty words still to visit
@@ -428,13 +426,14 @@ class VLCSelector:
         acc = mi.Float(0.0)
         w = mi.Float(0.0)
         chosen = mi.UInt32(INVALID)
-        w_c = mi.Float(0.0)
+        last_k = mi.UInt32(INVALID)
+        last_w = mi.Float(0.0)
+        found = mi.Bool(False)
         cur = mi.UInt32(0)
         wi = mi.UInt32(0)
         act = mi.Bool(active)
-        pick = mi.Bool(choose) & act
-        uu = mi.Float(u)
-        while act & ((cur != 0) | (rem != 0)):
+        sel = mi.Bool(select)
+        while act & ((cur != 0) | (rem != 0)) & ~found:
             while act & (cur == 0) & (rem != 0):     # load the next word holding a light of the bucket
                 nw = dr.tzcnt(rem)
                 cur = dr.gather(mi.UInt32, self._bits, base + nw, act & (rem != 0)) & mask
@@ -444,16 +443,17 @@ class VLCSelector:
             k = (wi - 1) * 32 + dr.tzcnt(cur)
             wk = dr.select(has, self._importance(p, n, k, has), 0.0)
             acc += wk
-            w = dr.select(has & (k == target), wk, w)
-            step = has & pick & (wk > 0.0)
-            q = dr.select(step, wk / acc, 0.0)
-            take = step & (uu < q)
-            chosen = dr.select(take, k, chosen)
-            w_c = dr.select(take, wk, w_c)
-            uu = dr.select(step, dr.select(take, uu / q, (uu - q) / dr.maximum(1.0 - q, 1e-30)), uu)
-            uu = dr.minimum(uu, _ONE_MINUS)
+            # select=True: the first light past target_acc (found ends the loop); else the target's importance
+            hit = has & (wk > 0.0) & (acc > target_acc) & sel
+            chosen = dr.select(hit, k, chosen)
+            w = dr.select(hit | (~sel & has & (k == target)), wk, w)
+            found |= hit
+            last_k = dr.select(has & (wk > 0.0), k, last_k)
+            last_w = dr.select(has & (wk > 0.0), wk, last_w)
             cur = dr.select(has, cur & (cur - 1), cur)
-        return acc, w, chosen, w_c
+        chosen = dr.select(found, chosen, last_k)
+        w_sel = dr.select(found, w, last_w)
+        return (chosen, w_sel) if select else (acc, w)
 
     # -- host build ----------------------------------------------------------------------------
     def _n_leaves(self):
@@ -728,7 +728,8 @@ class VLCSelector:
         bidx = dr.select(explore, k_e % dr.maximum(B, 1), b_v)
         tgt = dr.select(explore, k_e, mi.UInt32(INVALID))
         if self.device:
-            acc, w_e, k_v, w_v = self._bucket_walk(p, n, leaf, bidx, B, tgt, u_l, has, has & ~explore)
+            acc, w_e = self._bucket_walk(p, n, leaf, bidx, B, tgt, 0.0, has, False)
+            k_v, w_v = self._bucket_walk(p, n, leaf, bidx, B, tgt, u_l * acc, has & ~explore & (acc > 0.0), True)
         else:
             start, length = self._bucket(leaf, bidx, has)
             length = dr.select(has, length, 0)
@@ -755,7 +756,7 @@ class VLCSelector:
         has = active & (B > 0)
         frac = dr.select(has, self.fraction, 1.0)
         if self.device:
-            acc, w, _, _ = self._bucket_walk(p, n, leaf, light_id % dr.maximum(B, 1), B, light_id, 0.0, has, False)
+            acc, w = self._bucket_walk(p, n, leaf, light_id % dr.maximum(B, 1), B, light_id, 0.0, has, False)
         else:
             start, length = self._bucket(leaf, light_id % dr.maximum(B, 1), has)
             length = dr.select(has, length, 0)
