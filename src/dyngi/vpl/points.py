@@ -212,17 +212,34 @@ def photon_dimensions(bounces: int) -> int:
     return 5 + 2 * int(bounces)
 
 
-def halton_photon_points(n_photons: int, bounces: int, start: int) -> np.ndarray:
-    """Points ``start .. start + n_photons - 1`` of the (unscrambled, radical-inverse) Halton sequence in
-    :func:`photon_dimensions` dimensions (bases 2, 3, 5, ...), the deterministic low-discrepancy set of
-    Keller's instant radiosity (1997: Halton points for the photons; that paper is not among
-    papers/, Hedman et al. cite it as [3]); ``start >= 1`` skips the origin. A (n, d) float64 array."""
-    from scipy.stats import qmc   # not a dyngi module: loaded on first use
+HALTON_PRIMES = (2, 3, 5, 7, 11, 13, 17, 19, 23, 29, 31, 37, 41, 43, 47, 53, 59, 61, 67, 71, 73, 79, 83, 89, 97)
+"""Bases of the Halton dimensions (the first primes: 25 dimensions, photons of up to 10 bounces)."""
 
-    h = qmc.Halton(d=photon_dimensions(bounces), scramble=False)
-    if start > 0:
-        h.fast_forward(int(start))
-    return h.random(int(n_photons))
+
+def radical_inverse(index: np.ndarray, base: int) -> np.ndarray:
+    """Van der Corput's radical inverse of the integers ``index`` in ``base``: the digits mirrored about the
+    radix point (one vectorised step per digit). float64 in [0, 1)."""
+    i = np.asarray(index, np.uint64).copy()
+    out = np.zeros(i.shape, np.float64)
+    f = 1.0 / base
+    b = np.uint64(base)
+    while np.any(i > 0):
+        out += (i % b).astype(np.float64) * f
+        i //= b
+        f /= base
+    return out
+
+
+def halton_photon_points(n_photons: int, bounces: int, start: int) -> np.ndarray:
+    """Points ``start .. start + n_photons - 1`` of the (unscrambled) Halton sequence in
+    :func:`photon_dimensions` dimensions (radical inverses in bases 2, 3, 5, ...), the deterministic
+    low-discrepancy set of Keller's instant radiosity (1997: Halton points for the photons; that paper is not
+    among papers/, Hedman et al. cite it as [3]); ``start >= 1`` skips the origin. A (n, d) float64 array."""
+    d = photon_dimensions(bounces)
+    if d > len(HALTON_PRIMES):
+        raise ValueError(f"Halton photons support at most {len(HALTON_PRIMES)} dimensions; {d} asked")
+    idx = np.arange(int(start), int(start) + int(n_photons), dtype=np.uint64)
+    return np.stack([radical_inverse(idx, p) for p in HALTON_PRIMES[:d]], axis=1)
 
 
 def sobol_photon_points(n_photons: int, bounces: int, seed: int) -> np.ndarray:

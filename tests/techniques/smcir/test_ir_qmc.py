@@ -21,6 +21,11 @@ def test_halton_prefixes_are_the_next_points_of_one_sequence():
     assert a.shape == (100, photon_dimensions(3)) == (100, 11)
     assert np.array_equal(np.concatenate([a, b]), ab)              # consecutive prefixes, no overlap
     assert np.all((ab > 0) & (ab < 1))                             # the origin skipped
+    from scipy.stats import qmc
+
+    ref = qmc.Halton(d=11, scramble=False)
+    ref.fast_forward(1 + (3 << 20))
+    assert np.array_equal(halton_photon_points(64, 3, 1 + (3 << 20)), ref.random(64))   # SciPy's Halton
     # low discrepancy: each 1D projection's empirical CDF within 2 / N of uniform on the first dims
     for j in range(5):
         x = np.sort(ab[:, j])
