@@ -332,11 +332,11 @@ def _rows(figs: dict, cfg: dict) -> list:
                                for s in extra)))
         k_rows = [s for s in specs if s.split(":")[0] == "smcir"]
         fl = runs[0][labels[3]]
-        rows.append((f"{scene}: |E'| brightness-normalised (each estimate over its brightness), |E'| at k = 1, "
+        rows.append((f"{scene}: |E'| brightness-normalised (each estimate over its brightness), |E'| at exposure k = 1, "
                      f"and the tracked reference's own floor",
                      "no figure (the paper's reference: 692,100 spp)",
                      ", ".join(f"{m} {_fmt(_stats(runs, l, 'E_prime_tracked_norm'))}" for m, l in zip(METHODS, labels))
-                     + "; k = 1: " + ", ".join(f"{m} {_stats(runs, l, 'E_prime_tracked_k1')[0]:.4f}"
+                     + "; exposure k = 1: " + ", ".join(f"{m} {_stats(runs, l, 'E_prime_tracked_k1')[0]:.4f}"
                                               for m, l in zip(METHODS, labels))
                      + f"; floor |E| {fl.get('floor_E_tracked', float('nan')):.4f}, |E'| "
                        f"{fl.get('floor_E_prime_tracked', float('nan')):.4f} ({fl.get('tracked_spp')} spp, "
