@@ -75,7 +75,10 @@ octree's (``octree``) stats, and the CDQ's ``cdq_*`` keys.
 CDQ record (directions=cdq): at the primary and the secondary hit, the luminance of
 the indirect sample ``f cos L_i / p_mix`` without the camera-path prefix, where
 ``L_i`` excludes the emission of lights hit by the ray (NEE's job, Sec. 5.1) but
-includes the environment and everything reflected at the next vertex.
+includes the environment and everything reflected at the next vertex. Migration (ours, marked):
+``cdq_min_records`` (default 8) records in a quadtree leaf before it splits and under a node before it
+collapses (:mod:`dyngi.directions.cdq`, "Evidence"; 0 = the paper's rule, which at our counts migrates every
+frame on empty nodes); ``cdq_memory`` (default 0 = the paper) is the decaying prior the paper lacks.
 
 VLC extensions (ours, off by default; :mod:`dyngi.lights.vlc`): ``record_hits``
 (the paper records NEE samples only): an indirect ray that reaches the front of an
