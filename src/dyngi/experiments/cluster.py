@@ -46,6 +46,8 @@ from dataclasses import dataclass, field
 from typing import Any, Callable
 
 from ..errors import DyngiError
+from ..scene.library import builtin_names
+from ..scene.loaders import ambient_options
 
 # This module loads no Dr.Jit at import: a Ray worker unpickles :func:`dyngi_task` from it and must set the
 # driver's environment ($DYNGI_BLAS_THREADS, read when dyngi.backend loads) and variant first
@@ -142,8 +144,6 @@ class SceneRef:
 def _carried_options() -> str:
     """The scene options in force (:func:`~dyngi.scene.loaders.scene_options`) as JSON, the animation
     file's path made absolute, so a worker on another machine (shared storage) loads the same animated scene."""
-    from ..scene.loaders import ambient_options
-
     opts = ambient_options()
     if opts.get("animation"):
         opts["animation"] = os.path.abspath(opts["animation"])
@@ -153,8 +153,6 @@ def _carried_options() -> str:
 def scene_ref(scene, untextured: bool = False) -> SceneRef:
     """A :class:`SceneRef` for a scene name, a scene file path, or a loaded Scene; it carries the scene
     options in force (``--fps``, ``--camera``, ``--animation``, ``--loop``)."""
-    from ..scene.library import builtin_names
-
     opts = _carried_options()
     builtins = set(builtin_names())   # loads the built-in modules (BUILTINS alone may be empty yet)
     if isinstance(scene, (str, os.PathLike)):
