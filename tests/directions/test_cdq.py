@@ -468,7 +468,7 @@ def test_reproduce_cdq_quick_cli(backend, tmp_path):
     assert "2-3 orders of magnitude" in md and "17.1 ms vs 15.1 ms" in md and "36 deg rotation, 128 bits" in md
     paper = json.loads((out / "paper.json").read_text())
     assert {a["scene"] for a in paper["a"]} == {"sky-pit-sun-disc", "sky-pit-sun-disc-2deg", "sky-pit"}
-    assert "samples/leaf/frame" in md
+    assert "records/leaf/frame" in md
     for a in paper["a"]:
         for v in a["techniques"].values():
             assert np.isfinite(v["mse_mean"]) and v["mse_mean"] > 0
