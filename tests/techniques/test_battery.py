@@ -47,6 +47,11 @@ Settings (:data:`PROFILES`):
 ``FURNACE_TOL: float``     relative tolerance on the image mean; default 0.02
                            (a technique with a known, documented bias, such
                            as a quantised encoding, gets a larger one).
+``FURNACE_IND_TOL: float`` relative tolerance on the indirect image's mean;
+                           default ``FURNACE_TOL`` (a noisier indirect estimate
+                           gets a bound set from a many-seed interval).
+``FURNACE_SEEDS: int``     independent runs whose images are averaged before the
+                           checks (at most 4 in CI); default 1.
 
 Capabilities (class attributes):
 ``FURNACE: bool``          False when the furnace test does not apply to the
@@ -82,8 +87,9 @@ FAST_SCENES = ("sky-pit", "maze", "glossy-floor")
 """Varied: sun + sky (directional + constant environment); point + area lights with a walking camera and
 heavy occlusion; glossy (rough plastic, GGX alpha 0.04) floor under sky + area light, moving object."""
 
-def _ddgi_resampling_family(furnace_tol: float) -> dict:
-    """A fresh settings dict per technique (no mutable settings shared between techniques' tests)."""
+def _ddgi_resampling_family(**furnace) -> dict:
+    """A fresh settings dict per technique (no mutable settings shared between techniques' tests); ``furnace``:
+    its ``FURNACE_*`` keys."""
     return {
     "BATTERY_PARAMS": {"candidates": 4, "spatial": 2, "probe_counts": "4", "rays_per_probe": 64, "warmup": 2,
                        "max_glossy": 1},
@@ -91,14 +97,7 @@ def _ddgi_resampling_family(furnace_tol: float) -> dict:
     # for small emitters and darkens a closed emitting shell (the probes' E then lies ~25% low)
     "FURNACE_PARAMS": {"candidates": 8, "hysteresis": 0.5, "warmup": 16, "rays_per_probe": 128,
                        "irradiance_gamma": 1.0, "emission_attenuation": "none"},
-    # a measured bias, bounded here: the default spatiotemporal reuse (M cap 4, the unified
-    # reservoir) leaves the ellipsoid furnace's indirect mean 4.5% low after 32 accumulated frames -- a transient
-    # of the per-frame image (-10% at frames 8-11, -3% at 36-39); temporal=false or spatial=0 are within 1%, and
-    # M cap 1 gives -1.5%, 20 gives -11%. With the probes frozen after the warm-up the transient is gone (16 seeds,
-    # per-frame indirect mean within +-4% at every frame, docs/techniques/ddgi-resampling.md): it is the reuse of
-    # samples across frames while the probes still change. ddgi-resampling keeps 6% until that is fixed;
-    # ddgi-secondary (no unified reservoir) is held to 3%
-    "FURNACE_TOL": furnace_tol}
+    **furnace}
 
 PROFILES = {
     "path": {"BATTERY_PARAMS": {"spp": 1, "max_depth": 4},
@@ -126,8 +125,13 @@ PROFILES = {
                                         "warmup": 1, "glossy_depth": 2},
                      "FURNACE_PARAMS": {"candidates": 8, "probe_counts": "4", "rays_per_probe": 64,
                                         "hysteresis": 0.5, "irradiance_gamma": 1.0, "warmup": 8}},
-    "ddgi-secondary": _ddgi_resampling_family(0.03),
-    "ddgi-resampling": _ddgi_resampling_family(0.06),
+    "ddgi-secondary": _ddgi_resampling_family(FURNACE_TOL=0.03),
+    # the furnace statistic (indirect mean of the last 8 of 32 frames, ellipsoid) over 16 seeds: +1.2 % +- 2.3 %
+    # (95 % CI), per-seed sd 4.7 %, range -8.0 .. +9.3 % (seed 5, the one CI ran, -4.5 %: the "transient" once
+    # bounded at 6 % was that seed's noise; per-frame windows with 16 seeds are all within +-4 % of 0,
+    # docs/techniques/ddgi-resampling.md). Bound from that interval: 4 seeds averaged (sd 2.4 %), 3 % for a
+    # bias plus 3 sd of noise = 10 % on the indirect mean; the full image (sd 0.27 % per seed) keeps 3 %
+    "ddgi-resampling": _ddgi_resampling_family(FURNACE_TOL=0.03, FURNACE_IND_TOL=0.10, FURNACE_SEEDS=4),
     "restir-pt": {"BATTERY_PARAMS": {"candidates": 4, "spatial": 2, "max_depth": 4},
                   "FURNACE_PARAMS": {"candidates": 8, "max_depth": -1}},
     "nee-pt": {"BATTERY_PARAMS": {"spp": 1},
@@ -153,7 +157,8 @@ PROFILES = {
 """The battery's settings per technique (test-only settings live in the tests, not on the
 production classes); a technique without an entry runs its defaults."""
 _DEFAULTS = {"BATTERY_PARAMS": {}, "FURNACE": True, "FURNACE_REASON": "", "FURNACE_PARAMS": {},
-             "FURNACE_FRAMES": 32, "FURNACE_TOL": 0.02, "DETERMINISTIC": False}
+             "FURNACE_FRAMES": 32, "FURNACE_TOL": 0.02, "FURNACE_IND_TOL": None, "FURNACE_SEEDS": 1,
+             "DETERMINISTIC": False}
 
 
 def attr(name: str, key: str):
@@ -269,23 +274,29 @@ def test_furnace(backend, name, kind):
             f"technique '{name}' sets FURNACE = False without a FURNACE_REASON"
         pytest.skip(f"furnace does not apply to '{name}': {reason}")
     sc = furnace_scene(kind)
-    tech = make(name, sc, **attr(name, "FURNACE_PARAMS"))
     a, e = FURNACES[kind]
-    want = furnace_expected(a, e, tech.params.get("max_depth"))
     frames = attr(name, "FURNACE_FRAMES")
+    seeds = attr(name, "FURNACE_SEEDS")
+    assert 1 <= seeds <= 4, f"{name}: FURNACE_SEEDS = {seeds} (CI keeps at most 4)"
     last = []
-    for i in range(frames):      # static scene: progressive techniques accumulate
-        sc.at(0.0)
-        r = tech.step(Frame(i, 0.0, sc.camera(0.0), (24, 16), seed=5, static=i > 0))
-        assert np.all(np.isfinite(r.image)), f"{name} furnace-{kind}: non-finite values in frame {i}"
-        last = (last + [(r.image, r.indirect)])[-FURNACE_AVERAGE:]
+    for k in range(seeds):       # independent runs: their last frames are pooled
+        tech = make(name, sc, **attr(name, "FURNACE_PARAMS"))
+        mine = []
+        for i in range(frames):      # static scene: progressive techniques accumulate
+            sc.at(0.0)
+            r = tech.step(Frame(i, 0.0, sc.camera(0.0), (24, 16), seed=5 + k, static=i > 0))
+            assert np.all(np.isfinite(r.image)), f"{name} furnace-{kind}: non-finite values in frame {i}"
+            mine = (mine + [(r.image, r.indirect)])[-FURNACE_AVERAGE:]
+        last += mine
+    want = furnace_expected(a, e, tech.params.get("max_depth"))
     img = np.mean([x for x, _ in last], axis=0)  # the mean of the last frames: less per-frame noise
     tol = attr(name, "FURNACE_TOL")
     assert abs(img.mean() / want - 1.0) < tol, f"{name} furnace-{kind}: mean {img.mean():.4f}, expected {want:.4f}"
     if last[-1][1] is not None:   # indirect (vertices >= 3): the full value minus emission and direct light
         ind = np.mean([y for _, y in last], axis=0)
         want_ind = furnace_indirect_expected(a, e, tech.params.get("max_depth"))
-        assert abs(ind.mean() / want_ind - 1.0) < tol, \
+        tol_ind = attr(name, "FURNACE_IND_TOL") or tol
+        assert abs(ind.mean() / want_ind - 1.0) < tol_ind, \
             f"{name} furnace-{kind}: indirect mean {ind.mean():.4f}, expected {want_ind:.4f}"
     # spatially: every 6x4-pixel block's mean within the tolerance plus 4 sigma of its pixel noise
     blocks = img.mean(-1).reshape(4, 4, 4, 6).mean(axis=(1, 3))
