@@ -67,3 +67,36 @@ def test_restir_di_shading_is_unbiased_against_mitsuba_direct_light(backend, tar
     # and the test detects a 5 % bias
     ok_bad, _ = z_test_images(*_without_rare_event_pixels(a * 1.05, b))
     assert not ok_bad
+
+
+def test_unbiased_visibility_reuse_traces_its_rays_in_the_reuse_stages(backend):
+    """``visibility_reuse='unbiased'``: the shadow rays move from the shading to the stages that need them
+    (one per candidate, one per temporal merge where the sample changed domain, up to one per spatial
+    neighbour), all counted; the stored reservoirs hold only samples visible from their own pixel, so the
+    shading traces none. And a reuse stage called without the visibility callables says so."""
+    from dyngi.backend import dr, mi
+    from dyngi.errors import DyngiError
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame
+    from dyngi.timing import StageTimer
+    from dyngi.transport.restir_di import ReSTIRDI
+
+    scene = load_scene("cornell-static")
+    di = ReSTIRDI(scene, candidates=8, spatial=2, visibility_reuse="unbiased")
+    scene.at(0.0)
+    for i in range(3):
+        t = StageTimer()
+        pv = di.begin(Frame(i, 0.0, scene.camera(0.0), RES, seed=1, static=i > 0), t)
+        di.direct(pv, t)
+    rays = t.as_dict()["rays"]
+    npix = RES[0] * RES[1]
+    assert rays.get("shadow", 0) == 0, rays
+    assert 0 < rays["candidates"] <= npix and 0 < rays["temporal"] <= npix and 0 < rays["spatial"] <= 2 * npix, rays
+    # every stored sample with W > 0 is visible from its own pixel
+    r = di.prev_res
+    keep = pv.smooth & (r.W > 0.0)
+    vis, traced = di.visible_at(pv.gb.si, r.sample, pv.time, keep, "shadow")
+    assert dr.count(keep) > 0 and dr.count(keep & ~vis) == 0
+    with pytest.raises(DyngiError, match="unbiased"):
+        di.spatial_reuse(pv.gb, r, pv.smooth, pv.sampler, lambda s, ok: mi.Float(0.0),
+                         lambda *a: (), lambda d, s, ok: mi.Float(0.0))
