@@ -5,6 +5,7 @@ Fast: every section's measurement on synthetic comparison results, and the top-l
 Chromium (they load and none overlaps another). Slow: the real ``dyngi demo --quick`` (every section,
 32x18, 2 frames) and its report in Chromium.
 """
+import dataclasses
 import json
 import os
 import subprocess
@@ -77,19 +78,28 @@ def test_claim_values_follow_the_claims_direction():
 
 
 def test_section_verdicts_are_computed_from_the_seeds():
-    """The tour's words come from the claim machinery: with the technique better on every seed SMC-IR's
-    direction claim (no scale need, no setting of ours yet) is decided; claims whose scale needs the tour
-    does not meet stay undecided and say so; one seed decides nothing."""
+    """The tour's words come from the claim machinery: SMC-IR's direction claim (no scale need) is decided
+    from the rows the section runs, its paper-literal row (the printed Eq. 8, ``smcir:eq8=text``) among them:
+    ``reproduced`` when that row beats the baseline on every seed, ``reproduced only with ours`` when only
+    the default does, ``undecided`` (rows not run) when the section does not run it; claims whose scale
+    needs the tour does not meet stay undecided and say so; one seed decides nothing."""
     sec = next(s for s in demo.SECTIONS if s.key == "smcir")
-    rs = _fake_run(sec, better="smcir")
+    assert "smcir:eq8=text" in sec.specs
+    rs = _fake_run(sec, better="smcir")                     # the default best, the paper-literal row worst
+    res = demo.decide_section(sec, {0: rs, 1: rs, 2: rs}, (96, 54), 4)
+    assert [c.verdict.word for c in res] == ["reproduced only with ours"], [c.verdict for c in res]
+    rs = _fake_run(sec, better="smcir:eq8=text")
     res = demo.decide_section(sec, {0: rs, 1: rs, 2: rs}, (96, 54), 4)
     assert [c.verdict.word for c in res] == ["reproduced"], [c.verdict for c in res]
+    two = dataclasses.replace(sec, specs=sec.specs[:2])
+    res = demo.decide_section(two, {0: rs, 1: rs, 2: rs}, (96, 54), 4)
+    assert res[0].verdict.word == "undecided" and any("rows not run" in x for x in res[0].verdict.conditions)
     res1 = demo.decide_section(sec, {0: rs}, (96, 54), 4)
     assert res1[0].verdict.word == "undecided" and "seeds 1 < 3" in res1[0].verdict.conditions[0]
     vsec = next(s for s in demo.SECTIONS if s.key == "vlc")
     vr = _fake_run(vsec, better="nee-pt:lights=vlc")
     for c in demo.decide_section(vsec, {0: vr, 1: vr, 2: vr}, (192, 108), 4):
-        assert c.verdict.word == "undecided" and "samples per octree leaf" in c.verdict.conditions[0]
+        assert c.verdict.word == "undecided" and "scale cannot decide" in c.verdict.conditions[0]
 
 
 def test_ddgi_resampling_frames_to_target():

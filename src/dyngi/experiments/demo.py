@@ -52,7 +52,7 @@ from ..scene import load_scene
 from .compare import execute, prepare
 from .io import atomic_output_dir, check_writable, write_json
 from .report import data_uri, write_outputs
-from .claims import claims_json, result_from_values
+from .claims import claim_rows, claims_json, result_from_values
 from .reproductions import adgi, cdq, ddgi_resampling, isddgi, smcir, vlc
 from .reproductions.isddgi import UPDATE_STAGES
 
@@ -185,12 +185,16 @@ def measure_ddgi_resampling(rs, sec) -> dict:
 
 
 def measure_smcir(rs, sec) -> dict:
-    """|E| and |E'| (SMC-IR Sec. 5.2, indirect light, every pixel) of ``smcir`` and ``ir``."""
+    """|E| and |E'| (SMC-IR Sec. 5.2, indirect light, every pixel) of every spec of the section: ``smcir``, the
+    paper's IR (Keller's quasi-random photons, ``ir:photons=qmc``) and the printed reading of Eq. 8
+    (``smcir:eq8=text``, the claim's paper-literal row)."""
     s = rs["summary"]
-    e = {lb: s[lb]["E"] for lb in ("smcir", "ir")}
-    ep = {lb: s[lb]["E_prime"] for lb in ("smcir", "ir")}
-    text = (f"indirect light, every pixel: |E'| (flicker) smcir {ep['smcir']:.3g} vs ir {ep['ir']:.3g} "
-            f"({_ratio(ep['ir'], ep['smcir']):.2g}x lower), |E| {e['smcir']:.3g} vs {e['ir']:.3g}")
+    sm, ir = sec.specs[0], sec.specs[1]
+    e = {lb: s[lb]["E"] for lb in sec.specs}
+    ep = {lb: s[lb]["E_prime"] for lb in sec.specs}
+    text = (f"indirect light, every pixel: |E'| (flicker) {sm} {ep[sm]:.3g} vs {ir} {ep[ir]:.3g} "
+            f"({_ratio(ep[ir], ep[sm]):.2g}x lower), |E| {e[sm]:.3g} vs {e[ir]:.3g}"
+            + "".join(f"; {lb}: |E'| {ep[lb]:.3g}, |E| {e[lb]:.3g}" for lb in sec.specs[2:]))
     return {"text": text, "values": {"E": e, "E_prime": ep}}
 
 
@@ -328,7 +332,7 @@ SECTIONS: tuple[Section, ...] = (
     Section(
         "smcir", "SMC-IR vs instant radiosity: a moving sun",
         "Hedman, Karras, Lehtinen, \"Sequential Monte Carlo Instant Radiosity\", IEEE TVCG 23(5), 2017",
-        "street-canyon-moving-sun", ("smcir", "ir"),
+        "street-canyon-moving-sun", ("smcir", "ir:photons=qmc", "smcir:eq8=text"),
         "Moving only a few VPLs per frame (sequential Monte Carlo) keeps the indirect light temporally "
         "coherent: on Epic Citadel with a moving sun, |E| 0.0240 vs 0.0892 and |E'| (flicker) 0.0071 vs "
         "0.0323 for instant radiosity (Table 1, equal VPL budget).",
@@ -426,14 +430,17 @@ def run_section(sec: Section, out_dir: str, size: Size, quiet: bool = True) -> d
 
 def decide_section(sec: Section, by_seed: dict, res, frames: int) -> list:
     """The section's claims (:attr:`Section.claims`) decided from its runs per seed (:attr:`Section.value`):
-    the default and baseline rows only, so every claim whose technique has a setting of ours with a paper
-    value says ``undecided`` (its paper-literal row is not run in the tour), as does every claim whose scale
-    need the tour does not meet."""
+    the default and baseline rows, and every paper-literal or ablation row (:func:`~dyngi.experiments.claims.
+    claim_rows`) whose spec the section runs among its :attr:`Section.specs`. A claim whose technique has a
+    setting of ours with a paper value and whose paper-literal row the section does not run says ``undecided``
+    (``rows not run``), as does every claim whose scale need the tour does not meet."""
     first = by_seed[min(by_seed)]
     out = []
     for c in sec.claims(sec, res, frames, first):
-        vals = {"default": {s: sec.value(c, rs, c.technique) for s, rs in by_seed.items()},
-                "baseline": {s: sec.value(c, rs, c.baseline) for s, rs in by_seed.items()}}
+        specs = {"default": c.technique, "baseline": c.baseline}
+        specs.update({r.label: r.spec for r in claim_rows(c)
+                      if r.role in ("paper-literal", "ablation") and r.spec in sec.specs})
+        vals = {label: {s: sec.value(c, rs, spec) for s, rs in by_seed.items()} for label, spec in specs.items()}
         out.append(result_from_values(c, vals))
     return out
 
