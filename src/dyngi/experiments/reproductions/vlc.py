@@ -10,7 +10,8 @@
   whose lights the floor below cannot see, many lights in neighbouring rooms): paper: the VLC
   reaches "almost an order of magnitude lower error compared to the SLL and LH. The LH is worst in
   this instance." Target (issue 28): VLC MSE <= 1/5 of SLL's and LH's. Its light-selection bound is below 1
-  (0.88x at 320x180): selection does not limit its error, so it cannot decide the claim (undecided, said).
+  (0.88x at 320x180 with the former 8-point oracle): selection does not limit its error there, so it cannot decide
+  the claim (undecided, said) unless a run measures the bound >= 10x.
 * Fig. 8 (c) ``covered-lights`` (Stanford dragon under ten area lights behind a cover): "All
   techniques produce noisy results, but the VLC [...] is still slightly better."
 * Fig. 9: adaptation from an empty cache (octree split once, empty VLCs): first gain at the second
@@ -310,7 +311,8 @@ records than the paper's (256-4096), and cannot decide the VLC's claims."""
 BOUND_NEED = 10.0
 """The light-selection bound (:func:`oracle_bound`) a scene needs before it can decide Fig. 8 (a)'s "almost an
 order of magnitude": where an oracle light list gains less over the PVS lists, selection does not limit the
-error and no light sampler can show ~10x (``warehouse-rooms``: 0.88x at 320x180)."""
+error and no light sampler can show ~10x (``warehouse-rooms``: 0.88x at 320x180 with the former 8-point oracle;
+``storage-cells``: ~21x at 64x36 with the 32-point oracle)."""
 
 
 def declare_claims(cfg: dict, scene: str, fig: dict | None = None) -> list:
