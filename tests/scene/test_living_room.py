@@ -87,3 +87,17 @@ def test_ddgi_leak_near_the_walls_stays_small():
 
 LEAK_NEAR, LEAK_REST = 0.2, 0.1
 """Bounds of the relative luminance error near the walls' inside and elsewhere (see the test)."""
+
+
+def test_sky_variant_is_lit_only_by_the_sky_through_its_window():
+    """``living-room-sky`` (the room of the restir-pt ablation, docs/techniques/restir-pt.md): the same single-layer
+    walls, one emitter (the environment), a glossy floor, nothing animated."""
+    sc = load_scene("living-room-sky")
+    ems = sc.mi_scene.emitters()
+    assert len(ems) == 1 and mi.has_flag(ems[0].flags(), mi.EmitterFlags.Infinite)
+    floor = [s for s in sc.mi_scene.shapes() if s.id() == "floor"][0]
+    assert mi.has_flag(floor.bsdf().flags(), mi.BSDFFlags.GlossyReflection)
+    assert not sc.animators
+    V, _ = _mesh(sc, "walls")
+    V0, _ = _mesh(load_scene("living-room"), "walls")
+    assert np.array_equal(V, V0)
