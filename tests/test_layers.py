@@ -167,7 +167,7 @@ FUNCTION_IMPORTS: dict[str, int] = {   # one module a line
     "dyngi.color": 1,
     "dyngi.directions.base": 1,
     "dyngi.directions.walk": 1,
-    "dyngi.experiments.cluster": 7,
+    "dyngi.experiments.cluster": 6,
     "dyngi.experiments.reproduce": 1,
     "dyngi.lights.base": 1,
 }

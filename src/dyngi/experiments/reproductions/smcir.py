@@ -54,7 +54,7 @@ import numpy as np
 
 from ...errors import DyngiError
 from .. import cluster
-from ..claims import Claim, Criterion, claims_json, result_from_values, verdict_table
+from ..claims import Claim, Criterion, claim_rows, claims_json, result_from_values, verdict_table
 from ..compare import execute, prepare
 from ..evaluate import tracked_exposure, tracked_reference_floor, tracked_temporal
 from ..io import atomic_output_dir
@@ -451,8 +451,6 @@ def decide_claims(figs: dict, cfg: dict, quick: bool) -> list:
     """Both Table 1 claims on every sequence run, from the per-seed figures: each claim row (default,
     paper-literal, baseline) takes the figures of the spec that ran it; a row no spec ran stays out
     (:func:`dyngi.experiments.claims.decide` says so)."""
-    from ..claims import claim_rows
-
     out = []
     for sc, runs in figs.items():
         for c in declare_claims({**cfg, "tracked_spp": runs[0][_method_label(cfg["specs"], "smcir")].get("tracked_spp")},
