@@ -15,7 +15,7 @@ from dyngi.techniques.base import to_image
 from dyngi.techniques.path import render_paths
 
 NAMES = builtin_names()
-STATIC = {"cornell-static", "furnace"}
+STATIC = {"cornell-static", "furnace", "living-room-sky"}   # living-room-sky: ReSTIR's static window-lit test room
 DARK = {"sealed-rooms"}   # the camera is inside a sealed room, which Mitsuba renders exactly black
 SPP = {"storage-cells": 64}   # ~3 of its 512 lights reach a point: 4 spp leaves most pixels without one
 PAPER_STAND_INS = {"tunnel-gate", "atrium-sun", "corridor-rooms", "maze", "warehouse-lights", "sky-pit",
