@@ -412,28 +412,25 @@ class VLCSelector:
         dr.eval(self._bits, self.leaf_bcnt, self._wmask, self._vis, self._rec_cnt, *self._dev_stats[:4])
 
     @dr.syntax
-    def _bucket_walk(self, p, n, leaf, bidx, B, target, target_acc, active, select: bool):
-        """Both traversals of Algorithm 1 over the bit set of bucket ``bidx`` of ``leaf`` (lights with
-        ``id mod B == bidx``, in increasing id: the order of the host tables). ``select=False``:
-        (sum of importances, importance of ``target``); ``select=True``: (the first light whose running
-        sum exceeds ``target_acc``, or the last light with nonzero importance; its importance). Words of the
-        bit set without a light of the bucket are skipped by an inner loop that only loads words, so the
-        triangle irradiance is evaluated once per light of the bucket and never on a load-only iteration."""
+    def _bucket_walk(self, p, n, leaf, bidx, B, target, active, kept=None):
+        """First traversal of Algorithm 1 over the bit set of bucket ``bidx`` of ``leaf`` (lights with
+        ``id mod B == bidx``, in increasing id: the order of the host tables): (sum of importances, importance
+        of ``target``, number of lights visited). With ``kept`` (:meth:`_kept`) each visited light's (id,
+        importance) is kept in order for the second traversal (:meth:`_select_kept`), which then evaluates no
+        importance again. Words of the bit set without a light of the bucket are skipped by an inner loop
+        that only loads words, so the triangle irradiance is evaluated once per light of the bucket and never
+        on a load-only iteration."""
         W = self._W
         mask = dr.gather(mi.UInt32, self._masks, B + bidx, active)
         rem = dr.gather(mi.UInt32, self._wmask, leaf, active)     # the slot's nonempty words still to visit
         base = leaf * W
         acc = mi.Float(0.0)
         w = mi.Float(0.0)
-        chosen = mi.UInt32(INVALID)
-        last_k = mi.UInt32(INVALID)
-        last_w = mi.Float(0.0)
-        found = mi.Bool(False)
+        m = mi.UInt32(0)
         cur = mi.UInt32(0)
         wi = mi.UInt32(0)
         act = mi.Bool(active)
-        sel = mi.Bool(select)
-        while act & ((cur != 0) | (rem != 0)) & ~found:
+        while act & ((cur != 0) | (rem != 0)):
             while act & (cur == 0) & (rem != 0):     # load the next word holding a light of the bucket
                 nw = dr.tzcnt(rem)
                 cur = dr.gather(mi.UInt32, self._bits, base + nw, act & (rem != 0)) & mask
@@ -443,17 +440,12 @@ class VLCSelector:
             k = (wi - 1) * 32 + dr.tzcnt(cur)
             wk = dr.select(has, self._importance(p, n, k, has), 0.0)
             acc += wk
-            # select=True: the first light past target_acc (found ends the loop); else the target's importance
-            hit = has & (wk > 0.0) & (acc > target_acc) & sel
-            chosen = dr.select(hit, k, chosen)
-            w = dr.select(hit | (~sel & has & (k == target)), wk, w)
-            found |= hit
-            last_k = dr.select(has & (wk > 0.0), k, last_k)
-            last_w = dr.select(has & (wk > 0.0), wk, last_w)
+            w = dr.select(has & (k == target), wk, w)
+            if kept is not None:
+                self._keep(kept, m, k, wk, has)
+            m = dr.select(has, m + 1, m)
             cur = dr.select(has, cur & (cur - 1), cur)
-        chosen = dr.select(found, chosen, last_k)
-        w_sel = dr.select(found, w, last_w)
-        return (chosen, w_sel) if select else (acc, w)
+        return acc, w, m
 
     # -- host build ----------------------------------------------------------------------------
     def _n_leaves(self):
@@ -656,8 +648,10 @@ class VLCSelector:
         return triangle_irradiance(p, n, p0, e1, e2, lum, active)
 
     @dr.syntax
-    def _accumulate(self, p, n, start, length, target, active):
-        """First traversal: sum of importances in the bucket and the importance of ``target``."""
+    def _accumulate(self, p, n, start, length, target, active, kept=None):
+        """First traversal (host tables): sum of importances in the bucket, the importance of ``target``, the
+        number of lights visited; with ``kept`` each light's (id, importance) is kept in order
+        (:meth:`_bucket_walk`)."""
         acc = mi.Float(0.0)
         w = mi.Float(0.0)
         i = mi.UInt32(0)
@@ -667,12 +661,32 @@ class VLCSelector:
             wk = self._importance(p, n, k, act)
             acc += wk
             w = dr.select(k == target, wk, w)
+            if kept is not None:
+                self._keep(kept, i, k, wk, act)
             i += 1
-        return acc, w
+        return acc, w, i
+
+    def _kept(self):
+        """Per-lane local arrays (light id, importance) for one bucket: a bucket holds at most ``capacity``
+        lights (and at most L), the construction's invariant (:func:`bucket_counts`, ``_construct_device``)."""
+        size = self._kept_size()
+        return dr.alloc_local(mi.UInt32, size), dr.alloc_local(mi.Float, size)
+
+    def _kept_size(self) -> int:
+        return max(1, min(self.capacity, self.L))
+
+    def _keep(self, kept, i, k, wk, active):
+        """Keep (light ``k``, importance ``wk``) at slot ``i`` of ``kept`` (indices past the size dropped)."""
+        ok = active & (i < self._kept_size())
+        kept[0].write(k, i, ok)
+        kept[1].write(wk, i, ok)
 
     @dr.syntax
-    def _select(self, p, n, start, length, target_acc, active):
-        """Second traversal: the first light whose running importance sum exceeds ``target_acc``."""
+    def _select_kept(self, kept, m, target_acc, active):
+        """Second traversal of Algorithm 1 over the ``m`` lights kept by the first (:meth:`_kept`), in the
+        same order and with the same float sums: the first light whose running importance sum exceeds
+        ``target_acc``, or (rounding: the target may reach the total) the last light with a nonzero
+        importance; (light id, its importance)."""
         cum = mi.Float(0.0)
         chosen = mi.UInt32(INVALID)
         w = mi.Float(0.0)
@@ -680,10 +694,11 @@ class VLCSelector:
         last_w = mi.Float(0.0)
         found = mi.Bool(False)
         i = mi.UInt32(0)
+        end = dr.minimum(m, self._kept_size())
         act = mi.Bool(active)
-        while act & (i < length) & ~found:
-            k = dr.gather(mi.UInt32, self.lights, start + i, act)
-            wk = self._importance(p, n, k, act)
+        while act & (i < end) & ~found:
+            k = kept[0].read(i, act)
+            wk = kept[1].read(i, act)
             cum += wk
             hit = (wk > 0.0) & (cum > target_acc)
             chosen = dr.select(hit, k, chosen)
@@ -692,7 +707,6 @@ class VLCSelector:
             last_k = dr.select(wk > 0.0, k, last_k)
             last_w = dr.select(wk > 0.0, wk, last_w)
             i += 1
-        # rounding: the target may reach the total; take the last light with a nonzero importance
         chosen = dr.select(found, chosen, last_k)
         w = dr.select(found, w, last_w)
         return chosen, w
@@ -727,14 +741,15 @@ class VLCSelector:
         u_l = uv * Bf - mi.Float(b_v)
         bidx = dr.select(explore, k_e % dr.maximum(B, 1), b_v)
         tgt = dr.select(explore, k_e, mi.UInt32(INVALID))
+        # first traversal: the bucket's importances, kept; second: the selection over the kept weights
+        kept = self._kept()
         if self.device:
-            acc, w_e = self._bucket_walk(p, n, leaf, bidx, B, tgt, 0.0, has, False)
-            k_v, w_v = self._bucket_walk(p, n, leaf, bidx, B, tgt, u_l * acc, has & ~explore & (acc > 0.0), True)
+            acc, w_e, m = self._bucket_walk(p, n, leaf, bidx, B, tgt, has, kept)
         else:
             start, length = self._bucket(leaf, bidx, has)
             length = dr.select(has, length, 0)
-            acc, w_e = self._accumulate(p, n, start, length, tgt, has)
-            k_v, w_v = self._select(p, n, start, length, u_l * acc, has & ~explore & (acc > 0.0))
+            acc, w_e, m = self._accumulate(p, n, start, length, tgt, has, kept)
+        k_v, w_v = self._select_kept(kept, m, u_l * acc, has & ~explore & (acc > 0.0))
         k = dr.select(explore, k_e, k_v)
         w = dr.select(explore, w_e, w_v)
         if self._lh is not None:
@@ -756,11 +771,11 @@ class VLCSelector:
         has = active & (B > 0)
         frac = dr.select(has, self.fraction, 1.0)
         if self.device:
-            acc, w = self._bucket_walk(p, n, leaf, light_id % dr.maximum(B, 1), B, light_id, 0.0, has, False)
+            acc, w, _ = self._bucket_walk(p, n, leaf, light_id % dr.maximum(B, 1), B, light_id, has)
         else:
             start, length = self._bucket(leaf, light_id % dr.maximum(B, 1), has)
             length = dr.select(has, length, 0)
-            acc, w = self._accumulate(p, n, start, length, light_id, has)
+            acc, w, _ = self._accumulate(p, n, start, length, light_id, has)
         if self._lh is not None:
             pe = self._lh.pmf(p, n, light_id, active)
         else:
