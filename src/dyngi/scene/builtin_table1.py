@@ -34,6 +34,9 @@ that the probe update's rays stay near the paper's ratio of probe rays to pixels
   Living Room*, is a living room lit mostly indirectly: PT+ReSTIR needs 29 frames there,
   Table 1): strong colour bleeding from walls and ball, contact shadows under the ball.
 
+Each has a second camera, :data:`OTHER_VIEWS`, looking away from the first (they overlap little): ``dyngi
+reproduce ddgi-resampling`` fits the DDGI methods' emission slider on it rather than on the measured view.
+
 Each is static for the first second (Table 1 is measured on static frames at t = 0); then one
 thing moves between t = 1 and 2 s (the door leaf swings, the sun rises, the ball rolls), 4 s clips.
 """
@@ -198,3 +201,12 @@ def pink_room():
                                                                          [-0.5, 0, 0.6]], interp="smooth")))
     return b.build(PINK_CAMERA, "Closed pink room with a red ball, lit by a hidden cove light", duration=4.0,
                    probe_box=PINK_PROBE_BOX, probe_counts=PINK_PROBE_COUNTS)
+
+
+OTHER_VIEWS = {
+    "room-door": Camera((0.4, 1.6, -1.85), (4.0, 0.6, 1.4), (0, 1, 0), 78.0),    # the viewed room's sofa corner
+    "villa-sun": Camera((2.7, 1.6, -2.2), (-1.5, 0.55, 1.0), (0, 1, 0), 72.0),   # the bench, windows behind
+    "pink-room": Camera((1.75, 1.5, -1.8), (-0.4, 0.6, 0.7), (0, 1, 0), 68.0),   # the shelf wall from below
+}
+"""A second view of each analog (our choice), looking away from the scene's camera: the emission slider of
+``dyngi reproduce ddgi-resampling`` is fitted on it (a fit on the measured view would be an oracle)."""
