@@ -307,3 +307,27 @@ def test_thresholds_and_bad_input(oct_mod):
         oct_mod.AdaptiveOctree([0, 0, 0], [1, 0, 1])
     with pytest.raises(DyngiError, match="max_depth"):
         oct_mod.AdaptiveOctree([0, 0, 0], [1, 1, 1], max_depth=40)
+
+
+
+@pytest.mark.parametrize("spec, res, want, adapts", [
+    ("path:lights=vlc:directions=cdq", (64, 36), [(576, 288), (576, 288)], True),
+    ("path:lights=vlc:leaf_scaling=false", (64, 36), [(4096, 2048), None], False),
+    ("restir-pt:lights=vlc:candidates=2:spatial=0", (64, 36), [(576, 288), None], True),
+    ("restir-pt:directions=cdq:candidates=2:spatial=0:leaf_samples=1000", (32, 18), [None, (1000, 500)], False)])
+def test_path_and_restir_pt_use_nee_pts_threshold_rule(oct_mod, spec, res, want, adapts):
+    """path and restir-pt build their strategies' octrees with nee-pt's rule (:func:`paper_thresholds` for 2
+    placed vertices per pixel and spp: 576 / 288 at 64x36; leaf_scaling=false: the paper's at every
+    resolution; leaf_samples raises the split threshold), one octree per strategy, and adapt them (at 576
+    records per leaf the octrees of a 64x36 frame split)."""
+    from dyngi.scene import load_scene
+    from dyngi.techniques import Frame, create_technique
+    sc = load_scene("warehouse-rooms")
+    tech = create_technique(spec, sc)
+    for i in range(3):
+        sc.at(0.0)
+        tech.step(Frame(i, 0.0, sc.camera(0.0), res, seed=i))
+    assert [None if o is None else (o.split_threshold, o.collapse_threshold) for o in tech.octrees] == want
+    leaves = [o.stats()["leaves"] for o in tech.octrees if o is not None]
+    assert all(n > 8 for n in leaves) or not adapts, leaves
+    assert oct_mod.octree_rule(True) == "paper" and oct_mod.octree_rule(False) == "paper-only"

@@ -63,10 +63,11 @@ clamped into the boundary leaves (our choice: a lookup never fails).
 Thresholds: the paper uses 4096 (split) / 2048 (collapse) at 1080p (Sec. 7); its collapse
 threshold is over 8 siblings, so its leaves hold ~256-4096 records per frame.
 :func:`paper_thresholds` (nee-pt) keeps them wherever the frame records at least 8 x 4096
-samples and scales them down below that (ours, a marked parameter of nee-pt, ``leaf_scaling``);
-:func:`scaled_thresholds` (path, restir-pt) scales them by the number of path vertices placed per
-frame relative to 1080p with two placed vertices per path (primary and secondary hit), but never
-below 512 / 256 samples per leaf (issue 17 item 2). Splits are limited to
+samples and scales them down below that (ours, a marked parameter ``leaf_scaling`` of nee-pt, path and
+restir-pt, which choose the rule with :func:`octree_rule`); :func:`scaled_thresholds` (the octrees that
+the light and direction strategies build themselves: the probe and VPL techniques' ``lights=vlc``) scales
+them by the number of path vertices placed per frame relative to 1080p with two placed vertices per path
+(primary and secondary hit), but never below 512 / 256 samples per leaf (issue 17 item 2). Splits are limited to
 ``max_depth`` levels (our choice, default 12: a leaf of a 40 m scene is then
 ~1 cm; protects against all samples landing at one point).
 
@@ -98,10 +99,9 @@ MAX_DEPTH_LIMIT = 16          # 3 * 16 coordinate bits + depth fit the int64 key
 PAPER_SPLIT, PAPER_COLLAPSE = 4096, 2048          # Sec. 7, at 1080p
 PAPER_VERTICES = 2 * 1920 * 1080                   # samples placed per frame at 1080p (primary + secondary hit)
 MIN_SPLIT, MIN_COLLAPSE = 512, 256                 # issue 17 item 2: floor per leaf (ours)
-"""Floors of the scaled thresholds (ours, not the paper's: the paper splits at 4096 and collapses at 2048 samples
-per leaf, Sec. 7). They enter the samplers through the ``leaf_samples`` parameter of nee-pt, path and restir-pt
-(``Param(ours=True, paper=4096)``: 0, the default, scales the paper's thresholds and floors them here;
-4096 sets the paper's)."""
+"""Floors of :func:`scaled_thresholds` (ours, not the paper's: the paper splits at 4096 and collapses at 2048
+samples per leaf, Sec. 7): the rule of the octrees that a light or direction strategy builds itself (the probe
+and VPL techniques' ``lights=vlc``); nee-pt, path and restir-pt use :func:`paper_thresholds`."""
 _ONE_MINUS = float(np.nextafter(np.float32(1.0), np.float32(0.0)))
 ADAPT_CHOICES = ("device", "host")
 NODE_BLOCKS = 511                                  # device pool: 1 + 8 * 511 node slots (our choice)
@@ -136,15 +136,22 @@ than 512 records."""
 def paper_thresholds(records_per_frame: int, scaling: bool = True) -> tuple[int, int]:
     """(split, collapse) thresholds: the paper's 4096 / 2048 (Sec. 7) wherever the frame records at least
     :data:`PAPER_MIN_RECORDS` samples (the resolution allows them: each of the initial 8 leaves can split);
-    below that, with ``scaling`` (ours: nee-pt's ``leaf_scaling``, ``Param(ours=True, paper=False)``), scaled
-    down to ``records / 8`` / ``records / 16`` (floored at :data:`MIN_SCALED_SPLIT` / half), so that the
-    tree still adapts; without it the paper's thresholds at every resolution (a small frame then keeps its
-    8 initial leaves)."""
+    below that, with ``scaling`` (ours: ``leaf_scaling`` of nee-pt, path and restir-pt,
+    ``Param(ours=True, paper=False)``), scaled down to ``records / 8`` / ``records / 16`` (floored at
+    :data:`MIN_SCALED_SPLIT` / half), so that the tree still adapts; without it the paper's thresholds at
+    every resolution (a small frame then keeps its 8 initial leaves)."""
     r = max(int(records_per_frame), 1)
     if not scaling or r >= PAPER_MIN_RECORDS:
         return PAPER_SPLIT, PAPER_COLLAPSE
     split = max(MIN_SCALED_SPLIT, r // 8)
     return split, split // 2
+
+
+def octree_rule(leaf_scaling: bool) -> str:
+    """The :func:`make_octree` rule of the ``leaf_scaling`` parameter (nee-pt, path, restir-pt; ours, marked
+    ``paper=False``): ``"paper"`` (the paper's thresholds, scaled below :data:`PAPER_MIN_RECORDS`) or
+    ``"paper-only"`` (the paper's at every resolution)."""
+    return "paper" if leaf_scaling else "paper-only"
 
 
 def octree_bounds(scene) -> tuple:
@@ -167,9 +174,10 @@ def octree_bounds(scene) -> tuple:
 def make_octree(bounds, vertices_per_frame: int, leaf_samples: int = 0, rule: str = "scaled") -> "AdaptiveOctree":
     """The one construction of the adaptive octree (the VLC's, the CDQ's, nee-pt's shared one): over
     ``bounds`` (:func:`octree_bounds`) with the thresholds of ``rule`` for ``vertices_per_frame`` placed
-    vertices (at least 1): ``"scaled"`` (:func:`scaled_thresholds`, path and restir-pt), ``"paper"``
-    (:func:`paper_thresholds` with scaling below :data:`PAPER_MIN_RECORDS`, nee-pt's default) or
-    ``"paper-only"`` (the paper's at every resolution, nee-pt's ``leaf_scaling=false``); ``leaf_samples > 0``
+    vertices (at least 1): ``"scaled"`` (:func:`scaled_thresholds`, an octree a strategy builds itself),
+    ``"paper"`` (:func:`paper_thresholds` with scaling below :data:`PAPER_MIN_RECORDS`, the default of nee-pt,
+    path and restir-pt) or ``"paper-only"`` (the paper's at every resolution, their ``leaf_scaling=false``;
+    :func:`octree_rule`); ``leaf_samples > 0``
     raises the split threshold to that many samples per leaf and the collapse threshold to half of it (the
     ``leaf_samples`` parameter of nee-pt, path and restir-pt)."""
     if rule not in ("scaled", "paper", "paper-only"):

@@ -29,6 +29,10 @@ indirect : bool = True  also return ``FrameResult.indirect``: the same paths
                         unclamped; costs < 1% (measured, cornell-static 160x120)
 lights : str = 'scene'  NEE light sampler (``dyngi techniques`` lists the registered ones)
 directions : str = 'bsdf'  indirect directions: the BSDF, or 'cdq' (:class:`dyngi.directions.walk.WalkDirections`)
+leaf_scaling : bool = True  the octree thresholds of ``lights=vlc`` / ``directions=cdq``: ``nee-pt``'s rule
+                        (:func:`dyngi.directions.octree.paper_thresholds`: the VLC paper's 4096 / 2048, Sec. 7,
+                        from 8 x 4096 placed vertices per frame; below that scaled down, ours); false: the paper's
+                        always. ``leaf_samples > 0`` raises the split threshold to it (collapse: half)
 freeze : bool = False   replay the trace of a static frame with ``dr.freeze`` (Dr.Jit's frozen functions: the
                         kernels recorded once, no Python tracing per frame; bit-identical, ``tests/techniques/
                         test_path.py``); only with ``lights=scene``, ``directions=bsdf`` and no budget (our
@@ -37,6 +41,12 @@ freeze : bool = False   replay the trace of a static frame with ``dr.freeze`` (D
                         advances on every non-static frame; at most two recordings are kept. Off by default
                         (our choice): Dr.Jit 1.5 aborted the process once while recording (a garbage
                         collection inside the frozen call, fresh clone, cold kernel cache; docs/harness.md)
+
+Octrees: with ``lights=vlc`` (an octree-based light sampler) or ``directions=cdq`` each of the two strategies
+has its own octree, as before, built here at the first frame for 2 placed vertices per path per spp (the
+primary and the secondary hit, Sec. 7's count; the walk places one per NEE vertex), handed to the
+strategy with ``share_octree`` and adapted here after the strategy's end of frame (what the strategy did when it
+built its own).
 
 Budgets: with ``Frame.ray_budget`` the frame's spp is the budget divided by
 the rays per sample measured on the previous frame; with
@@ -52,6 +62,7 @@ import math
 from .. import directions as direction_samplers
 from .. import lights as light_samplers
 from .. import rays as ray_ledger
+from ..directions.octree import make_octree, octree_rule
 from ..directions.walk import WalkDirections
 from ..backend import dr, mi
 from ..lights.nee import LightNEE
@@ -89,19 +100,24 @@ class PathTechnique(Technique):
         "directions": Param("bsdf", "indirect directions (dyngi.directions): the BSDF's own sampling, or 'cdq' "
                             "(CDQ/BSDF one-sample MIS mixture, learned per octree leaf)",
                             choices=direction_samplers.names()),
-        "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq (collapse: half); 0 = ours: the VLC paper's 4096 / 2048 at 1080p (Sec. 7) scaled to the placed vertices per frame and floored at 512 / 256 (directions.octree.MIN_SPLIT / MIN_COLLAPSE: fewer samples make a meaningless cache); 4096 = the paper's", min=0, max=1 << 20,
-                              ours=True, paper=4096),
+        "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq raised to this "
+                              "(collapse: half); 0 = the thresholds of leaf_scaling", min=0, max=1 << 20),
+        "leaf_scaling": Param(True, "octree thresholds of lights=vlc and directions=cdq (nee-pt's rule): the VLC "
+                              "paper's 4096 / 2048 records per leaf (Sec. 7) wherever the frame places >= 8 x 4096 "
+                              "vertices (2 per path per spp); below that (ours) scaled down to records/8 / "
+                              "records/16 so that the tree still adapts (directions.octree.paper_thresholds); "
+                              "false = the paper's at every resolution", ours=True, paper=False),
         "freeze": Param(False, "replay static frames' trace with dr.freeze (lights=scene, directions=bsdf, no budget)"),
     }
 
     def __init__(self, scene, params=None):
         super().__init__(scene, params)
         kind = self.params["lights"]
-        leaf = self.params["leaf_samples"]
-        self.lights = EmitterSampling() if kind == "scene" else LightNEE(scene, kind, leaf_samples=leaf)
+        self.lights = EmitterSampling() if kind == "scene" else LightNEE(scene, kind)
         # the BSDF's own sampling is the walk's default (None): bit-identical to before
         self.directions = None if self.params["directions"] == "bsdf" else WalkDirections(
-            scene, self.params["directions"], leaf_samples=self.params["leaf_samples"])
+            scene, self.params["directions"])
+        self.octrees = None            # the strategies' octrees (module docstring "Octrees"), built at frame 0
         self.accum = ProgressiveMean()   # running mean, and its indirect part (with the 'indirect' parameter)
         self._rays_per_sample = None   # measured on the previous frame
         self._ms_per_sample = None
@@ -115,6 +131,21 @@ class PathTechnique(Technique):
         p = self.params
         return render_paths_split(mi_scene, camera, res, spp, seed, 0, p["max_depth"], p["rr_depth"], None,
                                   p["mis"] == "power", p["indirect"], None, lanes=True)   # counted by step()
+
+    def _share_octrees(self, records: int) -> None:
+        """Build each octree-based strategy's octree with ``nee-pt``'s threshold rule for ``records`` placed
+        vertices per frame and hand it over (module docstring "Octrees"); ``self.octrees``: (light strategy's or
+        None, direction strategy's or None)."""
+        p = self.params
+        rule = octree_rule(p["leaf_scaling"])
+        built = []
+        for s, uses in ((self.lights, isinstance(self.lights, LightNEE) and self.lights.entry.needs_octree),
+                        (self.directions, self.directions is not None and self.directions.kind == "cdq")):
+            oc = make_octree(s.bounds, records, p["leaf_samples"], rule=rule) if uses else None
+            if oc is not None:
+                s.share_octree(oc)
+            built.append(oc)
+        self.octrees = tuple(built)
 
     def frame_spp(self, frame: Frame) -> int:
         """spp for this frame: the parameter, or what fits the frame's ray/time budget."""
@@ -135,6 +166,8 @@ class PathTechnique(Technique):
         pilot = None
         split = p["indirect"]
         learned = isinstance(self.lights, LightNEE)
+        if self.octrees is None:
+            self._share_octrees(2 * npix * spp)
         if learned:     # the light sampler's per-frame hook (rebuild, cache construction)
             with t.stage("lights"):
                 self.lights.begin_frame(self.scene, frame, 2 * npix * spp)
@@ -184,9 +217,13 @@ class PathTechnique(Technique):
         if learned:
             with t.stage("lights adapt"):
                 self.lights.end_frame()
+                if self.octrees[0] is not None:     # the octree's owner adapts it (module docstring "Octrees")
+                    self.octrees[0].adapt()
         if self.directions is not None:
             with t.stage("directions adapt"):
                 self.directions.end_frame()
+                if self.octrees[1] is not None:
+                    self.octrees[1].adapt()
         if spp > 0:
             self._rays_per_sample = t.rays["trace"] / (npix * spp)
             self._ms_per_sample = t.ms["trace"] / spp

@@ -56,6 +56,13 @@ lights : str = 'scene'    light sampler of the candidates and of the path's NEE:
 directions : str = 'bsdf' indirect directions of the path after the primary vertex: the BSDF, or 'cdq'
                           (:class:`dyngi.directions.walk.WalkDirections`; ReSTIR DI at the primary vertex
                           is unchanged)
+leaf_scaling : bool = True  the octree thresholds of ``lights=vlc`` / ``directions=cdq``: ``nee-pt``'s rule
+                          (:func:`dyngi.directions.octree.paper_thresholds`: the VLC paper's 4096 / 2048, Sec. 7,
+                          from 8 x 4096 placed vertices per frame; below that scaled down, ours); false: the
+                          paper's always. ``leaf_samples > 0`` raises the split threshold to it (collapse: half).
+                          Each strategy keeps its own octree, built here at the first frame for 2 placed
+                          vertices per pixel, handed over with ``share_octree`` and adapted here after the
+                          strategy's end of frame (what the strategy did when it built its own)
 
 Bias: none with ``combine='mis'`` or ``'1/z'`` and ``visibility_reuse='unbiased'`` (the default) or
 ``'none'`` (tested per region on ``living-room-sky`` and per pixel on the Cornell box against Mitsuba's
@@ -78,8 +85,10 @@ from __future__ import annotations
 
 from .. import directions as direction_samplers
 from ..backend import mi
+from ..directions.octree import make_octree, octree_rule
 from ..directions.walk import WalkDirections
 from ..errors import DyngiError
+from ..lights.nee import LightNEE
 from ..transport.accumulate import ProgressiveMean
 from ..transport.restir_di import MIN_RADIUS_PARAM, PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
@@ -103,8 +112,13 @@ class ReSTIRPTTechnique(Technique):
                                      "'candidate' (Alg. 5) and 'final' biased: 20-64% dark in that room "
                                      "(docs/techniques/restir-pt.md)"}),
         "min_radius_px": Param(**MIN_RADIUS_PARAM),
-        "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq (collapse: half); 0 = ours: the VLC paper's 4096 / 2048 at 1080p (Sec. 7) scaled to the placed vertices per frame and floored at 512 / 256 (directions.octree.MIN_SPLIT / MIN_COLLAPSE: fewer samples make a meaningless cache); 4096 = the paper's", min=0, max=1 << 20,
-                              ours=True, paper=4096),
+        "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq raised to this "
+                              "(collapse: half); 0 = the thresholds of leaf_scaling", min=0, max=1 << 20),
+        "leaf_scaling": Param(True, "octree thresholds of lights=vlc and directions=cdq (nee-pt's rule): the VLC "
+                              "paper's 4096 / 2048 records per leaf (Sec. 7) wherever the frame places >= 8 x 4096 "
+                              "vertices (2 per pixel); below that (ours) scaled down to records/8 / records/16 so "
+                              "that the tree still adapts (directions.octree.paper_thresholds); false = the "
+                              "paper's at every resolution", ours=True, paper=False),
         "max_depth": Param(12, "maximum path depth (-1: unbounded; 1 emission, 2 direct light)", min=-1),
         "rr_depth": Param(5, "Russian roulette start depth", min=1),
         "progressive": Param(True, "accumulate over frames while the scene is static"),
@@ -118,17 +132,33 @@ class ReSTIRPTTechnique(Technique):
         if self.params["max_depth"] == 0:
             raise DyngiError("parameter 'max_depth' = 0 renders nothing; use -1 (unbounded) or >= 1")
         # the light sampler of the candidates and the rest of the path (the component's ``lights``)
-        self.restir = ReSTIRDI.from_params(scene, self.params, min_radius_px=self.params["min_radius_px"],
-                                           leaf_samples=self.params["leaf_samples"])
+        self.restir = ReSTIRDI.from_params(scene, self.params, min_radius_px=self.params["min_radius_px"])
         self.lights = self.restir.lights
         # the BSDF's own sampling is the walk's default (None): bit-identical to before
         self.directions = None if self.params["directions"] == "bsdf" else WalkDirections(
-            scene, self.params["directions"], leaf_samples=self.params["leaf_samples"])
+            scene, self.params["directions"])
+        self.octrees = None     # (light strategy's, direction strategy's) octree or None, built at frame 0
         self.accum = ProgressiveMean()
+
+    def _share_octrees(self, records: int) -> None:
+        """Build each octree-based strategy's octree with ``nee-pt``'s threshold rule for ``records`` placed
+        vertices per frame and hand it over (``leaf_scaling`` in the module docstring)."""
+        p = self.params
+        rule = octree_rule(p["leaf_scaling"])
+        built = []
+        for s, uses in ((self.lights, isinstance(self.lights, LightNEE) and self.lights.entry.needs_octree),
+                        (self.directions, self.directions is not None and self.directions.kind == "cdq")):
+            oc = make_octree(s.bounds, records, p["leaf_samples"], rule=rule) if uses else None
+            if oc is not None:
+                s.share_octree(oc)
+            built.append(oc)
+        self.octrees = tuple(built)
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
         t = StageTimer()
+        if self.octrees is None:
+            self._share_octrees(2 * frame.res[0] * frame.res[1])
         self.restir.lights_begin(frame, t)     # the light sampler's per-frame hook (rebuild, caches)
         if self.directions is not None:
             with t.stage("directions"):
@@ -143,9 +173,14 @@ class ReSTIRPTTechnique(Technique):
         Le0, L_d, L_ind = self.restir.path_after(pv, frame, self.lights, p["max_depth"], p["rr_depth"], t,
                                                  self.directions)
         self.restir.lights_end(t)
+        if self.octrees[0] is not None:     # the octree's owner adapts it (leaf_scaling, module docstring)
+            with t.stage("lights adapt"):
+                self.octrees[0].adapt()
         if self.directions is not None:
             with t.stage("directions adapt"):
                 self.directions.end_frame()
+                if self.octrees[1] is not None:
+                    self.octrees[1].adapt()
         # -- accumulation --
         with t.stage("accumulate"):
             self.accum.add(mi.Color3f(Le0 + direct + L_d + L_ind), mi.Color3f(L_ind),
