@@ -35,7 +35,12 @@ Frame protocol (driven by ``nee-pt``)
 4. ``sample`` / ``pmf`` (device): Algorithm 1. With probability ``fraction``
    (exploration, 10%) a light from the global exploration table, else a bucket
    uniformly (1/B) and in it a light by importance (two traversals of the
-   bucket: accumulate, then select). The exact pmf of either outcome is
+   bucket: accumulate, then select). The first traversal keeps each light's id and
+   importance in per-lane local arrays (``dr.alloc_local``; a bucket holds at most
+   ``capacity`` lights), and the second scans the kept weights in the same order
+   with the same float sums instead of evaluating every importance again: the
+   selection is the paper's two-pass one, bit for bit (a one-pass streaming
+   selection would change the sampling). The exact pmf of either outcome is
    ``fraction * p_explore(k) + (1 - fraction) * w_k / (acc_b * B)`` with ``b = k
    mod B``; ``pmf`` recomputes it with one traversal of that bucket. In a leaf
    with an empty VLC the fraction is 1 (exploration only: our choice, the paper's
@@ -54,9 +59,10 @@ previous leaves of its six neighbours), and (d) the bucket count: per slot the 3
 ``id mod 32`` (popcounts over the words), merged pairwise down to B = 1 (the paper's bottom-up merge of
 a modulo table) and the smallest power of two B whose fullest bucket fits the capacity, with the same
 hysteresis. Bucket ``b`` of a slot is then the lights whose bit is set and ``id mod B == b``, walked in
-increasing id by both traversals of Algorithm 1 (``_bucket_walk``: a loop over the slot's nonempty words
-(a per-slot word mask) and, in each, over the set bits under a precomputed residue mask), which is the order of the host tables, so the two
-paths give the same pmfs and bit-identical images. It needs ``L <= 1024`` (B <= 32 then always fits
+increasing id by the first traversal of Algorithm 1 (``_bucket_walk``: a loop over the slot's nonempty words
+(a per-slot word mask) and, in each, over the set bits under a precomputed residue mask; the second scans
+what the first kept), which is the order of the host tables, so the two paths give the same pmfs and
+bit-identical images. It needs ``L <= 1024`` (B <= 32 then always fits
 a capacity >= L / 32) and ``memory = 1``; otherwise the host pass below is used (``adapt`` reports
 which). ``stats()`` reads a few device counters back (``report_stats``, inspection only).
 
@@ -105,9 +111,9 @@ hits' sampling leaf at the previous position given by the motion vectors of anim
 (:mod:`dyngi.directions.motion`, ``octree.lookup_pair``) and records at the current one (issue 28).
 
 Samples per leaf: the paper's leaves hold 2048-4096 samples per frame (split 4096, collapse 2048 at
-1080p); ours hold what ``octree.scaled_thresholds`` gives at the rendered resolution (~110-160 placed
-samples per leaf per frame on warehouse-rooms from 64x36 to 640x360 at the defaults, ~950 with
-``leaf_samples=4096``); ``reproduce vlc`` states the count beside each figure. With few samples per
+1080p); ours hold what the octree's thresholds give at the rendered resolution (``nee-pt``, ``path``,
+``restir-pt``: ``octree.paper_thresholds``, the paper's from 8 x 4096 records per frame, scaled down below
+that); ``reproduce vlc`` states the count beside each figure. With few samples per
 leaf a light visible from a small part of a leaf is often missing from its cache and is then reached
 only by exploration: fireflies (docs/techniques/nee-pt.md, "VLC against SLL and the light tree").
 """
