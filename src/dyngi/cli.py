@@ -36,6 +36,7 @@ from .experiments.references.path import DEFAULT_REF_SPP, fill_reference_cache, 
 from .experiments.render import render_to_dir
 from .experiments.reproduce import EXPERIMENTS, experiment_names, get_experiment, run_experiment, smoke_size
 from .experiments.reproductions._summary import merged_techniques
+from .experiments.reproductions.ddgi_resampling import run_only as resampling_run_only
 from .experiments.reproductions.smcir import parse_pairs, run_pairs
 from .experiments.reproductions.smcir_table import table_markdown
 from .experiments.runner import parse_res, run_sequence
@@ -296,6 +297,8 @@ def cmd_reproduce(args) -> int:
     get_experiment(args.name)
     out = args.out or os.path.join("out", "reproduce", args.name + ("-smoke" if args.smoke else
                                                                       "-quick" if args.quick else ""))
+    if args.name == "ddgi-resampling" and args.only is not None and not args.table:
+        return _resampling_scenes(args, out)
     if args.only is not None or args.table:
         return _smcir_parts(args, out)
     _setup(args)
@@ -333,11 +336,24 @@ def _print_verdicts(out: str) -> None:
         print(f"  {c['claim']} ({c['where']}): {c['verdict']}{why}")
 
 
+def _resampling_scenes(args, out) -> int:
+    """``dyngi reproduce ddgi-resampling --only SCENE ...``: these scenes of Table 1, each saved in ``out`` as it
+    ends (skipped when saved before); the run without ``--only`` then reports them all."""
+    check_writable(out)
+    _setup(args)
+    resampling_run_only(os.path.abspath(out), args.only, quick=args.quick, quiet=args.quiet,
+             on_scene=lambda sc, path: print(f"{sc}: {path}", flush=True))
+    print(f"finished {len(args.only)} ddgi-resampling scene(s) in {out}; 'dyngi reproduce ddgi-resampling"
+          f"{' --quick' if args.quick else ''} --out {out}' writes the report (running the scenes not there yet)")
+    return 0
+
+
 def _smcir_parts(args, out) -> int:
     """``dyngi reproduce smcir --only SEQ:SEEDS ...`` (some runs of the full reproduction, resumable) and
     ``--table`` (Table 1 / Table 2 from the runs finished in ``out``)."""
     if args.name != "smcir":
-        raise DyngiError(f"--only and --table belong to the smcir reproduction, not '{args.name}'")
+        raise DyngiError(f"--only and --table belong to the smcir reproduction (--only also to ddgi-resampling), "
+                         f"not '{args.name}'")
     if args.only is not None and args.table:
         raise DyngiError("--only runs, --table reads: give one of them")
     if args.table:
@@ -610,8 +626,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--only", nargs="+", default=None, metavar="SEQ[:SEEDS]",
-                   help="smcir: run only these (sequence, seed) runs, e.g. maze:0,1 atrium-sun (seed 0); each is "
-                        "saved in --out as it ends and skipped when saved before (split a full run over processes)")
+                   help="smcir: run only these (sequence, seed) runs, e.g. maze:0,1 atrium-sun (seed 0); "
+                        "ddgi-resampling: only these scenes, e.g. room-door; each is saved in --out as it ends and "
+                        "skipped when saved before (split a full run over processes)")
     s.add_argument("--table", action="store_true",
                    help="smcir: print Table 1 and Table 2 (Markdown) from the runs finished in --out; runs nothing")
     _reference_flags(s, None)
@@ -662,7 +679,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--frames", type=_positive("--frames"), default=None,
                    help="frames per section (default 8; 2 with --quick; 16 with --classic)")
     s.add_argument("--res", default=None, help="image size WxH (default 96x54; 32x18 with --quick; 160x120 with "
-                                               "--classic); the tour's VLC section runs at twice it")
+                                               "--classic); the tour's VLC and CDQ sections run at twice it")
     s.add_argument("--device", default="cpu", choices=("cpu", "cuda"),
                    help="cpu: llvm_ad_rgb (default); cuda: cuda_ad_rgb on an NVIDIA GPU")
     s.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -1,12 +1,15 @@
 """The pure pieces of ``dyngi reproduce ddgi-resampling``'s Table 1 protocol (NumPy only, no rendering):
 the MAPE(N) = a/sqrt(N) + b fit and its extrapolation, the target selection, the reference's noise
-estimate from its halves, the emission-scale secant step, frames to target (measured or fitted)."""
+estimate from its halves, the emission-scale secant step, frames to target (measured or fitted), bias and
+variance apart over seeds, the saved scenes that ``--only`` splits a full run into."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from dyngi.experiments.reproductions.ddgi_resampling import (TARGET_TOL, accumulated_mapes, calibrated_scale,
+from dyngi.errors import DyngiError
+from dyngi.experiments.reproductions.ddgi_resampling import (FULL, QUICK, TARGET_TOL, accumulated_mapes, bias_variance,
+                                                             calibrated_scale, load_scene_figure, run_only, save_scene,
                                                              fit_inverse_sqrt, frames_from_fit, frames_needed,
                                                              reference_noise_mape, scaled_frame_ms, select_target)
 from dyngi.metrics.image import mape
@@ -88,3 +91,34 @@ def test_accumulated_mapes_is_the_running_mean():
     assert acc[0] == pytest.approx(mape(imgs[0], ref))
     assert acc[3] == pytest.approx(mape(np.mean(imgs, axis=0).astype(np.float32), ref), rel=1e-5)
     assert acc[3] < acc[0]
+
+
+def test_bias_and_variance_apart_over_seeds():
+    """Seeds of an unbiased estimate: the seed mean's MAPE is its noise alone (within 10 %), the spread is the
+    per-sample relative std; 20 % too bright: the seed mean's MAPE and image-mean error show the 20 %, well above
+    the noise alone."""
+    rng = np.random.default_rng(4)
+    ref = rng.uniform(0.2, 1.0, (36, 64, 3))
+    rel = 0.3                                          # per-seed std = rel x (ref + 0.01)
+    noise = [rng.normal(0.0, 1.0, ref.shape) * rel * (ref + 0.01) for _ in range(16)]
+    fair = bias_variance([ref + e for e in noise], ref)
+    assert fair["seeds"] == 16 and fair["spread"] == pytest.approx(rel, rel=0.05)
+    assert fair["seed_mean_mape"] == pytest.approx(fair["noise_in_mean"], rel=0.1)
+    assert abs(fair["mean_error"]) < 0.01
+    high = bias_variance([1.2 * ref + e for e in noise], ref)
+    assert high["mean_error"] == pytest.approx(0.2, abs=0.01) and high["spread"] == pytest.approx(rel, rel=0.05)
+    assert high["seed_mean_mape"] == pytest.approx(0.2, abs=0.02) and high["seed_mean_mape"] > 2 * high["noise_in_mean"]
+
+
+def test_saved_scenes_are_read_back_with_their_configuration_only(tmp_path):
+    """``--only SCENE`` saves a scene's figures; the full run reads them back only under the same configuration
+    (the scene list aside), so a quick scene never enters a full table."""
+    fig = {"scene": "room-door", "target_mape": 0.2, "speedup": {"restir-pt": {"median": float("inf")}}}
+    save_scene(str(tmp_path), FULL, fig)
+    got, note = load_scene_figure(str(tmp_path), dict(FULL, scenes=("room-door",)), "room-door")
+    assert got == fig and note is None
+    got, note = load_scene_figure(str(tmp_path), QUICK, "room-door")
+    assert got is None and "another configuration" in note
+    assert load_scene_figure(str(tmp_path), FULL, "villa-sun") == (None, None)
+    with pytest.raises(DyngiError, match="unknown scene.*valid: .*room-door"):
+        run_only(str(tmp_path), ["room-dor"])

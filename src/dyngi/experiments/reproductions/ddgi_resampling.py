@@ -44,6 +44,10 @@ nor how the target was chosen; the protocol below is ours and is written to be f
    (:func:`interleaved_ms`), so that a load change on a shared machine falls on all three alike.
    Frames and time are reported separately, per seed, with the median and range over ``seeds`` seeds
    of the speed-ups.
+6. **Bias and variance apart over seeds** (:func:`bias_variance`; our decomposition): per method one image
+   per seed (``restir-pt``: its accumulated image at the end of its run; the DDGI methods: the mean of
+   their kept steady frames); the MAPE of the mean over seeds (bias, plus the noise left in the mean,
+   reported beside it) and its image-mean error, and the spread between seeds (the variance part).
 
 Scenes (:mod:`dyngi.scene.builtin_table1`): ``room-door`` (ROOM DOOR), ``villa-sun`` (GREEK VILLA),
 ``pink-room`` (PINK ROOM / RED BALL), ``cornell-static`` (RED BALL, the classic box) and ``living-room``
@@ -63,16 +67,22 @@ CPU's small resolutions the update traces tens of rays per pixel and dominates t
 ``--quick``: 64 x 36, three seeds, 64 measured ``restir-pt`` frames, four scenes; the full run:
 320 x 180, up to 256 measured frames, six scenes (hours on 2 CPU cores: a reference of 10^4 spp at
 320 x 180 alone takes minutes per scene). Options through the environment (:data:`OPTIONS`): a longer
-measured ``restir-pt`` run (``DYNGI_RESAMPLING_PT_FRAMES``), a subset of scenes, more seeds. CPU (LLVM)
-timings, not the paper's RTX 3090: compare ratios. Figures measured with it: docs/techniques/ddgi-resampling.md.
+measured ``restir-pt`` run (``DYNGI_RESAMPLING_PT_FRAMES``), a subset of scenes, more seeds. The full
+Table 1 splits over processes: ``dyngi reproduce ddgi-resampling --only room-door --out DIR`` runs one scene
+(:func:`run_only`) and saves its figures in ``DIR/scenes/room-door.json``; ``dyngi reproduce ddgi-resampling
+--out DIR`` then reads the scenes saved there with the same configuration, runs the others and writes the
+report (a run saves each scene it runs there too). CPU (LLVM) timings, not the paper's RTX 3090: compare
+ratios. Figures measured with it: docs/techniques/ddgi-resampling.md.
 """
 from __future__ import annotations
 
 import csv
+import json
 import os
 
 import numpy as np
 
+from ...backend import mi
 from ...errors import DyngiError
 from ...metrics.image import mape
 from ...scene import builtin_names, load_scene
@@ -201,6 +211,24 @@ def calibrated_scale(s0: float, m0: float, s1: float, m1: float, target_mean: fl
     return float(np.clip(s, 0.0, s_max))
 
 
+def bias_variance(images, ref, eps: float = 0.01) -> dict:
+    """Bias and variance apart over seeds (one image per seed, ``images``; our decomposition): ``seed_mean_mape``
+    = MAPE of the mean over seeds (the bias, plus the noise left in a mean of S images), ``mean_error`` = the
+    signed relative error of that mean's image mean, ``spread`` = the between-seed spread in MAPE's units (the
+    per-pixel standard deviation over seeds, ddof 1, over ref + eps, averaged over pixels and channels: the
+    variance part), and ``noise_in_mean`` = sqrt(2 / pi) spread / sqrt(S), the MAPE a bias-free seed mean
+    would show from its noise alone (E|N(0, s)| = sqrt(2 / pi) s); a ``seed_mean_mape`` well above it is
+    bias."""
+    X = np.stack([np.asarray(im, np.float64) for im in images])
+    r = np.asarray(ref, np.float64)
+    S = len(X)
+    m = X.mean(0)
+    spread = float(np.mean(X.std(0, ddof=1) / (r + eps))) if S > 1 else float("nan")
+    return {"seeds": S, "seed_mean_mape": float(np.mean(np.abs(m - r) / (r + eps))),
+            "mean_error": float(m.mean() / r.mean() - 1.0), "spread": spread,
+            "noise_in_mean": float(np.sqrt(2.0 / np.pi) * spread / np.sqrt(S)) if S > 1 else float("nan")}
+
+
 def rays_per_pixel(probe_rays: float, res) -> float:
     """Probe-update rays per frame over the pixels of ``res`` (the paper's: :data:`PAPER_RAYS_PER_PIXEL`)."""
     return float(probe_rays) / float(res[0] * res[1])
@@ -296,6 +324,7 @@ def _accumulate_pt(scene, res, seed: int, frames: int, ref, stop_at=None, keep_f
         img = np.asarray(r.image, np.float32)
         if i == 0 and keep_first:
             out["first"] = img
+        out["last"] = img       # the accumulated image so far (its own progressive mean)
         out["mape"].append(_mape(img, ref) if np.all(np.isfinite(img)) else float("nan"))
         out["table2"].append(r.stats.get("table2_ms"))
         goal = stop_at(out["mape"][0]) if stop_at is not None else None
@@ -354,11 +383,16 @@ class _Reference:
         self._add(self.n)
 
 
+OTHER_VIEW_HITS = 0.95
+"""A derived other view (:func:`other_view`) must see geometry in this share of its pixels (our choice)."""
+
+
 def other_view(scene_name: str, scene) -> tuple:
     """``(camera, declared)``: the second view of ``scene_name`` that the emission slider is fitted on: the
     analog's own (:data:`~dyngi.scene.builtin_table1.OTHER_VIEWS`), else (our choice) one from the probe
-    box's centre looking the other way horizontally (the scene camera's direction with x and z negated, its
-    pitch and field of view kept), which overlaps the scene's view little."""
+    box's centre looking the other way horizontally (the scene camera's direction turned 180 degrees about
+    the vertical, its pitch and field of view kept), which overlaps the scene's view little; turned 90 or
+    -90 degrees instead when under ``OTHER_VIEW_HITS`` of its camera rays meet geometry (an open side)."""
     if scene_name in OTHER_VIEWS:
         return OTHER_VIEWS[scene_name], True
     cam = scene.camera(scene.frame_time(0))
@@ -366,7 +400,18 @@ def other_view(scene_name: str, scene) -> tuple:
     c = 0.5 * (lo + hi)
     d = np.asarray(cam.target, np.float64) - np.asarray(cam.origin, np.float64)
     d = d / np.linalg.norm(d)
-    return Camera(tuple(c), tuple(c + d * np.array([-1.0, 1.0, -1.0])), tuple(cam.up), cam.fov), False
+    res = (32, 18)
+    idx = mi.UInt32(np.arange(res[0] * res[1], dtype=np.uint32))
+    views = []
+    for deg in (180.0, 90.0, -90.0):
+        a = np.radians(deg)
+        turned = np.array([np.cos(a) * d[0] + np.sin(a) * d[2], d[1], -np.sin(a) * d[0] + np.cos(a) * d[2]])
+        view = Camera(tuple(c), tuple(c + turned), tuple(cam.up), cam.fov)
+        hits = np.array(scene.mi_scene.ray_intersect(view.sample_rays(res, idx, mi.Point2f(0.5, 0.5))).is_valid())
+        views.append((hits.mean(), view))
+        if hits.mean() >= OTHER_VIEW_HITS:
+            return view, False
+    return max(views, key=lambda v: v[0])[1], False
 
 
 def _calibrate(scene_name: str, res, depth: int, cfg) -> dict:
@@ -438,7 +483,8 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
     calib = _calibrate(scene_name, res, depth, cfg)
     params = {"emission_scale": calib["scale"]}
     say(f"emission scale {calib['default_scale']:g} (used; the fit on the other view gives "
-        f"{calib['fitted_scale']}; its mean ratio there {calib.get('ratio_other_default', float('nan')):.3f})")
+        f"{calib['fitted_scale'] or float('nan'):.3g}; its mean ratio there "
+        f"{calib.get('ratio_other_default', float('nan')):.3f})")
 
     # -- warmed DDGI methods, steady frames kept (step 3) --
     runs = {name: [_steady(scene, name, res, s, params, cfg["warm_frames"], cfg["steady_frames"]) for s in seeds]
@@ -506,6 +552,11 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
         fig["techniques"][name] = {
             "seeds": per_seed, "frame_ms": float(np.median([p["frame_ms"] for p in per_seed])),
             "table2_ms": ({kk: float(np.mean([x[kk] for x in t2])) for kk in t2[0]} if t2 else None)}
+    # -- bias and variance apart over seeds: restir-pt's accumulated image at the end of its run, the DDGI
+    # methods' steady image (the mean of their kept frames) --
+    fig["bias_variance"] = {"restir-pt": bias_variance([r["last"] for r in pt], ref),
+                            **{n: bias_variance([np.mean(r["images"], 0) for r in runs[n]], ref)
+                               for n in DDGI_METHODS}}
     rays = [x for r in runs["ddgi-resampling"] for x in r["rays"]]
     fig["probe_rays_per_pixel"] = rays_per_pixel(np.mean(rays), res) if rays else None
     fig["speedup"] = {other: _speedups(fig, other) for other in ("restir-pt", "ddgi-secondary")}
@@ -660,6 +711,22 @@ def _tables(figs) -> tuple[str, str, str, str]:
     return "\n".join(t1), "\n".join(prot), "\n".join(fits), "\n".join(dn) if len(dn) > 2 else ""
 
 
+def _bias_variance_table(figs) -> str:
+    """The report's bias / variance table (:func:`bias_variance` per method and scene)."""
+    bv = ["| scene | method | image per seed | MAPE of the seed mean (bias + noise) | its noise alone | "
+          "image-mean error of the seed mean | spread between seeds (variance part) |", "|---|---|---|---|---|---|---|"]
+    for f in figs:
+        for n in METHODS:
+            b = (f.get("bias_variance") or {}).get(n)
+            if not b:
+                continue
+            what = (f"accumulated, {'/'.join(str(s['frames_run']) for s in f['techniques'][n]['seeds'])} frames"
+                    if n == "restir-pt" else "mean of the kept steady frames")
+            bv.append(f"| {f['scene']} | {n} | {what} | {b['seed_mean_mape']:.3f} | {b['noise_in_mean']:.3f} | "
+                      f"{100 * b['mean_error']:+.1f} % | {b['spread']:.3f} |")
+    return "\n".join(bv) if len(bv) > 2 else ""
+
+
 def _cost(figs) -> str:
     cost = ["| scene | technique | frame ms | trace & shade | resampling | update |", "|---|---|---|---|---|---|"]
     for f in figs:
@@ -797,6 +864,75 @@ def decide_claims(fig: dict, cfg: dict, quick: bool) -> list:
     return out
 
 
+SCENES_DIR = "scenes"
+"""Sub-folder of the output folder holding each finished scene's figures (``SCENE.json``: the configuration
+and :func:`run_scene`'s figures), written as each scene ends: ``dyngi reproduce ddgi-resampling --only SCENE``
+runs one scene in its own process, and the full run reads the scenes found there (same configuration)."""
+
+
+def _scene_path(out_dir: str, scene: str) -> str:
+    return os.path.join(out_dir, SCENES_DIR, f"{scene}.json")
+
+
+def _config_json(cfg: dict) -> dict:
+    """``cfg`` as saved beside a scene's figures, without the scene list (one scene's run does not depend on it)."""
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in cfg.items() if k != "scenes"}
+
+
+def save_scene(out_dir: str, cfg: dict, fig: dict) -> str:
+    """Write one finished scene's figures to ``out_dir/scenes/SCENE.json`` (atomically: a temporary file renamed)."""
+    path = _scene_path(out_dir, fig["scene"])
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    tmp = path + ".tmp"
+    with open(tmp, "w") as fh:
+        json.dump({"config": _config_json(cfg), "figure": fig}, fh, default=float)
+    os.replace(tmp, path)
+    return path
+
+
+def load_scene_figure(out_dir: str, cfg: dict, scene: str) -> tuple[dict | None, str | None]:
+    """``(figures, note)``: the saved figures of ``scene`` under ``out_dir`` if they were made with ``cfg``
+    (None otherwise), and a note when a saved file was left aside."""
+    path = _scene_path(out_dir, scene)
+    if not os.path.exists(path):
+        return None, None
+    try:
+        with open(path) as fh:
+            saved = json.load(fh)
+    except (OSError, ValueError) as e:
+        return None, f"`{scene}`: {path} unreadable ({e}); run again"
+    if saved.get("config") != json.loads(json.dumps(_config_json(cfg), default=float)):
+        return None, f"`{scene}`: {path} was made with another configuration; run again"
+    return saved["figure"], None
+
+
+def _scene_names(names, cfg) -> list[str]:
+    bad = [x for x in names if x not in ANALOG or x not in builtin_names()]
+    if bad or not names:
+        raise DyngiError(f"--only: unknown scene(s) {', '.join(bad) or '(none given)'}; valid: "
+                         + ", ".join(sorted(ANALOG)))
+    return list(dict.fromkeys(names))
+
+
+def run_only(out_dir: str, names, quick: bool = False, quiet: bool = True, on_scene=None) -> list[str]:
+    """``dyngi reproduce ddgi-resampling --only SCENE ...``: run these scenes of the configuration (the full one
+    unless ``quick``; the :data:`OPTIONS` apply) one after another, each saved in ``out_dir/scenes`` as it
+    ends and skipped when saved before with the same configuration; returns the paths. ``dyngi reproduce
+    ddgi-resampling --out OUT_DIR`` then writes the report from the saved scenes (running the missing ones)."""
+    cfg = _with_options(QUICK if quick else FULL)
+    paths = []
+    for sc in _scene_names(names, cfg):
+        fig, _ = load_scene_figure(out_dir, cfg, sc)
+        if fig is None:
+            fig = run_scene(sc, cfg, quiet)
+            paths.append(save_scene(out_dir, cfg, fig))
+        else:
+            paths.append(_scene_path(out_dir, sc))
+        if on_scene is not None:
+            on_scene(sc, paths[-1])
+    return paths
+
+
 @register_experiment("ddgi-resampling", "DDGI Resampling Table 1: time to equal MAPE of restir-pt, ddgi-secondary "
                      "and ddgi-resampling (warmed DDGI methods, best 1-frame MAPE as the target, fitted restir-pt "
                      "curve, emission calibration, 3 seeds) on the Table 1 analogs", PAPER)
@@ -804,9 +940,22 @@ def reproduce_ddgi_resampling(out_dir: str, quick: bool = False, quiet: bool = T
     cfg = _with_options(QUICK if quick else FULL)
     have = set(builtin_names())
     notes = [f"`{sc}` skipped: the scene is not in this build." for sc in cfg["scenes"] if sc not in have]
-    names = [sc for sc in cfg["scenes"] if sc in have]   # independent runs: tasks of the executor (--cluster)
-    figs = list(cluster.run_named(names, run_scene, [(sc, cfg, quiet) for sc in names], "reproduce ddgi-resampling",
-                                  quiet).values())
+    names = [sc for sc in cfg["scenes"] if sc in have]
+    saved = {}           # scenes finished before in this output folder (--only, or an interrupted run)
+    for sc in names:
+        fig, note = load_scene_figure(out_dir, cfg, sc)
+        if fig is not None:
+            saved[sc] = fig
+        if note:
+            notes.append(note)
+    todo = [sc for sc in names if sc not in saved]   # independent runs: tasks of the executor (--cluster)
+    ran = cluster.run_named(todo, run_scene, [(sc, cfg, quiet) for sc in todo], "reproduce ddgi-resampling", quiet)
+    for fig in ran.values():
+        save_scene(out_dir, cfg, fig)
+    figs = [saved.get(sc) or ran.get(sc) for sc in names]
+    figs = [f for f in figs if f is not None]
+    if saved:
+        notes.append("read from earlier runs in this folder (" + SCENES_DIR + "/): " + ", ".join(sorted(saved)))
     notes += [f"failed and left out: {f}" for f in cluster.failure_lines()]
     notes += [f"`{f['scene']}`: the reference's noise MAPE {f['reference']['noise_mape']:.4f} is not 10x below the "
               f"target {f['target_mape']:.3f} at the largest spp ({f['reference']['spp']})"
@@ -818,6 +967,7 @@ def reproduce_ddgi_resampling(out_dir: str, quick: bool = False, quiet: bool = T
         f["verdict"] = ("extra row (not in Table 1)" if not got else
                         "; ".join(f"{r.claim.key.rsplit('.', 1)[1]}: {r.verdict.word}" for r in got))
     t1, prot, fits, dn = _tables(figs)
+    bv = _bias_variance_table(figs)
     os.makedirs(out_dir, exist_ok=True)
     _plot(figs, out_dir)
     with open(os.path.join(out_dir, "table1.csv"), "w", newline="") as fh:
@@ -847,6 +997,13 @@ def reproduce_ddgi_resampling(out_dir: str, quick: bool = False, quiet: bool = T
         "on another view of the scene is shown, not used). CPU (LLVM) timings, not the paper's RTX 3090: compare ratios.", "",
         "## Time to equal MAPE (Table 1)", "", t1, "",
         "## Protocol figures per scene", "", prot, "",
+        "## Bias and variance apart over seeds", "",
+        "Per method, one image per seed (restir-pt: its accumulated image at the end of its run; the DDGI methods: "
+        "the mean of their kept steady frames): the MAPE of the mean over seeds (bias, plus the noise left in the "
+        "mean, shown beside it: sqrt(2/pi) x spread / sqrt(seeds)), the signed image-mean error of that mean, and "
+        "the spread between seeds (per-pixel standard deviation over seeds / (reference + 0.01), averaged: the "
+        "variance part, in MAPE's units). A seed-mean MAPE well above its noise alone is bias.", "",
+        bv, "",
         "## Fitted MAPE(N) = a/sqrt(N) + b where the target was not reached within the measured frames", "",
         fits, "",
         *(["## Extra: denoised 1-frame MAPE (OIDN for OptiX; not the paper's Table 1)", "", dn, ""] if dn else []),
