@@ -44,8 +44,11 @@ other domains (as unbiased ReSTIR GI does); without it a neighbour that cannot s
 takes a share of its MIS weight (a darkening bias where neighbours are occluded). Off by default (our
 choice: +50 % frame time; figures in docs/techniques/ddgi-resampling.md), on for the strictly unbiased estimator.
 
-``L_y`` is a random value (glossy recursion, NEE, or the exact hook's path tracing) that can be 0 where
-its expectation is not; a target that vanishes there would lose that light (the resampled vertex is
+Under the ``exact_radiance`` test hook the cached ``L_y`` is still the probes' ``S(y)`` (one extra probe
+shading per pixel), while the residual and the resampled vertex ``z`` are shaded by path tracing
+(:mod:`.shading`): the hook takes the probes' bias out of the estimate, not out of the target.
+
+``L_y`` is a random value (glossy recursion, NEE) that can be 0 where its expectation is not; a target that vanishes there would lose that light (the resampled vertex is
 shaded with a fresh ``S(z)``). Our choice: a defensive floor, ``lum(L_y) + eps`` with ``eps`` =
 ``target_floor`` (0.01) x the frame's mean ``lum(L_y)`` (one per frame, the same for every domain of
 that frame; the previous frame's is kept for temporal reuse), so the target's support is every
@@ -348,6 +351,11 @@ class DDGIResamplingTechnique(SecondaryShading):
             ss = make_sampler(npix, frame.seed, frame.index, _SHADE_STREAM)
             bs, w, ok, ray, si_y, delta = self._bsdf_sample(gb, bsdf, ss)
             S_y, rays_y, rec = self.shade_secondary(si_y, ray, mi.Color3f(1.0), a0, bs.pdf, delta, ss, ok)
+            L_y = S_y    # the cached value of the part-1 target (Sec. 3.7)
+            if p["exact_radiance"]:   # the hook shades with path tracing; the target keeps the probes' S(y)
+                L_y, rays_c, rec = self.shade_secondary(si_y, ray, mi.Color3f(1.0), a0, bs.pdf, delta, ss, ok,
+                                                        exact=False)
+                rays_y = rays_y + rays_c
             hit_y = ok & si_y.is_valid()
             ny = dr.select(dr.dot(si_y.n, ray.d) > 0.0, -si_y.n, si_y.n)
             r2 = dr.select(hit_y, dr.square(si_y.t), 0.0)
@@ -355,8 +363,8 @@ class DDGIResamplingTechnique(SecondaryShading):
             is_cand = smooth & ok & ~delta & hit_y
             _, resid = bounded_fraction(J_y, gmax)
             # defensive floor of the part-1 target (module docstring): a fraction of the frame's mean L_y
-            eps = p["target_floor"] * dr.mean(dr.select(is_cand, mi.luminance(S_y), 0.0)) + 1e-12
-            dr.eval(S_y, rays_y, rec, J_y, ny, eps)
+            eps = p["target_floor"] * dr.mean(dr.select(is_cand, mi.luminance(L_y), 0.0)) + 1e-12
+            dr.eval(S_y, L_y, rays_y, rec, J_y, ny, eps)
         t.add_rays("bsdf sample", dr.count(ok))
         t.add_rays("bsdf sample", dr.sum(rays_y))
         self.last_recursions = rec
@@ -379,7 +387,7 @@ class DDGIResamplingTechnique(SecondaryShading):
                 w_sum_e, ph_e = dr.zeros(mi.Float, npix), dr.zeros(mi.Float, npix)
             y = mi.Point3f(si_y.p)
             s1 = (dr.full(mi.UInt32, 1, npix), dr.zeros(mi.UInt32, npix), dr.zeros(mi.Vector3f, npix), y,
-                  mi.Vector3f(ny), mi.Color3f(S_y))
+                  mi.Vector3f(ny), mi.Color3f(L_y))
             ph_b = self._target(gb.pos, n, two, gmax, s1, time, is_cand, g_lum, eps, sid=si)
             # RIS weight of the BSDF candidate: p_hat / (p_bsdf(w) J)
             w_b = dr.select(is_cand & (ph_b > 0.0), ph_b / dr.maximum(bs.pdf * J_y, 1e-30), 0.0)
@@ -389,7 +397,7 @@ class DDGIResamplingTechnique(SecondaryShading):
             sample = (dr.select(take_b, 1, dr.zeros(mi.UInt32, npix)), dr.select(take_b, 0, k),
                       dr.select(take_b, mi.Vector3f(0.0), pl), dr.select(take_b, y, zero3),
                       dr.select(take_b, mi.Vector3f(ny), mi.Vector3f(0.0)),
-                      dr.select(take_b, mi.Color3f(S_y), mi.Color3f(0.0)))
+                      dr.select(take_b, mi.Color3f(L_y), mi.Color3f(0.0)))
             ph = dr.select(take_b, ph_b, ph_e)
             M = float(M_e + 1)
             r = Reservoir(sample, wsum * M, dr.select(smooth, M, 0.0), ph,

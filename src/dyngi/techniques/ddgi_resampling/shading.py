@@ -36,7 +36,14 @@ At a vertex ``x_n`` (n >= 2) reached from ``x_{n-1}``:
 Test hook ``exact_radiance=True``: ``S(x_n)`` is replaced by a path-traced estimate of the reflected
 radiance at ``x_n`` (Mitsuba-style path tracing with NEE and MIS from ``x_{n-1}`` along the segment,
 ``exact_depth`` vertices, minus the emission of ``x_n``); the estimator is then unbiased, which the
-convergence test checks against Mitsuba's ``path``.
+convergence test checks against Mitsuba's ``path``. The hook replaces ``S`` where an estimate is
+*shaded*; ``ddgi-resampling``'s resampling target keeps the probes' ``S(y)`` (its cached ``L_y``, as
+without the hook), since any target with full support leaves the estimate unbiased (Sec. 3.7: "using
+approximate values in the resampling step does not introduce additional bias"), while a single
+path-traced sample as the target is 0 for most points ``y`` of a room lit through a window: those
+samples sit at the target's floor with contribution weights ~1/floor, and a fresh ``S(z)`` that finds
+the light makes fireflies that carry most of the energy (the accumulated image then reads 10-30 %
+dark; docs/techniques/ddgi-resampling.md).
 
 :class:`SecondaryShading` is the frame set-up both techniques share (not a technique itself): the
 ReSTIR DI component (:class:`~dyngi.transport.restir_di.ReSTIRDI`), the DDGI+ volume, the G-buffer and
@@ -156,18 +163,20 @@ class SecondaryShading(Technique):
         self.debug = {}
 
     # -- S(x_n): shading of a secondary vertex (module docstring) ---------------------------------
-    def shade_secondary(self, si, ray, beta, a0, pdf_prev, delta_prev, sampler, active, cv=None):
+    def shade_secondary(self, si, ray, beta, a0, pdf_prev, delta_prev, sampler, active, cv=None, exact=None):
         """``beta * S(x_n)`` at the vertices ``si`` reached by ``ray``; returns (L, rays, recursions).
 
         ``pdf_prev``/``delta_prev``: the sampling pdf (solid angle) and delta flag of the direction that
         led to ``si`` (Eq. 7); ``a0``: Eq. 8's camera footprint per lane. ``cv``: (g, diffuse share)
-        for the control variate (Sec. 5.1; the diffuse share of ``beta`` carries ``-g``)."""
+        for the control variate (Sec. 5.1; the diffuse share of ``beta`` carries ``-g``). ``exact``: the
+        ``exact_radiance`` hook on / off for this call (default: the parameter; ``ddgi-resampling`` reads
+        the probes for its resampling target under the hook)."""
         p = self.params
         mscene = self.scene.mi_scene
         active = mi.Bool(active)
         beta = mi.Color3f(beta)
         rec = dr.zeros(mi.UInt32, dr.width(active))
-        if p["exact_radiance"]:
+        if p["exact_radiance"] if exact is None else exact:
             hit = active & si.is_valid()
             Lp, n_rays, _ = trace_paths(mscene, sampler, ray, hit, p["exact_depth"], 5)
             Le = mi.Color3f(si.emitter(mscene).eval(si, hit))
