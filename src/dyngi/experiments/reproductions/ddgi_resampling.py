@@ -483,7 +483,7 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
     calib = _calibrate(scene_name, res, depth, cfg)
     params = {"emission_scale": calib["scale"]}
     say(f"emission scale {calib['default_scale']:g} (used; the fit on the other view gives "
-        f"{calib['fitted_scale'] or float('nan'):.3g}; its mean ratio there "
+        f"{float('nan') if calib['fitted_scale'] is None else calib['fitted_scale']:.3g}; its mean ratio there "
         f"{calib.get('ratio_other_default', float('nan')):.3f})")
 
     # -- warmed DDGI methods, steady frames kept (step 3) --
