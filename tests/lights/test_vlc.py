@@ -226,6 +226,66 @@ def test_construction_keeps_every_visible_light_once(backend, merge, adapt):
             assert occ.max() > cap
 
 
+
+@pytest.mark.parametrize("adapt", ["device", "host"])
+def test_selection_is_the_two_pass_inverse_cdf_over_a_full_bucket(backend, adapt):
+    """Algorithm 1's selection (the first traversal keeps the weights, the second scans them): in a VLC draw the
+    light is the first of its bucket (increasing id) whose running importance sum exceeds ``u_l * acc``, as a
+    NumPy two-pass walk over the bucket's importances gives it, in buckets filled to the capacity (16 lights
+    in every leaf, capacity 8: two full buckets). Lanes whose target lies within 1e-4 of a partial sum are left
+    out (the two may round the rescaled ``u`` differently there)."""
+    from dyngi.directions.octree import AdaptiveOctree
+    from dyngi.lights.base import FrameCtx
+    from dyngi.lights.emitter_table import EmitterTable
+    from dyngi.lights.vlc import VLCSelector
+    sc = many_lights_scene(4)          # 32 lights
+    tris = EmitterTable(sc.mi_scene)
+    lo, hi = (np.asarray(b) for b in sc.meta.bounds)
+    oc = AdaptiveOctree(lo, hi, adapt=adapt)       # 8 leaves
+    sel = VLCSelector(tris, octree=oc, capacity=8, adapt=adapt)
+    assert sel.adapt == adapt
+    rng = np.random.default_rng(6)
+    m = 4000
+    pr = rng.uniform(lo + 0.01, hi - 0.01, size=(m, 3))
+    sel.record(_arr(pr, mi.Point3f), mi.Vector3f(0, 1, 0), mi.UInt32((np.arange(m) % 16).astype(np.uint32)),
+               mi.Bool(True), mi.Bool(True))
+    sel.end_frame()
+    sel.begin_frame(FrameCtx(sc.mi_scene, tris, 1, 0.0, oc, (lo, hi)))
+    p, n = _points(6, rng)
+    leaves = np.asarray(oc.lookup(_arr(p, mi.Point3f)))
+    k_draws = 3000
+    f = np.float32(sel.fraction)
+    checked = 0
+    for i in range(len(p)):
+        buckets = sel.host_buckets(int(leaves[i]))
+        assert [len(b) for b in buckets] == [8, 8]
+        B = np.float32(len(buckets))
+        u = rng.uniform(float(f), 1.0, k_draws).astype(np.float32)       # VLC draws only
+        P = _arr(np.repeat(p[i:i + 1], k_draws, 0), mi.Point3f)
+        N = _arr(np.repeat(n[i:i + 1], k_draws, 0), mi.Vector3f)
+        k = np.asarray(sel.sample(P, N, mi.Float(u), mi.Bool(True))[0]).astype(np.int64)
+        # importances of the bucket lights at the point, in traversal order (the selector's own function)
+        ids = np.concatenate(buckets)
+        w = np.asarray(sel._importance(_arr(np.repeat(p[i:i + 1], ids.size, 0), mi.Point3f),
+                                       _arr(np.repeat(n[i:i + 1], ids.size, 0), mi.Vector3f),
+                                       mi.UInt32(ids.astype(np.uint32)), mi.Bool(True)), np.float32)
+        uv = np.minimum((u - f) / (np.float32(1) - f), np.float32(0.99999994))
+        b = np.minimum((uv * B).astype(np.int64), len(buckets) - 1)
+        u_l = uv * B - b.astype(np.float32)
+        for j, bucket in enumerate(buckets):
+            wb = w[j * 8:(j + 1) * 8]
+            if wb.sum() <= 0:
+                continue
+            cum = np.cumsum(wb, dtype=np.float32)       # sequential float32 sums, the traversal's order
+            lane = b == j
+            tgt = u_l[lane] * cum[-1]
+            first = np.argmax((cum[None, :] > tgt[:, None]) & (wb[None, :] > 0), axis=1)
+            want = bucket[first]
+            clear = np.min(np.abs(cum[None, :] - tgt[:, None]), axis=1) > 1e-4 * cum[-1]
+            assert np.array_equal(k[lane][clear], want[clear]), (i, j)
+            checked += int(clear.sum())
+    assert checked > 0.5 * len(p) * k_draws, checked     # most draws decided away from a boundary
+
 def test_bucket_hysteresis(backend):
     from dyngi.lights.vlc import bucket_counts
     light = np.arange(30)                    # 30 distinct lights
