@@ -3,7 +3,8 @@
 Exact identities: the exploration alias table reproduces its pmf (chi^2); every selector's pmf sums
 to 1 over the lights (the VLC: minus the mass of buckets whose lights all have zero importance at the
 point, which yield no light, computed independently here); ``sample`` frequencies match ``pmf``
-(chi^2, VLC + exploration combined as Algorithm 1 does it); the construction keeps every visible light
+(chi^2, VLC + exploration combined as Algorithm 1 does it); a VLC draw is the two-pass inverse CDF over
+its bucket's importances (buckets filled to the capacity: the weights the first traversal keeps); the construction keeps every visible light
 of a leaf and its neighbours exactly once, in bucket ``id mod B``, within capacity, with the minimal
 power-of-two B (hysteresis included); a light behind a wall never enters a VLC in a closed room.
 """
