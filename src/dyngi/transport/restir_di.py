@@ -10,7 +10,7 @@ Resampling family; issue 24). The target is a parameter of each reuse stage.
    ``p_hat(y) = lum(Lg(y)) * cos+(n, wi)`` (:func:`target`; ``|cos|`` on transmissive surfaces): the
    unshadowed contribution without the BSDF, so any neighbour's or the previous frame's target is
    exact and needs only a G-buffer's position and normal. **Visibility** (``visibility_reuse``; the
-   component's default ``'none'``, ``restir-pt``'s ``'unbiased'``, ``ddgi-resampling``'s ``'candidate'``;
+   component's default ``'none'``, ``restir-pt``'s and ``ddgi-resampling``'s ``'unbiased'``;
    measured: docs/techniques/restir-pt.md, docs/techniques/ddgi-resampling.md):
 
    * ``'unbiased'`` (**unbiased**; Bitterli et al.'s unbiased variant, a generalized-RIS partition of unity
