@@ -278,3 +278,22 @@ def test_demo_quick_report_figures_readable_in_chromium(quick_tour):
     out, r = quick_tour
     assert r.returncode == 0, r.stderr[-3000:]
     assert len(figures_readable(str(out / "report.html"))) == 2 * len(demo.SECTIONS)
+
+
+def test_vlc_section_reads_the_light_selection_bound_from_every_seed():
+    """The VLC section runs the oracle lists beside the PVS SLL; the claim's light-selection bound (SLL MSE over
+    the oracle's, mean over the seeds) comes from those runs, and a bound under 10x keeps Fig. 8 (a) undecided
+    and says so. Fake runs: the oracle 10x better than its index gives, so SLL / oracle = 1.5 / 0.35."""
+    from dyngi.experiments.reproductions import vlc
+
+    sec = next(s for s in demo.SECTIONS if s.key == "vlc")
+    assert vlc.ORACLE in sec.specs and vlc.SPECS[1] in sec.specs and sec.scene == "storage-cells"
+    rs = _fake_run(sec, frames=8, better=vlc.ORACLE)
+    runs = {0: rs, 1: rs, 2: rs}
+    k_sll, k_or = sec.specs.index(vlc.SPECS[1]), sec.specs.index(vlc.ORACLE)
+    want = (0.5 + k_sll) / (0.1 * (0.5 + k_or))
+    for c in sec.claims(sec, (192, 108), 8, rs, runs):
+        assert c.scale_ours["light-selection bound (SLL / oracle MSE)"] == pytest.approx(want, rel=1e-2)
+    for c in demo.decide_section(sec, runs, (192, 108), 8):
+        assert c.verdict.word == "undecided"
+        assert any("light-selection bound" in x for x in c.verdict.conditions), c.verdict.conditions

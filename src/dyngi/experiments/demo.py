@@ -13,7 +13,8 @@ section                   techniques                                  analog sce
 ``ddgi-resampling``       ``ddgi-resampling``, ``ddgi-secondary``,    ``cornell-static`` (static interior)
                           ``restir-pt`` (PT+ReSTIR)
 ``smcir``                 ``smcir`` vs ``ir``                         ``street-canyon-moving-sun``
-``vlc``                   ``nee-pt:lights=vlc`` vs ``lights=lighttree``  ``warehouse-rooms`` (134 lights)
+``vlc``                   ``nee-pt:lights=vlc`` vs ``lights=sll``,    ``storage-cells`` (512 lights)
+                          ``lights=lighttree`` (and the oracle)
 ``cdq``                   ``nee-pt:directions=cdq`` vs ``=bsdf``      ``sky-pit-sun-disc`` (sunlit pit)
 ========================  ==========================================  =====================================
 
@@ -27,8 +28,9 @@ decide and why --, the image grid of the last frame (technique, reference, FLIP 
 link to the section's full report; ``summary.json`` holds the figures, the claims with their rows and
 seeds, the commit, and every technique's failure status (the command line's NaN/Inf check reads it).
 
-Sizes (:data:`SIZES`): ``tour`` (the default: 96x54, 8 frames, 64-spp references, the VLC section at
-twice the resolution; the figures are small-sample readings of one run, the reproductions
+Sizes (:data:`SIZES`): ``tour`` (the default: 96x54, 8 frames, 64-spp references; the VLC and CDQ sections at
+twice the resolution (the paper's octree thresholds), CDQ's with five times the frames, the VLC's reference at
+64x the spp; the figures are small-sample readings of one run, the reproductions
 ``dyngi reproduce NAME`` are the measurements) and ``quick`` (32x18, 2 frames, 4 spp: the tour's
 structure, for tests; its figures are noise). References are cached (``~/.cache/dyngi``), so a second
 run only renders the techniques; how long the tour takes is in docs/harness.md ("The demo tour").
@@ -79,7 +81,8 @@ class Section:
     value of a claim's metric in :func:`~dyngi.experiments.compare.execute`'s result (None: not reached).
     The verdict words are computed over :data:`SEEDS` (nothing in the tour writes one by hand); at the
     tour's scale most claims are ``undecided`` and say why. ``res_scale``: the section runs at this multiple
-    of the tour's resolution (the VLC's gain needs samples per octree leaf). ``span``: seconds of scene time
+    of the tour's resolution (the VLC's and CDQ's claims need the paper's records per octree leaf), ``frames_scale``
+    of its frames, ``ref_spp_scale`` of its reference samples. ``span``: seconds of scene time
     the frames cover, first frame at ``start`` and last at ``start + span`` (0: the scene held at
     ``start``, a static protocol). ``measure(rs, section)`` returns ``{'text': our figure, 'values'}`` from
     the first seed's result.
@@ -100,10 +103,22 @@ class Section:
     claims: Callable | None = None
     value: Callable | None = None
     res_scale: int = 1
+    frames_scale: int = 1
+    ref_spp_scale: int = 1
 
     def res(self, size: "Size") -> tuple[int, int]:
         """This section's image size: the tour's times :attr:`res_scale`."""
         return (size.res[0] * self.res_scale, size.res[1] * self.res_scale)
+
+    def frames(self, size: "Size") -> int:
+        """This section's frame count: the tour's times :attr:`frames_scale` (CDQ learns over tens of frames)."""
+        return size.frames * self.frames_scale
+
+    def ref_spp(self, size: "Size") -> int:
+        """This section's reference spp: the tour's times :attr:`ref_spp_scale` (``storage-cells``: Mitsuba samples
+        its 512 lights by power and about 1 in 100 of its NEE samples is unoccluded, so its reference needs ~64x
+        the spp for its own noise to stay a few per cent of the oracle's 1-spp MSE)."""
+        return size.ref_spp * self.ref_spp_scale
 
     @property
     def view_command(self) -> str:
@@ -199,12 +214,18 @@ def measure_smcir(rs, sec) -> dict:
 
 
 def measure_vlc(rs, sec) -> dict:
-    """MSE at 1 spp of the VLC and the light tree, frames after frame 0 (the VLC starts empty)."""
-    v, lh = "nee-pt:lights=vlc", "nee-pt:lights=lighttree"
+    """MSE at 1 spp of the VLC, the SLL (PVS lists) and the light tree, frames after frame 0 (the VLC starts
+    empty); the oracle lists' too when the section runs them."""
+    v, sll, lh = vlc.HEADLINE
     first = 1 if len(_frames_from(rs, v, "mse")) > 1 else 0
-    m = {lb: _mean(_frames_from(rs, lb, "mse", first=first)) for lb in (v, lh)}
-    text = (f"MSE at 1 spp (frames {first}..): VLC {m[v]:.3g} vs light tree {m[lh]:.3g} "
-            f"({_ratio(m[lh], m[v]):.2g}x lower for the VLC)")
+    labels = [lb for lb in (v, sll, lh, vlc.ORACLE) if lb in sec.specs]
+    m = {lb: _mean(_frames_from(rs, lb, "mse", first=first)) for lb in labels}
+    text = f"MSE at 1 spp (frames {first}..): VLC {m[v]:.3g}"
+    for lb, name in ((sll, "SLL"), (lh, "light tree")):
+        if lb in m:
+            text += f", {name} {m[lb]:.3g} ({_ratio(m[lb], m[v]):.2g}x the VLC's)"
+    if vlc.ORACLE in m:
+        text += f", oracle lists {m[vlc.ORACLE]:.3g}"
     return {"text": text, "values": {"mse": m}}
 
 
@@ -240,7 +261,7 @@ def _leaf_samples(rs, label):
     return float(np.mean([o["placed"] / max(o["leaves"], 1) for o in octs])) if octs else None
 
 
-def claims_adgi(sec, res, frames, rs=None):
+def claims_adgi(sec, res, frames, rs=None, by_seed=None):
     after = max(0.0, sec.start + sec.span - adgi.GATE_DONE)
     return [c for c in adgi.declare_claims({"res": res, "dt": sec.span / max(frames - 1, 1)}, after)
             if c.key == "adgi.fig8.level"]
@@ -250,7 +271,7 @@ def value_adgi(claim, rs, label):
     return _mean(_frames_from(rs, label, "relmse", GATE_OPENS))
 
 
-def claims_isddgi(sec, res, frames, rs=None):
+def claims_isddgi(sec, res, frames, rs=None, by_seed=None):
     return isddgi.declare_claims(sec.scene, {"res": res, "seeds": SEEDS}, frames)
 
 
@@ -258,7 +279,7 @@ def value_isddgi(claim, rs, label):
     return isddgi.claim_metric(claim, rs, label)
 
 
-def claims_ddgi_resampling(sec, res, frames, rs=None):
+def claims_ddgi_resampling(sec, res, frames, rs=None, by_seed=None):
     return _demo_metric(ddgi_resampling.declare_claims(sec.scene, {"res": res, "seeds": len(SEEDS),
                                                                    "max_frames": frames}),
                         "ms to reach ddgi-resampling's first-frame MAPE (frames x median steady frame time)")
@@ -268,7 +289,7 @@ def value_ddgi_resampling(claim, rs, label):
     return measure_ddgi_resampling(rs, _SECTION["ddgi-resampling"])["values"]["techniques"][label]["time_ms"]
 
 
-def claims_smcir(sec, res, frames, rs=None):
+def claims_smcir(sec, res, frames, rs=None, by_seed=None):
     return _demo_metric(smcir.declare_claims({"specs": sec.specs, "res": res, "frames": frames}, sec.scene,
                                              methods=("ir",)), "|E'| over every pixel (Sec. 5.2)")
 
@@ -277,8 +298,17 @@ def value_smcir(claim, rs, label):
     return rs["summary"][label]["E_prime"]
 
 
-def claims_vlc(sec, res, frames, rs=None):
-    fig = None if rs is None else {vlc.HEADLINE[0]: {"samples_per_leaf": _leaf_samples(rs, vlc.HEADLINE[0])}}
+def claims_vlc(sec, res, frames, rs=None, by_seed=None):
+    """Fig. 8 (a)/(c) at the section's scale; the light-selection bound (PVS SLL over the oracle lists,
+    :func:`~dyngi.experiments.reproductions.vlc.oracle_bound`) from every seed's run of both rows, when the
+    section runs the oracle (without it the bound is unknown and Fig. 8 (a) stays undecided)."""
+    fig = None
+    if rs is not None:
+        fig = {vlc.HEADLINE[0]: {"samples_per_leaf": _leaf_samples(rs, vlc.HEADLINE[0])}}
+        runs = by_seed or {SEEDS[0]: rs}
+        for spec in (vlc.SPECS[1], vlc.ORACLE):
+            if spec in sec.specs:
+                fig[spec] = {"mse_per_seed": [value_vlc(None, r, spec) for _, r in sorted(runs.items())]}
     return [c for c in vlc.declare_claims({"res": res, "frames": frames}, sec.scene, fig) if c.baseline in sec.specs]
 
 
@@ -287,7 +317,7 @@ def value_vlc(claim, rs, label):
     return _mean(_frames_from(rs, label, "mse", first=first))
 
 
-def claims_cdq(sec, res, frames, rs=None):
+def claims_cdq(sec, res, frames, rs=None, by_seed=None):
     lb = "nee-pt:directions=cdq"
     a = {"scene": sec.scene, "techniques": {lb: {"samples_per_leaf": None if rs is None else _leaf_samples(rs, lb)}}}
     return _demo_metric(cdq.declare_claims({"res_a": res, "frames_a": frames, "warmup_a": frames // 2}, a),
@@ -297,6 +327,18 @@ def claims_cdq(sec, res, frames, rs=None):
 def value_cdq(claim, rs, label):
     n = len(_frames_from(rs, label, "mse"))
     return _mean(_frames_from(rs, label, "mse", first=n // 2))
+
+VLC_SPECS = ("nee-pt:lights=vlc", "nee-pt:lights=sll", "nee-pt:lights=lighttree", "nee-pt:lights=sll-oracle",
+             "nee-pt:lights=vlc:cdq_min_records=0:leaf_scaling=false", "nee-pt:lights=vlc:cdq_min_records=0",
+             "nee-pt:lights=vlc:leaf_scaling=false")
+"""The VLC section's rows: the paper's three (VLC, SLL, LH), the oracle lists (the light-selection bound), the
+claim's paper-literal row and one ablation per setting of ours (:func:`~dyngi.experiments.claims.claim_rows`)."""
+CDQ_SPECS = ("nee-pt:directions=cdq", "nee-pt:directions=bsdf",
+             "nee-pt:directions=cdq:cdq_min_records=0:leaf_scaling=false", "nee-pt:directions=cdq:cdq_min_records=0",
+             "nee-pt:directions=cdq:leaf_scaling=false")
+"""The CDQ section's rows: CDQ and BSDF sampling, the claim's paper-literal row and one ablation per setting of
+ours."""
+
 
 SECTIONS: tuple[Section, ...] = (
     Section(
@@ -340,28 +382,34 @@ SECTIONS: tuple[Section, ...] = (
         note="Indirect light only, against the path-traced indirect reference at max depth 5 (Sec. 5.2); "
              "|E| and |E'| over every pixel after Reinhard tone mapping."),
     Section(
-        "vlc", "VLC vs the light hierarchy: 134 lights in rooms",
+        "vlc", "VLC vs the SLL and the light hierarchy: 512 lights in storage cells",
         "Dittebrandt, Hanika, Dachsbacher, \"Temporal Sample Reuse for Next Event Estimation and Path "
         "Guiding for Real-Time Path Tracing\", EGSR 2020",
-        "warehouse-rooms", ("nee-pt:lights=vlc", "nee-pt:lights=lighttree"),
+        "storage-cells", VLC_SPECS,
         "Visible-light caches learnt per octree leaf from last frame's samples reach \"almost an order of "
         "magnitude lower error compared to the SLL and LH\" on the Quake 2 RTX warehouse; \"the LH is "
         "worst in this instance\" (Fig. 8 a, 1 spp).",
-        measure_vlc, span=2.0, res_scale=2, claims=claims_vlc, value=value_vlc,
-        note="At our resolution an octree leaf gets ~256-512 samples per frame, the paper's 2048-4096 at "
-             "1080p: the VLC's gain grows with resolution (dyngi reproduce vlc, docs/techniques/nee-pt.md)."),
+        measure_vlc, span=2.0, res_scale=2, ref_spp_scale=64, claims=claims_vlc, value=value_vlc,
+        note="storage-cells: 16 x 16 cells, one light each, 512 lights in every PVS list and about 4 visible from "
+             "a point, so light selection limits the error (the oracle row's per-cell visible lists give the "
+             "bound a light sampler can reach). At twice the tour's resolution a frame records >= 8 x 4096 "
+             "samples, so the octree keeps the paper's thresholds; the paper-literal and ablation rows of the "
+             "settings that are ours run beside. The full protocol (16 frames at 320x180, frames 10-15 "
+             "measured, 16384-spp reference): dyngi reproduce vlc, docs/techniques/nee-pt.md."),
     Section(
         "cdq", "CDQ path guiding vs BSDF sampling: the sunlit pit",
         "Dittebrandt, Hanika, Dachsbacher, \"Temporal Sample Reuse for Next Event Estimation and Path "
         "Guiding for Real-Time Path Tracing\", EGSR 2020",
-        "sky-pit-sun-disc", ("nee-pt:directions=cdq", "nee-pt:directions=bsdf"),
+        "sky-pit-sun-disc", CDQ_SPECS,
         "With the sun disc in the environment and out of NEE, guiding the indirect rays by the learnt "
         "cosine-weighted direction quantisation \"improves sampling by two to three orders of magnitude\" "
         "for the regions the sun lights indirectly (Fig. 8 b, 1 spp).",
-        measure_cdq, span=0.0, claims=claims_cdq, value=value_cdq,
-        note="Scene held at t = 0; every pixel, not only the indirectly lit ones. A 1-spp frame's error is "
-             "heavy-tailed here (a BSDF ray rarely finds the 0.5-degree sun), so few frames give a noisy "
-             "reading (dyngi reproduce cdq)."),
+        measure_cdq, span=0.0, res_scale=2, frames_scale=5, claims=claims_cdq, value=value_cdq,
+        note="Scene held at t = 0, the paper's 0.5-degree sun; every pixel, not only the indirectly lit ones; "
+             "at twice the tour's resolution (the paper's octree thresholds) and five times its frames (the "
+             "CDQ learns from an empty octree; the second half is measured). A 1-spp frame's error is "
+             "heavy-tailed here (a BSDF ray rarely finds the sun), so few frames give a noisy reading: the "
+             "full protocol (160 frames at 320x180, 3 seeds, indirectly lit pixels) is dyngi reproduce cdq."),
 )
 
 
@@ -403,18 +451,19 @@ def run_section(sec: Section, out_dir: str, size: Size, quiet: bool = True) -> d
     """Run one section's comparison, write its report into ``out_dir`` (a folder that the caller makes
     atomic); return ``{'measured', 'summary', 'wall_s', ...}``."""
     w0 = time.perf_counter()
-    scene = retime(load_scene(sec.scene), sec.start, sec.span, size.frames)
-    run = prepare(sec.scene, list(sec.specs), out_dir, size.frames, "equal-frames", size.ref_spp, {}, METRICS,
+    frames, ref_spp = sec.frames(size), sec.ref_spp(size)
+    scene = retime(load_scene(sec.scene), sec.start, sec.span, frames)
+    run = prepare(sec.scene, list(sec.specs), out_dir, frames, "equal-frames", ref_spp, {}, METRICS,
                   sec.ref_depth, sec.indirect, scene=scene, tracked=False)
     rs = execute(run, sec.res(size), seed=SEEDS[0], quiet=quiet)
     measured = sec.measure(rs, sec)
     by_seed = {SEEDS[0]: rs}
     for seed in SEEDS[1:]:        # the claims' intervals: fresh techniques per seed, the references cached
-        sc = retime(load_scene(sec.scene), sec.start, sec.span, size.frames)
-        run_s = prepare(sec.scene, list(sec.specs), out_dir, size.frames, "equal-frames", size.ref_spp, {}, METRICS,
+        sc = retime(load_scene(sec.scene), sec.start, sec.span, frames)
+        run_s = prepare(sec.scene, list(sec.specs), out_dir, frames, "equal-frames", ref_spp, {}, METRICS,
                         sec.ref_depth, sec.indirect, scene=sc, tracked=False)
         by_seed[seed] = execute(run_s, sec.res(size), seed=seed, quiet=quiet)
-    claims = decide_section(sec, by_seed, sec.res(size), size.frames)
+    claims = decide_section(sec, by_seed, sec.res(size), frames)
     extra = "\n".join([f"## {sec.title}", "", f"Paper: {sec.paper}.", "", f"Claim: {sec.claim}", "",
                        f"Measured here: {measured['text']}.", "", *([sec.note, ""] if sec.note else []),
                        *[line for c in claims for line in c.markdown()]])
@@ -425,7 +474,8 @@ def run_section(sec: Section, out_dir: str, size: Size, quiet: bool = True) -> d
             "summary": {lb: {k: v for k, v in rs["summary"][lb].items() if k != "tracked_pixels"}
                         for lb in run["labels"]},
             "frame_times": [float(t) for t in rs["results"][run["labels"][0]].times],
-            "ref_depth": run["ref_depth"], "res": list(sec.res(size)), "wall_s": time.perf_counter() - w0}
+            "ref_depth": run["ref_depth"], "res": list(sec.res(size)), "frames": frames, "ref_spp": ref_spp,
+            "wall_s": time.perf_counter() - w0}
 
 
 def decide_section(sec: Section, by_seed: dict, res, frames: int) -> list:
@@ -436,7 +486,7 @@ def decide_section(sec: Section, by_seed: dict, res, frames: int) -> list:
     (``rows not run``), as does every claim whose scale need the tour does not meet."""
     first = by_seed[min(by_seed)]
     out = []
-    for c in sec.claims(sec, res, frames, first):
+    for c in sec.claims(sec, res, frames, first, by_seed):
         specs = {"default": c.technique, "baseline": c.baseline}
         specs.update({r.label: r.spec for r in claim_rows(c)
                       if r.role in ("paper-literal", "ablation") and r.spec in sec.specs})
@@ -548,7 +598,8 @@ def write_tour_report(out_dir: str, secs, results, size: Size, wall_s: float) ->
                 f"t = {times[0]:g} to {times[-1]:g} s, {times[1] - times[0]:.3g} s apart")
         parts += [f"<section id='{sec.key}'><h2>{html.escape(sec.title)}</h2>",
                   f"<p><i>{html.escape(sec.paper)}</i></p>",
-                  f"<p>Scene <code>{sec.scene}</code> ({when}, {r['res'][0]}x{r['res'][1]}); techniques "
+                  f"<p>Scene <code>{sec.scene}</code> ({when}, {r['res'][0]}x{r['res'][1]}, {len(times)} frames, "
+                  f"reference {r.get('ref_spp', size.ref_spp)} spp); techniques "
                   + ", ".join(f"<code>{html.escape(s)}</code>" for s in sec.specs) + ".</p>",
                   f"<blockquote><b>The paper:</b> {html.escape(sec.claim)}</blockquote>",
                   f"<p class='ours'>Measured here: {html.escape(r['measured']['text'])}.</p>",
