@@ -130,7 +130,8 @@ FIT_FROM = 4
 """First accumulated frame restir-pt's MAPE(N) fit may use (frames / 4 when more were measured; the
 first frames carry its reservoirs' warm-up; our choice)."""
 CALIBRATION_TOL = 0.02
-"""The emission scale is corrected when the DDGI+ image mean is off the reference's by more than this."""
+"""The emission scale is fitted (on the other view, :func:`_calibrate`) when ddgi-secondary's image mean there is off
+the reference's by more than this."""
 REF_NOISE_FACTOR = 10.0
 """The reference's own MAPE noise must be this many times below the target."""
 
