@@ -404,3 +404,22 @@ def test_frozen_static_frames_are_bit_identical(backend):
     for i, (x, y) in enumerate(zip(a, b)):
         assert np.array_equal(x, y), f"frame {i} differs"
     assert not np.array_equal(a[2], a[5])      # the second camera is seen
+
+
+def test_learning_samplers_record_every_lane(backend):
+    """path's VLC and CDQ learn from every path: the walk's record buffers hold one slot per lane (they were
+    sized by the ``active`` mask, a scalar in ``render_paths_split``, so every lane wrote the same two slots and
+    the VLC held 8 entries, the CDQ migrated twice). warehouse-rooms, 64x36, 4 frames: the caches hold hundreds
+    of (leaf, light) entries (1608 measured) and the CDQ migrates tens of times (53); a one-slot buffer gives
+    8 and 2."""
+    from dyngi.experiments.runner import run_sequence
+    from dyngi.scene.library import make_builtin
+    from dyngi.techniques.base import create_technique
+
+    scene = make_builtin("warehouse-rooms")
+    tech = create_technique("path:lights=vlc:directions=cdq:max_depth=3:spp=1:progressive=false", scene)
+    run_sequence(scene, tech, 0, (64, 36), seed=0, times=[0.0] * 4, keep_images=False)
+    entries = int(np.asarray(tech.lights.sampler.host_caches()).sum())
+    migrations = int(tech.directions.cdq.stats()["cdq_migrations_total"])
+    assert entries > 500, entries
+    assert migrations > 10, migrations

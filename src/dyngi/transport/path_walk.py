@@ -251,10 +251,14 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
         si = mi.SurfaceInteraction3f(si)
         n_rays = dr.zeros(mi.UInt32, dr.width(active))
     first_valid = active & si.is_valid()
+    # the record buffers are one slot per lane: sized by the lanes (``first_valid``), not by ``active``, which a
+    # caller may pass as a scalar mask (``render_paths_split``: ``mi.Bool(True)``, width 1: every lane wrote the
+    # same two slots and a path's VLC / CDQ learnt from almost nothing)
+    lanes = dr.width(first_valid)
     if hasattr(lights, "begin_walk"):     # a learning light sampler's record buffers (dyngi.lights.nee)
-        lights.begin_walk(dr.width(active))
+        lights.begin_walk(lanes)
     if directions is not None:            # a learning direction sampler's record buffers
-        directions.begin_walk(dr.width(active))
+        directions.begin_walk(lanes)
     L = mi.Spectrum(0.0)
     L_ind = mi.Spectrum(0.0)
     L_near = mi.Spectrum(0.0)
