@@ -47,7 +47,7 @@ import numpy as np
 
 from .. import rays
 from ..backend import dr, mi
-from ..directions.octree import make_octree, octree_bounds
+from ..directions.octree import make_octree, octree_bounds, octree_rule
 from ..errors import DyngiError
 from ..sampling.rng import make_sampler
 from ..scene.surface import shading_normal
@@ -460,3 +460,20 @@ class TracedNEE:
         if receiver is not None:
             w = dr.select(dr.dot(receiver, ds.d) > 0.0, w, 0.0)
         return (ds, w) + tuple(out[2:])
+
+
+def share_octrees(lights, directions, records: int, leaf_samples: int, leaf_scaling: bool) -> tuple:
+    """Build the octree of each octree-based strategy of a path (a learning light sampler, :class:`LightNEE`
+    whose entry needs one; a CDQ direction sampler) with ``nee-pt``'s threshold rule for ``records`` placed
+    vertices per frame (:func:`~dyngi.directions.octree.octree_rule`: the paper's 4096 / 2048 from 8 x 4096
+    records, scaled below unless ``leaf_scaling`` is false) and hand it over; returns (light strategy's or None,
+    direction strategy's or None). ``path`` and ``restir-pt`` call it at their first frame."""
+    rule = octree_rule(leaf_scaling)
+    built = []
+    for s, uses in ((lights, isinstance(lights, LightNEE) and lights.entry.needs_octree),
+                    (directions, directions is not None and directions.kind == "cdq")):
+        oc = make_octree(s.bounds, records, leaf_samples, rule=rule) if uses else None
+        if oc is not None:
+            s.share_octree(oc)
+        built.append(oc)
+    return tuple(built)

@@ -62,10 +62,9 @@ import math
 from .. import directions as direction_samplers
 from .. import lights as light_samplers
 from .. import rays as ray_ledger
-from ..directions.octree import make_octree, octree_rule
 from ..directions.walk import WalkDirections
 from ..backend import dr, mi
-from ..lights.nee import LightNEE
+from ..lights.nee import LightNEE, share_octrees
 from ..lights.emitter_sampling import EmitterSampling
 from ..sampling.rng import mix_seed
 from ..transport.accumulate import ProgressiveMean
@@ -137,15 +136,7 @@ class PathTechnique(Technique):
         vertices per frame and hand it over (module docstring "Octrees"); ``self.octrees``: (light strategy's or
         None, direction strategy's or None)."""
         p = self.params
-        rule = octree_rule(p["leaf_scaling"])
-        built = []
-        for s, uses in ((self.lights, isinstance(self.lights, LightNEE) and self.lights.entry.needs_octree),
-                        (self.directions, self.directions is not None and self.directions.kind == "cdq")):
-            oc = make_octree(s.bounds, records, p["leaf_samples"], rule=rule) if uses else None
-            if oc is not None:
-                s.share_octree(oc)
-            built.append(oc)
-        self.octrees = tuple(built)
+        self.octrees = share_octrees(self.lights, self.directions, records, p["leaf_samples"], p["leaf_scaling"])
 
     def frame_spp(self, frame: Frame) -> int:
         """spp for this frame: the parameter, or what fits the frame's ray/time budget."""

@@ -85,10 +85,9 @@ from __future__ import annotations
 
 from .. import directions as direction_samplers
 from ..backend import mi
-from ..directions.octree import make_octree, octree_rule
 from ..directions.walk import WalkDirections
 from ..errors import DyngiError
-from ..lights.nee import LightNEE
+from ..lights.nee import LightNEE, share_octrees
 from ..transport.accumulate import ProgressiveMean
 from ..transport.restir_di import MIN_RADIUS_PARAM, PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
@@ -144,15 +143,7 @@ class ReSTIRPTTechnique(Technique):
         """Build each octree-based strategy's octree with ``nee-pt``'s threshold rule for ``records`` placed
         vertices per frame and hand it over (``leaf_scaling`` in the module docstring)."""
         p = self.params
-        rule = octree_rule(p["leaf_scaling"])
-        built = []
-        for s, uses in ((self.lights, isinstance(self.lights, LightNEE) and self.lights.entry.needs_octree),
-                        (self.directions, self.directions is not None and self.directions.kind == "cdq")):
-            oc = make_octree(s.bounds, records, p["leaf_samples"], rule=rule) if uses else None
-            if oc is not None:
-                s.share_octree(oc)
-            built.append(oc)
-        self.octrees = tuple(built)
+        self.octrees = share_octrees(self.lights, self.directions, records, p["leaf_samples"], p["leaf_scaling"])
 
     def step(self, frame: Frame) -> FrameResult:
         p = self.params
