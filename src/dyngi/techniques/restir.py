@@ -87,7 +87,7 @@ from .. import directions as direction_samplers
 from ..backend import mi
 from ..directions.walk import WalkDirections
 from ..errors import DyngiError
-from ..lights.nee import LightNEE, share_octrees
+from ..lights.nee import share_octrees
 from ..transport.accumulate import ProgressiveMean
 from ..transport.restir_di import MIN_RADIUS_PARAM, PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
