@@ -127,8 +127,9 @@ SECONDARY_PARAMS = {
     "max_glossy": Param(3, "most glossy recursion steps after the secondary vertex", min=0, max=16),
     "view_path_bias": Param(0.2, "Sec. 3.5: probe query moved back along the path by this many smallest "
                             "probe spacings (at most half the segment)", min=0.0, max=10.0),
-    "exact_radiance": Param(False, "TEST HOOK: path-trace the secondary-vertex radiance instead of reading "
-                            "the probes"),
+    "exact_radiance": Param(False, "TEST HOOK: path-trace the secondary-vertex radiance where it is shaded "
+                            "instead of reading the probes (ddgi-resampling's resampling target keeps the "
+                            "probes' value)"),
     "exact_depth": Param(-1, "path depth of the exact_radiance hook (-1: unbounded, Russian roulette)", min=-1),
 }
 
