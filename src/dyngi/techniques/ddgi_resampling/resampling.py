@@ -135,8 +135,10 @@ def _resampling_params():
                                     "'candidate' (Bitterli Alg. 5: a shadow ray to the initial emitter candidate "
                                     "before reuse, W = 0 if occluded), 'final' (the final shadow ray's visibility "
                                     "written back into the stored reservoir), 'none' (no visibility; 'candidate', "
-                                    "'final' and 'none' are biased here: the MIS weights ignore visibility)",
-                                    choices=VISIBILITY_REUSE)
+                                    "'final' and 'none' are biased here: the MIS weights ignore visibility). "
+                                    "Ours: the paper traces one shadow ray, to the selected sample (Sec. 3, "
+                                    "step 3: 'none'); its paper-literal row runs 'none'",
+                                    choices=VISIBILITY_REUSE, ours=True, paper="none")
     out.update({
         "gmax": Param(1.0, "bound G_max of the resampled geometry term cos_y/r^2 (Eq. 9), in the units "
                       "gmax_scale sets; 0: all probe light by the BSDF sample", min=0.0, max=1e9),
