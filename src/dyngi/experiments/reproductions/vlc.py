@@ -38,8 +38,9 @@ no paper has: the VLC as ReSTIR DI's candidate and NEE light sampler.
 
 Techniques at 1 spp (``directions=bsdf``), MSE against Mitsuba's ``path`` at ``max_depth = 3``
 (nee-pt's depth: primary, secondary and tertiary hit). ``--quick``: 6 frames at 64x36, 64
-reference spp (1024 on storage-cells), the extra rows on warehouse-rooms only. Full: 16 frames at 320x180,
-frames 10-15 measured, 1024 reference spp (16384 on storage-cells). Seeds (at least 3 per headline figure):
+reference spp (1024 on storage-cells), the extra rows on warehouse-rooms only. Full: 16 frames at 192x108 (the
+smallest 16:9 size whose frames record the 8 x 4096 samples of the paper's thresholds), frames 10-15 measured, 1024
+reference spp (4096 on storage-cells). Seeds (at least 3 per headline figure):
 the paper's rows (VLC, SLL, LH) and the oracle run for every seed of ``seeds`` (0, 1, 2 in both
 configurations) and their VLC/SLL and VLC/LH ratios are given per seed with mean and range; the other rows,
 the per-stage times and Fig. 9 are from the first seed.
@@ -88,15 +89,18 @@ PAPER_LEAF = "split at 4096, collapse at 2048 samples per leaf (Sec. 7; 1080p, 2
 VLC_QUICK = {"quick": True, "res": (64, 36), "frames": 6, "skip": 1, "ref_spp": 64, "extras_on": ("warehouse-rooms",),
              "seeds": (0, 1, 2), "scenes": ("storage-cells", "warehouse-rooms", "covered-lights"),
              "ref_spp_scene": {"storage-cells": 1024}}
-VLC_FULL = {"res": (320, 180), "frames": 16, "skip": 10, "ref_spp": 1024, "extras_on": ("storage-cells", "warehouse-rooms"),
+VLC_FULL = {"res": (192, 108), "frames": 16, "skip": 10, "ref_spp": 1024, "extras_on": ("storage-cells", "warehouse-rooms"),
             "seeds": (0, 1, 2), "scenes": ("storage-cells", "warehouse-rooms", "covered-lights"),
-            "ref_spp_scene": {"storage-cells": 16384}}
+            "ref_spp_scene": {"storage-cells": 4096}}
 """The full run measures frames ``skip``.. of ``frames`` (>= 10 of >= 15: the paper's Fig. 9 is still refining at
 frames 8-11); ``--quick`` (CI: tests/techniques/test_neept.py) stays at 6 frames, measures frames 1.. and decides
 nothing. ``ref_spp_scene``: Mitsuba's ``path`` samples its 512 triangle lights of ``storage-cells`` by power, so
 about 1 in 100 of its NEE samples is unoccluded: its reference needs ~16x the spp of the others (the reference's
-own MSE must stay well below the oracle's 1-spp MSE, ~5e-4 at 64x36). 320x180: 115200 records per frame (two
-recording vertices per path), the paper's octree thresholds (>= 8 x 4096, ``octree.paper_thresholds``)."""
+own MSE must stay well below the oracle's 1-spp MSE, ~2e-4: Mitsuba's 1-spp variance there is 0.0225 (two 256-spp
+renders at 64x36), so 4096 spp leave 5.5e-6 = ~2.5 % of the oracle's MSE, which can only pull the ratios towards 1).
+192x108 (the full run): 41472 records per frame (two recording vertices per path), >= 8 x 4096, so the octree keeps
+the paper's thresholds (``octree.paper_thresholds``) and its leaves the paper's records; the camera turns, so each of
+the 16 frames has its own reference (at 320x180 and 16384 spp one took 3-19 minutes on the 2-core box)."""
 HEADLINE = SPECS[:3]
 """The paper's three rows (VLC, SLL, LH): run for every seed of the configuration's ``seeds`` (with the oracle row,
 whose SLL/oracle ratio is the claim's light-selection bound); the other rows for its first seed only."""
