@@ -9,7 +9,8 @@ import pytest
 
 from dyngi.errors import DyngiError
 from dyngi.experiments.reproductions.ddgi_resampling import (FULL, QUICK, TARGET_TOL, accumulated_mapes, bias_variance,
-                                                             calibrated_scale, load_scene_figure, run_only, save_scene,
+                                                             calibrated_scale, decide_claims, load_scene_figure,
+                                                             run_only, save_scene,
                                                              fit_inverse_sqrt, frames_from_fit, frames_needed,
                                                              reference_noise_mape, scaled_frame_ms, select_target)
 from dyngi.metrics.image import mape
@@ -122,3 +123,28 @@ def test_saved_scenes_are_read_back_with_their_configuration_only(tmp_path):
     assert load_scene_figure(str(tmp_path), FULL, "villa-sun") == (None, None)
     with pytest.raises(DyngiError, match="unknown scene.*valid: .*room-door"):
         run_only(str(tmp_path), ["room-dor"])
+
+
+def _fig(times: dict, rows: dict, res=(320, 180)) -> dict:
+    seeds = lambda ts: [{"seed": k, "time_ms": t} for k, t in enumerate(ts)]  # noqa: E731
+    return {"scene": "villa-sun", "res": list(res), "probe_rays_per_pixel": 0.89,
+            "techniques": {n: {"seeds": seeds(ts)} for n, ts in times.items()},
+            "rows": {spec: seeds(ts) for spec, ts in rows.items()}}
+
+
+def test_verdicts_need_320x180_and_read_the_rows_run():
+    """vs-secondary is decided from the default and paper-literal rows at 320x180 with 256 measured frames; at
+    64x36 it is undecided (pixels); vs-restir-pt stays undecided at 0.89 probe rays per pixel (the paper's 0.25)."""
+    times = {"restir-pt": [24000.0, 24100.0, 24200.0], "ddgi-secondary": [1130.0, 1270.0, 1420.0],
+             "ddgi-resampling": [100.0, 110.0, 105.0]}
+    lit = {"ddgi-resampling:visibility_reuse=none": [120.0, 115.0, 118.0]}
+    got = {r.claim.key.rsplit(".", 1)[1]: r for r in decide_claims(_fig(times, lit), FULL, False)}
+    assert got["vs-secondary"].verdict.word == "reproduced", got["vs-secondary"].verdict
+    assert "paper-literal" in got["vs-secondary"].verdict.rows
+    assert got["vs-restir-pt"].verdict.word == "undecided"
+    assert any("pixels per probe ray" in c for c in got["vs-restir-pt"].verdict.conditions)
+    slower = {"ddgi-resampling:visibility_reuse=none": [600.0, 650.0, 700.0]}
+    assert decide_claims(_fig(times, slower), FULL, False)[1].verdict.word != "reproduced"
+    small = decide_claims(_fig(times, lit, (64, 36)), dict(FULL, res=(64, 36)), False)[1].verdict
+    assert small.word == "undecided" and any("pixels 2304 < 57600" in c for c in small.conditions)
+    assert decide_claims(_fig(times, {}), FULL, False)[1].verdict.word == "undecided"     # the row not run

@@ -89,8 +89,9 @@ from ...scene import builtin_names, load_scene
 from ...scene.builtin_table1 import OTHER_VIEWS
 from ...scene.camera import Camera, CameraPath
 from ...techniques import create_technique
+from ...techniques.base import parse_spec
 from .. import cluster
-from ..claims import Claim, Criterion, claims_json, result_from_values, verdict_table
+from ..claims import Claim, Criterion, claim_rows, claims_json, result_from_values, verdict_table
 from ..denoise import aux_buffers, available, denoise
 from ..references.path import cached_reference, half_spp, scene_max_depth
 from ..reproduce import paper_table, register_experiment
@@ -560,6 +561,7 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
                                for n in DDGI_METHODS}}
     rays = [x for r in runs["ddgi-resampling"] for x in r["rays"]]
     fig["probe_rays_per_pixel"] = rays_per_pixel(np.mean(rays), res) if rays else None
+    fig["rows"] = _claim_rows(scene, res, ref, cfg, fig, runs["ddgi-resampling"], timed["ddgi-resampling"], say)
     fig["speedup"] = {other: _speedups(fig, other) for other in ("restir-pt", "ddgi-secondary")}
     fig["speedup_paper_ratio"] = _speedups(fig, "restir-pt", _scaled_ms(fig))
     fig["denoised_one_frame"] = _denoised(scene, res, ref, runs, pt)
@@ -569,6 +571,41 @@ def run_scene(scene_name: str, cfg: dict, quiet: bool = True) -> dict:
     _at_fitted_scale(scene, res, ref, cfg, calib)
     say(f"target {target:.3f} ({target_method}); resampling vs restir-pt {fig['speedup']['restir-pt']}")
     return fig
+
+
+def _claim_rows(scene, res, ref, cfg, fig, default_runs, default_ms: float, say) -> dict:
+    """The paper-literal and ablation rows (:func:`~dyngi.experiments.claims.claim_rows`) of the claims whose
+    scale can decide them (a claim the scale leaves undecided gains nothing from its rows), run as the
+    default ``ddgi-resampling`` is (warmed, steady frames kept, continued, frames to the same target):
+    ``{row spec: [per seed {seed, frames, measured, frame_ms, time_ms}]}``. A row's frame time is the default's
+    round-robin one scaled by the two's ratio in round-robin turns of their own (:func:`interleaved_ms`)."""
+    specs = []
+    for c in declare_claims(fig["scene"], cfg, fig):
+        if c.scale_gaps():
+            continue
+        specs += [r.spec for r in claim_rows(c) if r.role in ("paper-literal", "ablation") and r.spec not in specs]
+    goal = fig["target_mape"] * (1.0 + TARGET_TOL)
+    out = {}
+    for text in specs:
+        spec = parse_spec(text)
+        runs = [_steady(scene, spec.name, res, r["seed"], dict(spec.params), cfg["warm_frames"], cfg["steady_frames"])
+                for r in default_runs]
+        pair = interleaved_ms(scene, res, {"default": default_runs[0]["tech"], "row": runs[0]["tech"]},
+                              int(cfg.get("timing_rounds", TIMING_ROUNDS)))
+        ms = default_ms * pair["row"] / pair["default"]
+        per_seed = []
+        for r in runs:
+            acc = accumulated_mapes(r["images"], ref)
+            more = int(cfg["max_frames"]) - len(acc)
+            if frames_to_reach(acc, goal) is None and more > 0:
+                acc += _continue(r, scene, res, more, ref, goal)
+            need = frames_needed(acc, fig["target_mape"], max(1, len(acc) // 4), None)
+            n = need["frames"]
+            per_seed.append({"seed": r["seed"], "frames": n, "measured": need["measured"], "frame_ms": ms,
+                             "time_ms": n * ms if n is not None else None, "final_mape": acc[-1]})
+        out[text] = per_seed
+        say(f"row {text}: frames " + " / ".join(_frames_cell(x) for x in per_seed) + f", {ms:.1f} ms a frame")
+    return out
 
 
 def scaled_frame_ms(frame_ms: float, update_ms: float, ratio: float, paper_ratio: float = PAPER_RAYS_PER_PIXEL):
@@ -829,6 +866,11 @@ SPEEDUP_VS_SECONDARY = 5.7
 """The smallest Table 1 speed-up over Secondary DDGI outside LIVING ROOM (PINK ROOM: 97.21 / 16.85 ms)."""
 
 
+MIN_PIXELS = 320 * 180
+"""A verdict needs at least 320 x 180 pixels (our bar; the paper's Table 1 is at 1080p): smaller runs, the
+quick one at 64 x 36 among them, decide nothing."""
+
+
 def declare_claims(scene: str, cfg: dict, fig: dict | None = None) -> list:
     """Table 1's claims on one analog scene (dyngi.experiments.claims): time to the target MAPE of
     ddgi-resampling against restir-pt and ddgi-secondary. The speed-up over PT+ReSTIR depends on the probe
@@ -837,9 +879,11 @@ def declare_claims(scene: str, cfg: dict, fig: dict | None = None) -> list:
     that measures fewer than 80 frames cannot decide the second."""
     res = cfg["res"]
     ppr = None if not fig or not fig.get("probe_rays_per_pixel") else 1.0 / fig["probe_rays_per_pixel"]
-    sc = {"resolution": f"{res[0]}x{res[1]}", "pixels per probe ray": ppr if ppr is None else round(ppr, 3),
+    sc = {"resolution": f"{res[0]}x{res[1]}", "pixels": int(res[0] * res[1]),
+          "pixels per probe ray": ppr if ppr is None else round(ppr, 3),
           "GPU": "none (2-core CPU, Dr.Jit LLVM)", "frames measured (restir-pt)": cfg["max_frames"]}
-    paper = {"resolution": "1920x1080", "pixels per probe ray": round(1 / PAPER_RAYS_PER_PIXEL, 3),
+    paper = {"resolution": "1920x1080", "pixels": 1920 * 1080,
+             "pixels per probe ray": round(1 / PAPER_RAYS_PER_PIXEL, 3),
              "GPU": "RTX 3090", "frames measured (restir-pt)": "up to 4095"}
     common = dict(paper=PAPER, quote=TABLE1_QUOTE, where=f"Table 1 ({ANALOG.get(scene, scene)})",
                   technique="ddgi-resampling", metric="ms to reach the target MAPE (frames x steady frame time)",
@@ -848,10 +892,11 @@ def declare_claims(scene: str, cfg: dict, fig: dict | None = None) -> list:
                   scale_ours=sc)
     exception = scene == EXCEPTION
     return [Claim(f"ddgi-resampling.table1.{scene}.vs-restir-pt", baseline="restir-pt",
-                  criterion=Criterion("below", 1 / SPEEDUP_VS_PT), needs={"pixels per probe ray": 3.9}, **common),
+                  criterion=Criterion("below", 1 / SPEEDUP_VS_PT),
+                  needs={"pixels": MIN_PIXELS, "pixels per probe ray": 3.9}, **common),
             Claim(f"ddgi-resampling.table1.{scene}.vs-secondary", baseline="ddgi-secondary",
                   criterion=Criterion("above", 1.0) if exception else Criterion("below", 1 / SPEEDUP_VS_SECONDARY),
-                  needs={"frames measured (restir-pt)": 80}, **common)]
+                  needs={"pixels": MIN_PIXELS, "frames measured (restir-pt)": 80}, **common)]
 
 
 def decide_claims(fig: dict, cfg: dict, quick: bool) -> list:
@@ -861,6 +906,10 @@ def decide_claims(fig: dict, cfg: dict, quick: bool) -> list:
     for c in declare_claims(fig["scene"], cfg, fig):
         vals = {"default": {s["seed"]: s["time_ms"] for s in tech["ddgi-resampling"]["seeds"]},
                 "baseline": {s["seed"]: s["time_ms"] for s in tech[c.baseline]["seeds"]}}
+        for r in claim_rows(c, quick):       # the paper-literal and ablation rows run (:func:`_claim_rows`)
+            got = (fig.get("rows") or {}).get(r.spec)
+            if r.role in ("paper-literal", "ablation") and got:
+                vals[r.label] = {s["seed"]: s["time_ms"] for s in got}
         out.append(result_from_values(c, vals, quick))
     return out
 
