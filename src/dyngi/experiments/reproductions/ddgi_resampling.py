@@ -605,8 +605,8 @@ def _claim_rows(scene, res, ref, cfg, fig, default_runs, default_ms: float, say)
                 acc += _continue(r, scene, res, more, ref, goal)
             need = frames_needed(acc, fig["target_mape"], max(1, len(acc) // 4), None)
             n = need["frames"]
-            per_seed.append({"seed": r["seed"], "frames": n, "measured": need["measured"], "frame_ms": ms,
-                             "time_ms": n * ms if n is not None else None, "final_mape": acc[-1]})
+            per_seed.append({"seed": r["seed"], "frames": n, "measured": need["measured"], "fit": need["fit"],
+                             "frame_ms": ms, "time_ms": n * ms if n is not None else None, "final_mape": acc[-1]})
         out[text] = per_seed
         say(f"row {text}: frames " + " / ".join(_frames_cell(x) for x in per_seed) + f", {ms:.1f} ms a frame")
     return out
