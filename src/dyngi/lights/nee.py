@@ -477,3 +477,19 @@ def share_octrees(lights, directions, records: int, leaf_samples: int, leaf_scal
             s.share_octree(oc)
         built.append(oc)
     return tuple(built)
+
+
+def octree_params(placed: str) -> dict:
+    """The ``leaf_samples`` and ``leaf_scaling`` parameters of a path technique whose ``lights=vlc`` and
+    ``directions=cdq`` share nee-pt's octree rule (:func:`share_octrees`); ``placed`` says how many vertices a
+    frame places (e.g. "2 per path per spp")."""
+    from ..registry import Param
+    return {
+        "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq raised to this "
+                              "(collapse: half); 0 = the thresholds of leaf_scaling", min=0, max=1 << 20),
+        "leaf_scaling": Param(True, "octree thresholds of lights=vlc and directions=cdq (nee-pt's rule): the VLC "
+                              "paper's 4096 / 2048 records per leaf (Sec. 7) wherever the frame places >= 8 x 4096 "
+                              f"vertices ({placed}); below that (ours) scaled down to records/8 / records/16 so "
+                              "that the tree still adapts (directions.octree.paper_thresholds); false = the "
+                              "paper's at every resolution", ours=True, paper=False),
+    }

@@ -64,7 +64,7 @@ from .. import lights as light_samplers
 from .. import rays as ray_ledger
 from ..directions.walk import WalkDirections
 from ..backend import dr, mi
-from ..lights.nee import LightNEE, share_octrees
+from ..lights.nee import LightNEE, octree_params, share_octrees
 from ..lights.emitter_sampling import EmitterSampling
 from ..sampling.rng import mix_seed
 from ..transport.accumulate import ProgressiveMean
@@ -99,13 +99,7 @@ class PathTechnique(Technique):
         "directions": Param("bsdf", "indirect directions (dyngi.directions): the BSDF's own sampling, or 'cdq' "
                             "(CDQ/BSDF one-sample MIS mixture, learned per octree leaf)",
                             choices=direction_samplers.names()),
-        "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq raised to this "
-                              "(collapse: half); 0 = the thresholds of leaf_scaling", min=0, max=1 << 20),
-        "leaf_scaling": Param(True, "octree thresholds of lights=vlc and directions=cdq (nee-pt's rule): the VLC "
-                              "paper's 4096 / 2048 records per leaf (Sec. 7) wherever the frame places >= 8 x 4096 "
-                              "vertices (2 per path per spp); below that (ours) scaled down to records/8 / "
-                              "records/16 so that the tree still adapts (directions.octree.paper_thresholds); "
-                              "false = the paper's at every resolution", ours=True, paper=False),
+        **octree_params("2 per path per spp"),
         "freeze": Param(False, "replay static frames' trace with dr.freeze (lights=scene, directions=bsdf, no budget)"),
     }
 

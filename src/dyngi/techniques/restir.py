@@ -87,7 +87,7 @@ from .. import directions as direction_samplers
 from ..backend import mi
 from ..directions.walk import WalkDirections
 from ..errors import DyngiError
-from ..lights.nee import share_octrees
+from ..lights.nee import octree_params, share_octrees
 from ..transport.accumulate import ProgressiveMean
 from ..transport.restir_di import MIN_RADIUS_PARAM, PARAM_SPECS, ReSTIRDI
 from .base import Frame, FrameResult, Param, StageTimer, Technique, register, to_image
@@ -111,13 +111,7 @@ class ReSTIRPTTechnique(Technique):
                                      "'candidate' (Alg. 5) and 'final' biased: 20-64% dark in that room "
                                      "(docs/techniques/restir-pt.md)"}),
         "min_radius_px": Param(**MIN_RADIUS_PARAM),
-        "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq raised to this "
-                              "(collapse: half); 0 = the thresholds of leaf_scaling", min=0, max=1 << 20),
-        "leaf_scaling": Param(True, "octree thresholds of lights=vlc and directions=cdq (nee-pt's rule): the VLC "
-                              "paper's 4096 / 2048 records per leaf (Sec. 7) wherever the frame places >= 8 x 4096 "
-                              "vertices (2 per pixel); below that (ours) scaled down to records/8 / records/16 so "
-                              "that the tree still adapts (directions.octree.paper_thresholds); false = the "
-                              "paper's at every resolution", ours=True, paper=False),
+        **octree_params("2 per pixel"),
         "max_depth": Param(12, "maximum path depth (-1: unbounded; 1 emission, 2 direct light)", min=-1),
         "rr_depth": Param(5, "Russian roulette start depth", min=1),
         "progressive": Param(True, "accumulate over frames while the scene is static"),
