@@ -49,6 +49,7 @@ from .. import rays
 from ..backend import dr, mi
 from ..directions.octree import make_octree, octree_bounds, octree_rule
 from ..errors import DyngiError
+from ..registry import Param
 from ..sampling.rng import make_sampler
 from ..scene.surface import shading_normal
 from .base import INVALID, EmitterTable, FrameCtx, entry, make
@@ -483,7 +484,6 @@ def octree_params(placed: str) -> dict:
     """The ``leaf_samples`` and ``leaf_scaling`` parameters of a path technique whose ``lights=vlc`` and
     ``directions=cdq`` share nee-pt's octree rule (:func:`share_octrees`); ``placed`` says how many vertices a
     frame places (e.g. "2 per path per spp")."""
-    from ..registry import Param
     return {
         "leaf_samples": Param(0, "octree split threshold per leaf of lights=vlc and directions=cdq raised to this "
                               "(collapse: half); 0 = the thresholds of leaf_scaling", min=0, max=1 << 20),

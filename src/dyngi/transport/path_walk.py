@@ -251,14 +251,13 @@ def walk(scene, sampler, ray, active, max_depth: int, rr_depth: int, lights=None
         si = mi.SurfaceInteraction3f(si)
         n_rays = dr.zeros(mi.UInt32, dr.width(active))
     first_valid = active & si.is_valid()
-    # the record buffers are one slot per lane: sized by the lanes (``first_valid``), not by ``active``, which a
-    # caller may pass as a scalar mask (``render_paths_split``: ``mi.Bool(True)``, width 1: every lane wrote the
-    # same two slots and a path's VLC / CDQ learnt from almost nothing)
-    lanes = dr.width(first_valid)
+    # the record buffers hold one slot per lane of ``active``: a caller passes a mask as wide as its paths
+    # (``render_paths_split`` once passed a scalar ``True``: every lane wrote the same two slots and path's VLC / CDQ
+    # learnt from almost nothing)
     if hasattr(lights, "begin_walk"):     # a learning light sampler's record buffers (dyngi.lights.nee)
-        lights.begin_walk(lanes)
+        lights.begin_walk(dr.width(active))
     if directions is not None:            # a learning direction sampler's record buffers
-        directions.begin_walk(lanes)
+        directions.begin_walk(dr.width(active))
     L = mi.Spectrum(0.0)
     L_ind = mi.Spectrum(0.0)
     L_near = mi.Spectrum(0.0)
@@ -438,7 +437,8 @@ def render_paths_split(scene, camera, res, spp: int, seed: int, frame_index: int
     pix = idx // dr.opaque(mi.UInt32, spp) if spp > 1 else idx
     ray = camera.sample_rays(res, pix, sampler.next_2d())
     L, L_ind, n_rays, _ = trace_paths_split(scene.mi_scene if hasattr(scene, "mi_scene") else scene, sampler,
-                                            ray, mi.Bool(True), max_depth, rr_depth, lights, power_heuristic, split,
+                                            ray, dr.full(mi.Bool, True, n), max_depth, rr_depth, lights,
+                                            power_heuristic, split,
                                             directions, stage=stage, lanes=True)
     if split:
         dr.eval(L, L_ind, n_rays)  # one kernel for the whole path loop; outputs evaluated together

@@ -86,6 +86,7 @@ import os
 
 import numpy as np
 
+from ... import rays
 from ...backend import mi
 from ...errors import DyngiError
 from ...metrics.image import mape
@@ -413,7 +414,8 @@ def other_view(scene_name: str, scene) -> tuple:
         a = np.radians(deg)
         turned = np.array([np.cos(a) * d[0] + np.sin(a) * d[2], d[1], -np.sin(a) * d[0] + np.cos(a) * d[2]])
         view = Camera(tuple(c), tuple(c + turned), tuple(cam.up), cam.fov)
-        hits = np.array(scene.mi_scene.ray_intersect(view.sample_rays(res, idx, mi.Point2f(0.5, 0.5))).is_valid())
+        hits = np.array(rays.intersect(scene.mi_scene, view.sample_rays(res, idx, mi.Point2f(0.5, 0.5)),
+                                       stage="other view").is_valid())
         views.append((hits.mean(), view))
         if hits.mean() >= OTHER_VIEW_HITS:
             return view, False
