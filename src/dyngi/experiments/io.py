@@ -76,8 +76,16 @@ def write_mp4(path: str, frames, fps: float = 30.0) -> None:
 
 
 def write_json(path: str, obj) -> None:
-    with open(path, "w") as f:
-        json.dump(obj, f, indent=1, default=_json_default)
+    """Write ``obj`` as JSON to ``path`` atomically (a temporary file beside it, renamed): a reader never sees a
+    half-written file, and an error while writing leaves the former file as it was."""
+    tmp = f"{path}.tmp{os.getpid()}"
+    try:
+        with open(tmp, "w") as f:
+            json.dump(obj, f, indent=1, default=_json_default)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
 
 
 def _json_default(o):

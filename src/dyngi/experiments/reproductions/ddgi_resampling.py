@@ -98,6 +98,7 @@ from ...techniques.base import parse_spec
 from .. import cluster
 from ..claims import Claim, Criterion, claim_rows, claims_json, result_from_values, verdict_table
 from ..denoise import aux_buffers, available, denoise
+from ..io import write_json
 from ..references.path import cached_reference, half_spp, scene_max_depth
 from ..reproduce import paper_table, register_experiment
 from ..runner import run_sequence
@@ -939,10 +940,7 @@ def save_scene(out_dir: str, cfg: dict, fig: dict) -> str:
     """Write one finished scene's figures to ``out_dir/scenes/SCENE.json`` (atomically: a temporary file renamed)."""
     path = _scene_path(out_dir, fig["scene"])
     os.makedirs(os.path.dirname(path), exist_ok=True)
-    tmp = path + ".tmp"
-    with open(tmp, "w") as fh:
-        json.dump({"config": _config_json(cfg), "figure": fig}, fh, default=float)
-    os.replace(tmp, path)
+    write_json(path, {"config": _config_json(cfg), "figure": fig})
     return path
 
 
